@@ -1,0 +1,95 @@
+#!/usr/bin/env bash
+# One idempotent install of the workspace into ./.venv, with no ROS installed beforehand:
+#   1. a Python 3.11 virtual environment with the pinned ROS 2 Jazzy wheels, torch (CPU wheel on
+#      disk), OpenCV contrib and the other libraries (requirements.txt + constraints.txt);
+#   2. the interface package msg_defs/ built with CMake/rosidl into the venv prefix, so that
+#      `import stereo_vehicle_msgs.msg` works with no sourcing;
+#   3. the node packages under src/ installed in editable mode, so their console scripts run.
+# Every step records a hash of its inputs and is skipped when nothing changed: a second run
+# takes a few seconds. Usage: scripts/setup.sh [--force]
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$ROOT/.venv"
+STAMPS="$VENV/.setup-stamps"
+PY="${PYTHON:-python3.11}"
+FORCE=0
+[ "${1:-}" = "--force" ] && FORCE=1
+
+log() { printf '[setup] %s\n' "$*" >&2; }
+# pip, quiet, without the machine's notes about local index folders that do not exist
+pip_install() {
+  PIP_CONSTRAINT= python -m pip install --disable-pip-version-check -q "$@" 2>&1 \
+    | { grep -v "is ignored: it is neither a file nor a directory" || true; }
+  return "${PIPESTATUS[0]}"
+}
+die() { printf '[setup] error: %s\n' "$*" >&2; exit 1; }
+
+# hash of the given files/directories' contents (paths relative to ROOT)
+inputs_hash() {
+  (cd "$ROOT" && find "$@" -type f ! -path '*/__pycache__/*' ! -name '*.pyc' ! -path '*.egg-info*' \
+      -print0 | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
+}
+step_done() { [ "$FORCE" = 0 ] && [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
+mark_done() { mkdir -p "$STAMPS" && printf '%s' "$2" > "$STAMPS/$1"; }
+
+command -v "$PY" >/dev/null 2>&1 || die "$PY not found: the ROS 2 Jazzy wheels need CPython 3.11"
+
+# 1. virtual environment and Python packages
+if [ ! -x "$VENV/bin/python" ]; then
+  log "creating $VENV"
+  "$PY" -m venv "$VENV"
+fi
+# shellcheck disable=SC1091
+source "$VENV/bin/activate"
+h=$(inputs_hash requirements.txt constraints.txt)
+if ! step_done pip "$h"; then
+  log "installing Python packages (ROS 2 Jazzy wheels, torch CPU, OpenCV contrib, ...)"
+  # constraints.txt pins every transitive version; PIP_CONSTRAINT from the machine would
+  # conflict with it, so only ours applies here.
+  pip_install -r "$ROOT/requirements.txt" -c "$ROOT/constraints.txt"
+  mark_done pip "$h"
+fi
+
+# 2. interface package (rosidl) into the venv prefix
+export AMENT_PREFIX_PATH="$VENV"
+h=$(inputs_hash msg_defs requirements.txt constraints.txt)
+if ! step_done msgs "$h"; then
+  log "building msg_defs (stereo_vehicle_msgs) into the venv"
+  # The wheels' exported CMake files hard-code the wheel builder's Python and numpy include
+  # directories; point them at this interpreter's (see ../shared/notes/ros2-from-pip.md).
+  py_inc=$(python -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
+  np_inc=$(python -c 'import numpy; print(numpy.get_include())')
+  for f in "$VENV"/share/*/cmake/export_*__rosidl_generator_pyExport.cmake; do
+    [ -f "$f" ] || continue
+    sed -i -E \
+      -e "s#/opt/python/cp311-cp311/include/python3\.11#${py_inc}#g" \
+      -e "s#[^;\"]*/site-packages/numpy/(_core|core)/include#${np_inc}#g" "$f"
+  done
+  build="$VENV/.build/msg_defs"
+  rm -rf "$build" && mkdir -p "$build"
+  cmake -S "$ROOT/msg_defs" -B "$build" -DCMAKE_BUILD_TYPE=Release \
+      -DCMAKE_INSTALL_PREFIX="$VENV" -DBUILD_TESTING=OFF \
+      -DPython3_EXECUTABLE="$VENV/bin/python" >"$build.log" 2>&1 \
+    || { tail -n 30 "$build.log" >&2; die "cmake configure of msg_defs failed (log: $build.log)"; }
+  cmake --build "$build" -j "$(nproc)" >>"$build.log" 2>&1 \
+    || { tail -n 30 "$build.log" >&2; die "build of msg_defs failed (log: $build.log)"; }
+  cmake --install "$build" >>"$build.log" 2>&1 \
+    || { tail -n 30 "$build.log" >&2; die "install of msg_defs failed (log: $build.log)"; }
+  python -c 'import stereo_vehicle_msgs.msg' \
+    || die "stereo_vehicle_msgs built but does not import"
+  mark_done msgs "$h"
+fi
+
+# 3. node packages (editable: the console scripts run the working tree's code)
+pkgs=(src/*/setup.py)
+touch "$VENV/COLCON_IGNORE"
+h=$(inputs_hash "${pkgs[@]}" $(ls src/*/package.xml src/*/setup.cfg 2>/dev/null))
+if ! step_done nodes "$h"; then
+  log "installing node packages: $(dirname "${pkgs[@]}" | xargs -n1 basename | tr '\n' ' ')"
+  args=()
+  for p in "${pkgs[@]}"; do args+=(-e "$ROOT/$(dirname "$p")"); done
+  pip_install --no-deps --no-build-isolation "${args[@]}"
+  mark_done nodes "$h"
+fi
+log "ready: $VENV (activate with: source .venv/bin/activate)"

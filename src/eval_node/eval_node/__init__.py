@@ -1,0 +1,1 @@
+"""MCAP bag recorder and offline evaluation of the pipeline by KITTI rules."""

@@ -1,0 +1,1 @@
+"""KITTI stereo player, synthetic KITTI-format sequence generator and MCAP bag replay."""

@@ -1,0 +1,119 @@
+"""numpy <-> sensor_msgs/Image and CameraInfo conversion (what cv_bridge would do).
+
+The player owns the image topics, so the conversion every node needs lives here once.
+Supported encodings: rgb8, bgr8, mono8, 8UC1, 8UC3, 32FC1, 16UC1, mono16.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_ENCODINGS = {
+    "rgb8": (np.uint8, 3),
+    "bgr8": (np.uint8, 3),
+    "8UC3": (np.uint8, 3),
+    "mono8": (np.uint8, 1),
+    "8UC1": (np.uint8, 1),
+    "mono16": (np.uint16, 1),
+    "16UC1": (np.uint16, 1),
+    "32FC1": (np.float32, 1),
+}
+
+
+class ImageConversionError(ValueError):
+    """A sensor_msgs/Image cannot be interpreted (bad encoding, size or step)."""
+
+
+def numpy_to_image(array: np.ndarray, encoding: str, header=None):
+    """Build a sensor_msgs/Image from an (H, W) or (H, W, C) array in ``encoding``."""
+    from sensor_msgs.msg import Image
+
+    if encoding not in _ENCODINGS:
+        raise ImageConversionError(f"unsupported encoding {encoding!r}")
+    dtype, channels = _ENCODINGS[encoding]
+    arr = np.ascontiguousarray(array, dtype=dtype)
+    if arr.ndim == 2:
+        arr = arr[:, :, None]
+    if arr.ndim != 3 or arr.shape[2] != channels:
+        raise ImageConversionError(f"array of shape {array.shape} does not fit encoding {encoding}")
+    msg = Image()
+    if header is not None:
+        msg.header = header
+    msg.height, msg.width = int(arr.shape[0]), int(arr.shape[1])
+    msg.encoding = encoding
+    msg.is_bigendian = 0
+    msg.step = int(arr.shape[1] * channels * arr.itemsize)
+    msg.data = arr.tobytes()
+    return msg
+
+
+def image_to_numpy(msg) -> np.ndarray:
+    """View a sensor_msgs/Image as an array (H, W, C) or (H, W) for one channel.
+
+    Raises ImageConversionError for an unknown encoding or inconsistent size/step/data.
+    """
+    if msg.encoding not in _ENCODINGS:
+        raise ImageConversionError(f"unsupported image encoding {msg.encoding!r}")
+    dtype, channels = _ENCODINGS[msg.encoding]
+    row = msg.width * channels * np.dtype(dtype).itemsize
+    if msg.height == 0 or msg.width == 0:
+        raise ImageConversionError("image has zero width or height")
+    if msg.step < row:
+        raise ImageConversionError(f"image step {msg.step} < width*channels*itemsize {row}")
+    data = msg.data
+    buf = np.frombuffer(data.tobytes() if hasattr(data, "tobytes") else bytes(data), np.uint8)
+    if buf.size != msg.step * msg.height:
+        raise ImageConversionError(
+            f"image data has {buf.size} bytes, expected step*height = {msg.step * msg.height}"
+        )
+    rows = buf.reshape(msg.height, msg.step)[:, :row]
+    dt = np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<")
+    arr = np.ascontiguousarray(rows).view(dt).reshape(msg.height, msg.width, channels)
+    arr = arr.astype(dtype, copy=False)
+    return arr[:, :, 0] if channels == 1 else arr
+
+
+def image_to_rgb(msg) -> np.ndarray:
+    """Any supported 8-bit colour/mono image as RGB uint8 (H, W, 3)."""
+    arr = image_to_numpy(msg)
+    if msg.encoding == "bgr8":
+        return arr[:, :, ::-1].copy()
+    if arr.ndim == 2:
+        if arr.dtype != np.uint8:
+            raise ImageConversionError(f"cannot show {msg.encoding} image as RGB")
+        return np.repeat(arr[:, :, None], 3, axis=2)
+    return arr
+
+
+def camera_info_from_projection(P: np.ndarray, width: int, height: int, header=None):
+    """sensor_msgs/CameraInfo of a rectified camera with 3x4 projection ``P``.
+
+    For a rectified stereo pair, the left camera has ``P[0,3] = 0`` and the right one
+    ``P[0,3] = -fx * baseline`` (ROS convention); R is identity, D empty (plumb_bob, zeros).
+    """
+    from sensor_msgs.msg import CameraInfo
+
+    P = np.asarray(P, dtype=float)
+    msg = CameraInfo()
+    if header is not None:
+        msg.header = header
+    msg.width, msg.height = int(width), int(height)
+    msg.distortion_model = "plumb_bob"
+    msg.d = [0.0] * 5
+    msg.k = [float(v) for v in P[:, :3].ravel()]
+    msg.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    msg.p = [float(v) for v in P.ravel()]
+    return msg
+
+
+def stereo_geometry(left_info, right_info) -> tuple[float, float, float, float, float]:
+    """(fx, fy, cx, cy, baseline) of a rectified pair from its two CameraInfo messages."""
+    Pl = np.asarray(left_info.p, dtype=float).reshape(3, 4)
+    Pr = np.asarray(right_info.p, dtype=float).reshape(3, 4)
+    fx = Pl[0, 0]
+    if fx <= 0:
+        raise ImageConversionError("left CameraInfo has no valid projection matrix P")
+    baseline = (Pl[0, 3] - Pr[0, 3]) / fx
+    if baseline <= 0:
+        raise ImageConversionError("right CameraInfo P[0,3] must be -fx*baseline (< 0)")
+    return float(fx), float(Pl[1, 1]), float(Pl[0, 2]), float(Pl[1, 2]), float(baseline)

@@ -1,0 +1,1 @@
+"""SGBM + WLS disparity, point cloud and 3D ranging of 2D vehicle detections."""

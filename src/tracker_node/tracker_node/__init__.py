@@ -1,0 +1,1 @@
+"""3D multi-vehicle tracking (Kalman, particle, unfiltered) with data association."""

@@ -1,0 +1,1 @@
+"""Bring-up of the stereo tracking graph: process launcher, parameters, DDS profile, demo."""
