@@ -14,9 +14,15 @@ setup(
     zip_safe=True,
     maintainer="Perception team",
     maintainer_email="perception@example.com",
-    description="YOLOv2-style vehicle detector with 4-bin orientation (PyTorch), its training CLI and node",
+    description=(
+        "YOLOv2-style vehicle detector with 4-bin orientation (PyTorch), its training CLI and node"
+    ),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "vehicle_detector = detector_node.node:main",
+            "detector_train = detector_node.train:main",
+            "detector_anchors = detector_node.anchors:main",
+        ],
     },
 )

@@ -14,9 +14,12 @@ setup(
     zip_safe=True,
     maintainer="Perception team",
     maintainer_email="perception@example.com",
-    description="MCAP bag recorder and offline evaluation of the pipeline by KITTI rules",
+    description=("MCAP bag recorder and offline evaluation of the pipeline by KITTI rules"),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "bag_recorder = eval_node.recorder:main",
+            "evaluate = eval_node.cli:main",
+        ],
     },
 )

@@ -14,9 +14,15 @@ setup(
     zip_safe=True,
     maintainer="Perception team",
     maintainer_email="perception@example.com",
-    description="KITTI stereo player, synthetic KITTI-format sequence generator and MCAP bag replay",
+    description=(
+        "KITTI stereo player, synthetic KITTI-format sequence generator and MCAP bag replay"
+    ),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "kitti_player = kitti_player_node.node:main",
+            "kitti_synth = kitti_player_node.synthetic:main",
+            "bag_player = kitti_player_node.bag_player:main",
+        ],
     },
 )

@@ -14,9 +14,11 @@ setup(
     zip_safe=True,
     maintainer="Perception team",
     maintainer_email="perception@example.com",
-    description="SGBM + WLS disparity, point cloud and 3D ranging of 2D vehicle detections",
+    description=("SGBM + WLS disparity, point cloud and 3D ranging of 2D vehicle detections"),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "stereo_depth = stereo_depth_node.node:main",
+        ],
     },
 )

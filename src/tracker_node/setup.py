@@ -14,9 +14,12 @@ setup(
     zip_safe=True,
     maintainer="Perception team",
     maintainer_email="perception@example.com",
-    description="3D multi-vehicle tracking (Kalman, particle, unfiltered) with data association",
+    description=("3D multi-vehicle tracking (Kalman, particle, unfiltered) with data association"),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "vehicle_tracker = tracker_node.node:main",
+            "tracker_offline = tracker_node.offline:main",
+        ],
     },
 )

@@ -21,6 +21,9 @@ setup(
     description="Bring-up of the stereo vehicle tracking graph.",
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "stereo_tracking_launch = tracking_bringup.launcher:main",
+            "stereo_tracking_demo = tracking_bringup.demo:main",
+        ],
     },
 )

@@ -138,7 +138,8 @@ def read_calib(path: str | os.PathLike) -> Calibration:
             raise KittiFormatError(f"{path}:{lineno}: {key}: non-numeric value") from None
         if numbers.size != shape[0] * shape[1]:
             raise KittiFormatError(
-                f"{path}:{lineno}: {key}: expected {shape[0] * shape[1]} numbers, got {numbers.size}"
+                f"{path}:{lineno}: {key}: expected {shape[0] * shape[1]} numbers, "
+                f"got {numbers.size}"
             )
         values[name] = numbers.reshape(shape)
     missing = [k for k in ("P0", "P1", "P2", "P3") if k not in values]
