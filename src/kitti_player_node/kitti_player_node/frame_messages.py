@@ -1,0 +1,82 @@
+"""ROS messages of one KITTI frame: stereo CameraInfo pair and KittiFrameLabels ground truth.
+
+Message packages are imported lazily, so the module loads without a ROS installation; the
+inverse conversion (:func:`kitti_objects_from_message`) serves consumers such as the evaluator.
+"""
+
+from __future__ import annotations
+
+from .image_conversion import camera_info_from_projection
+from .kitti import Calibration, KittiObject
+from .playback import stereo_projections
+
+LEFT_FRAME = "left_camera_optical_frame"
+RIGHT_FRAME = "right_camera_optical_frame"
+
+
+def header(stamp_ns: int, frame_id: str):
+    """std_msgs/Header with a stamp given in nanoseconds."""
+    from std_msgs.msg import Header
+
+    h = Header(frame_id=frame_id)
+    h.stamp.sec, h.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return h
+
+
+def stereo_camera_infos(calib: Calibration, width: int, height: int, stamp_ns: int):
+    """(left, right) sensor_msgs/CameraInfo: left P = [K|0], right P[0,3] = -fx * baseline."""
+    P_left, P_right = stereo_projections(calib)
+    left = camera_info_from_projection(P_left, width, height, header(stamp_ns, LEFT_FRAME))
+    right = camera_info_from_projection(P_right, width, height, header(stamp_ns, RIGHT_FRAME))
+    return left, right
+
+
+def kitti_object_message(obj: KittiObject):
+    """stereo_vehicle_msgs/KittiObject of one label row, values as in the label file."""
+    from stereo_vehicle_msgs.msg import KittiObject as KittiObjectMsg
+
+    m = KittiObjectMsg()
+    m.track_id = int(obj.track_id)
+    m.type = obj.type
+    m.truncated = float(obj.truncated)
+    m.occluded = int(obj.occluded)
+    m.alpha = float(obj.alpha)
+    m.x_min, m.y_min, m.x_max, m.y_max = (float(v) for v in obj.bbox)
+    m.height, m.width, m.length = (float(v) for v in obj.dimensions)
+    m.location.x, m.location.y, m.location.z = (float(v) for v in obj.location)
+    m.rotation_y = float(obj.rotation_y)
+    return m
+
+
+def ground_truth_message(
+    sequence: str, frame: int, calib: Calibration, objects: list[KittiObject], stamp_ns: int
+):
+    """stereo_vehicle_msgs/KittiFrameLabels of a frame (every row, DontCare included)."""
+    from stereo_vehicle_msgs.msg import KittiFrameLabels
+
+    m = KittiFrameLabels()
+    m.header = header(stamp_ns, LEFT_FRAME)
+    m.sequence = str(sequence)
+    m.frame_index = int(frame)
+    m.left_camera_offset = [float(v) for v in calib.left_camera_offset]
+    m.objects = [kitti_object_message(o) for o in objects]
+    return m
+
+
+def kitti_objects_from_message(msg) -> list[KittiObject]:
+    """The label rows of a KittiFrameLabels message as :class:`KittiObject` (frame filled in)."""
+    return [
+        KittiObject(
+            type=o.type,
+            truncated=float(o.truncated),
+            occluded=int(o.occluded),
+            alpha=float(o.alpha),
+            bbox=(o.x_min, o.y_min, o.x_max, o.y_max),
+            dimensions=(o.height, o.width, o.length),
+            location=(o.location.x, o.location.y, o.location.z),
+            rotation_y=float(o.rotation_y),
+            frame=int(msg.frame_index),
+            track_id=int(o.track_id),
+        )
+        for o in msg.objects
+    ]

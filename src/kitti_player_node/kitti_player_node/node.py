@@ -1,0 +1,291 @@
+"""``kitti_player`` node: plays a KITTI tracking sequence as a rectified stereo camera.
+
+Per frame, with one shared dataset stamp: ``/clock``, ``/kitti/ground_truth``, left/right
+``camera_info`` and left/right ``image_rect`` (rgb8). Pacing, lockstep, drops and noise are
+decided by :mod:`kitti_player_node.playback`; KITTI files are read through :mod:`.kitti`.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image
+from stereo_vehicle_msgs.msg import KittiFrameLabels, TrackedVehicleArray
+
+from .frame_messages import (
+    LEFT_FRAME,
+    RIGHT_FRAME,
+    ground_truth_message,
+    header,
+    stereo_camera_infos,
+)
+from .image_conversion import numpy_to_image
+from .kitti import KittiFormatError, TrackingSequence
+from .playback import (
+    FrameEvent,
+    PlaybackScheduler,
+    add_snr_noise,
+    frame_noise_rng,
+    select_frames,
+    snr_enabled,
+)
+
+PARAMETERS = {
+    "dataset_root": "",
+    "sequence": "0000",
+    "first_frame": 0,
+    "last_frame": -1,
+    "rate": 10.0,
+    "rate_multiplier": 1.0,
+    "loop": False,
+    "lockstep": False,
+    "lockstep_topic": "/vehicles/tracks",
+    "lockstep_timeout": 10.0,
+    "snr_db": 0.0,
+    "drop_probability": 0.0,
+    "seed": 0,
+    "start_time": 1.0,
+    "wait_for_subscribers": 0,
+    "exit_when_done": True,
+}
+
+
+def _qos(depth: int) -> QoSProfile:
+    return QoSProfile(
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.VOLATILE,
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+    )
+
+
+def _coerce(value, default):
+    """``value`` converted to the type of ``default`` (bool, int, float or str)."""
+    if isinstance(default, bool):
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("true", "false"):
+            return value.lower() == "true"
+        raise ValueError(value)
+    if isinstance(default, int):
+        if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
+            raise ValueError(value)
+        return int(value)
+    if isinstance(default, float):
+        if isinstance(value, bool):
+            raise ValueError(value)
+        return float(value)
+    if isinstance(value, (list, bytes)):
+        raise ValueError(value)
+    return str(value)
+
+
+class PlayerError(RuntimeError):
+    """A parameter or the dataset is unusable; the message names the field or file."""
+
+
+class KittiPlayerNode(Node):
+    """Publishes a KITTI tracking sequence frame by frame (see module docstring)."""
+
+    def __init__(self, **kwargs):
+        super().__init__("kitti_player", **kwargs)
+        self.params = p = self._read_parameters()
+        if not p["dataset_root"]:
+            raise PlayerError("dataset_root: parameter not set")
+        self.sequence = TrackingSequence.open(p["dataset_root"], p["sequence"])
+        try:
+            frames = select_frames(self.sequence.frame_ids, p["first_frame"], p["last_frame"])
+        except ValueError as exc:
+            raise PlayerError(f"first_frame/last_frame: {exc}") from None
+        hz = float(p["rate"]) * float(p["rate_multiplier"])
+        period = 1.0 / hz if hz > 0 and math.isfinite(hz) else 0.0
+        try:
+            self.scheduler = PlaybackScheduler(
+                frames,
+                start_time=float(p["start_time"]),
+                period_s=period,
+                loop=bool(p["loop"]),
+                lockstep_timeout=float(p["lockstep_timeout"]) if p["lockstep"] else None,
+                drop_probability=float(p["drop_probability"]),
+                seed=int(p["seed"]),
+            )
+        except ValueError as exc:
+            raise PlayerError(f"drop_probability: {exc}") from None
+
+        self.pub_left = self.create_publisher(Image, "/stereo/left/image_rect", _qos(5))
+        self.pub_right = self.create_publisher(Image, "/stereo/right/image_rect", _qos(5))
+        self.pub_left_info = self.create_publisher(CameraInfo, "/stereo/left/camera_info", _qos(5))
+        self.pub_right_info = self.create_publisher(
+            CameraInfo, "/stereo/right/camera_info", _qos(5)
+        )
+        self.pub_gt = self.create_publisher(KittiFrameLabels, "/kitti/ground_truth", _qos(10))
+        self.pub_clock = self.create_publisher(Clock, "/clock", _qos(10))
+        if p["lockstep"]:
+            self.create_subscription(
+                TrackedVehicleArray, p["lockstep_topic"], self._on_lockstep, _qos(10)
+            )
+        self.done = False
+        self.error: str | None = None
+        self._started = False
+        self._summary_logged = False
+        self._last_wait_log = 0.0
+        self.timer = self.create_timer(min(0.01, period / 2) if period > 0 else 0.002, self._tick)
+        self.get_logger().info(
+            f"sequence {self.sequence.sequence}: {len(frames)} frames "
+            f"({frames[0]}..{frames[-1]}) from {self.sequence.root}, "
+            f"{'unpaced' if period == 0 else f'{1 / period:.2f} Hz'}"
+            f"{', lockstep on ' + p['lockstep_topic'] if p['lockstep'] else ''}"
+        )
+
+    def _read_parameters(self) -> dict:
+        """Declare every parameter (dynamically typed, so ``sequence:=0005`` or ``rate:=10``
+        work) and coerce it to its default's type; a value that does not fit is a PlayerError."""
+        desc = ParameterDescriptor(dynamic_typing=True)
+        values = {}
+        for name, default in PARAMETERS.items():
+            raw = self.declare_parameter(name, default, desc).value
+            try:
+                values[name] = _coerce(raw, default)
+            except (TypeError, ValueError):
+                raise PlayerError(
+                    f"{name}: expected {type(default).__name__}, got {raw!r}"
+                ) from None
+        seq = values["sequence"]
+        if isinstance(PARAMETERS["sequence"], str) and seq.isdigit():
+            values["sequence"] = f"{int(seq):04d}"
+        return values
+
+    @property
+    def publishers_list(self):
+        return [
+            self.pub_clock,
+            self.pub_gt,
+            self.pub_left_info,
+            self.pub_right_info,
+            self.pub_left,
+            self.pub_right,
+        ]
+
+    def _on_lockstep(self, msg: TrackedVehicleArray) -> None:
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if self.scheduler.acknowledge(stamp):
+            self._tick()
+
+    def _tick(self) -> None:
+        if self.done or self._summary_logged:
+            return
+        now = time.monotonic()
+        if not self._started:
+            want = int(self.params["wait_for_subscribers"])
+            have = self.pub_left.get_subscription_count()
+            if have < want:
+                if now - self._last_wait_log > 2.0:
+                    self._last_wait_log = now
+                    self.get_logger().info(f"waiting for subscribers on left image ({have}/{want})")
+                return
+            self._started = True
+        timeouts = self.scheduler.stats.lockstep_timeouts
+        event = self.scheduler.poll(now)
+        if self.scheduler.stats.lockstep_timeouts > timeouts:
+            self.get_logger().warning(
+                f"lockstep: no message on {self.params['lockstep_topic']} within "
+                f"{self.params['lockstep_timeout']} s, going on"
+            )
+        if event is not None:
+            if not event.dropped:
+                try:
+                    self._publish(event)
+                except KittiFormatError as exc:
+                    self.error = str(exc)
+                    self.get_logger().error(self.error)
+                    self.done = True
+                    return
+            stats = self.scheduler.stats
+            if (stats.published + stats.dropped) % 10 == 0:
+                self.get_logger().info(
+                    f"frame {event.frame}: {stats.published} published, {stats.dropped} dropped"
+                )
+        if self.scheduler.finished:
+            self._log_summary()
+            if self.params["exit_when_done"]:
+                self.done = True
+
+    def _publish(self, event: FrameEvent) -> None:
+        left, right = self.sequence.read_stereo(event.frame)
+        snr = float(self.params["snr_db"])
+        if snr_enabled(snr):
+            rng = frame_noise_rng(self.params["seed"], event.frame, event.loop_pass)
+            left, right = add_snr_noise(left, snr, rng), add_snr_noise(right, snr, rng)
+        calib, stamp = self.sequence.calib, event.stamp_ns
+        clock = Clock()
+        clock.clock = header(stamp, "").stamp
+        self.pub_clock.publish(clock)
+        objects = self.sequence.objects(event.frame)
+        self.pub_gt.publish(
+            ground_truth_message(self.sequence.sequence, event.frame, calib, objects, stamp)
+        )
+        h, w = left.shape[:2]
+        left_info, right_info = stereo_camera_infos(calib, w, h, stamp)
+        self.pub_left_info.publish(left_info)
+        self.pub_right_info.publish(right_info)
+        self.pub_left.publish(numpy_to_image(left, "rgb8", header(stamp, LEFT_FRAME)))
+        self.pub_right.publish(numpy_to_image(right, "rgb8", header(stamp, RIGHT_FRAME)))
+
+    def _log_summary(self) -> None:
+        if self._summary_logged:
+            return
+        self._summary_logged = True
+        s = self.scheduler.stats
+        line = (
+            f"done: {s.published} frames published, {s.dropped} dropped, "
+            f"{s.lockstep_timeouts} lockstep timeouts"
+        )
+        if s.lockstep_timeouts:
+            self.get_logger().warning(line)
+        else:
+            self.get_logger().info(line)
+
+    def flush(self, timeout_s: float = 2.0) -> None:
+        """Wait until subscribers acknowledged everything published (reliable QoS)."""
+        for pub in self.publishers_list:
+            pub.wait_for_all_acked(Duration(seconds=timeout_s))
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``kitti_player``; returns the exit code (2 for a bad dataset/parameter)."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        try:
+            node = KittiPlayerNode()
+        except (KittiFormatError, PlayerError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while rclpy.ok() and not node.done:
+            executor.spin_once(timeout_sec=0.1)
+        if node.error is not None:
+            print(f"error: {node.error}", file=sys.stderr)
+            return 2
+        node.flush()
+        return 0
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,222 @@
+"""Playback logic of the KITTI player, free of ROS: frame schedule and dataset stamps, image noise
+at a given SNR, frame drops, rate pacing and lockstep bookkeeping.
+
+The node (``node.py``) polls a :class:`PlaybackScheduler` from a timer and publishes whatever
+frame it hands out; the scheduler only sees monotonic times passed in, so it is testable offline.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .kitti import Calibration
+
+#: KITTI tracking sequences are recorded at 10 Hz.
+KITTI_FRAME_PERIOD_S = 0.1
+
+
+def stamp_ns(start_time: float, frame: int, loop_pass: int = 0, frames_per_pass: int = 0) -> int:
+    """Dataset time of a frame in nanoseconds: ``start_time + (frame + pass * n) * 0.1 s``.
+
+    Later loop passes continue the time line (``frames_per_pass`` frames per pass), so stamps
+    never go backwards when the sequence repeats.
+    """
+    ticks = frame + loop_pass * frames_per_pass
+    return int(round(start_time * 1e9)) + ticks * int(round(KITTI_FRAME_PERIOD_S * 1e9))
+
+
+def select_frames(frame_ids: list[int], first_frame: int = 0, last_frame: int = -1) -> list[int]:
+    """Frame ids in ``[first_frame, last_frame]`` (``last_frame < 0``: to the end).
+
+    Raises ValueError when the range holds no frame of the sequence.
+    """
+    last = math.inf if last_frame < 0 else last_frame
+    chosen = [f for f in frame_ids if first_frame <= f <= last]
+    if not chosen:
+        raise ValueError(
+            f"no frame in [{first_frame}, {last_frame}] (sequence has frames "
+            f"{frame_ids[0]}..{frame_ids[-1]})"
+            if frame_ids
+            else "sequence has no frames"
+        )
+    return chosen
+
+
+def stereo_projections(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """ROS-convention projection matrices of the rectified pair in the left optical frame:
+    left ``[K | 0]``, right ``[K | (-fx * B, 0, 0)]`` with ``B = calib.baseline``."""
+    K = calib.K
+    left = np.hstack([K, np.zeros((3, 1))])
+    right = left.copy()
+    right[0, 3] = -calib.fx * calib.baseline
+    return left, right
+
+
+# ----------------------------------------------------------------------------- noise, drops
+
+
+def snr_enabled(snr_db: float) -> bool:
+    """Noise is applied for a finite, positive SNR; ``<= 0`` or ``inf`` disables it."""
+    return math.isfinite(snr_db) and snr_db > 0.0
+
+
+def noise_std(signal_std: float, snr_db: float) -> float:
+    """Standard deviation of additive noise giving ``snr_db``: ``signal_std * 10^(-snr/20)``."""
+    return float(signal_std) * 10.0 ** (-float(snr_db) / 20.0)
+
+
+def add_snr_noise(image: np.ndarray, snr_db: float, rng: np.random.Generator) -> np.ndarray:
+    """``image`` (uint8) plus Gaussian pixel noise at ``snr_db`` relative to the image's own
+    standard deviation, rounded and clipped to uint8. Returns the input when SNR is disabled."""
+    if not snr_enabled(snr_db):
+        return image
+    img = np.asarray(image)
+    sigma = noise_std(float(img.std()), snr_db)
+    noisy = img.astype(np.float32) + rng.normal(0.0, sigma, size=img.shape).astype(np.float32)
+    return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+
+
+def frame_noise_rng(seed: int, frame: int, loop_pass: int = 0) -> np.random.Generator:
+    """Noise generator of one frame: reproducible per (seed, frame, pass), whatever was dropped."""
+    return np.random.default_rng([int(seed) & 0xFFFFFFFF, int(frame), int(loop_pass)])
+
+
+def drop_rng(seed: int) -> np.random.Generator:
+    """Generator of the drop decisions (one uniform draw per scheduled frame)."""
+    return np.random.default_rng([int(seed) & 0xFFFFFFFF, 0xD209])
+
+
+# ----------------------------------------------------------------------------- scheduling
+
+
+@dataclass(frozen=True)
+class FrameEvent:
+    """One scheduled frame: its id, loop pass, dataset stamp and whether it is dropped."""
+
+    frame: int
+    loop_pass: int
+    stamp_ns: int
+    dropped: bool
+
+
+@dataclass
+class PlaybackStats:
+    """Counts reported in the player's summary."""
+
+    published: int = 0
+    dropped: int = 0
+    lockstep_timeouts: int = 0
+
+
+class PlaybackScheduler:
+    """Decides when which frame is due.
+
+    - Pacing: one frame every ``period_s`` seconds of wall time (``period_s <= 0``: no pacing).
+    - Lockstep (``lockstep_timeout`` not None): after a published frame, the next one is held back
+      until :meth:`acknowledge` is called with a stamp ``>=`` that frame's stamp, or until the
+      timeout passes (counted in ``stats.lockstep_timeouts``). Dropped frames are not waited for.
+    - Drops: each frame is dropped with ``drop_probability`` (seeded draws).
+
+    Call :meth:`poll` with the current monotonic time; it returns the next due frame or None.
+    """
+
+    def __init__(
+        self,
+        frames: list[int],
+        start_time: float,
+        period_s: float,
+        loop: bool = False,
+        lockstep_timeout: float | None = None,
+        drop_probability: float = 0.0,
+        seed: int = 0,
+    ):
+        if not frames:
+            raise ValueError("no frames to play")
+        if not 0.0 <= drop_probability <= 1.0:
+            raise ValueError(f"drop_probability {drop_probability} not in [0, 1]")
+        self.frames = list(frames)
+        self.start_time = float(start_time)
+        self.period_s = float(period_s)
+        self.loop = bool(loop)
+        self.lockstep_timeout = lockstep_timeout
+        self.drop_probability = float(drop_probability)
+        self.frames_per_pass = self.frames[-1] - self.frames[0] + 1
+        self.stats = PlaybackStats()
+        self._drops = drop_rng(seed)
+        self._index = 0
+        self._pass = 0
+        self._next_due: float | None = None
+        self._awaiting: int | None = None
+        self._awaiting_since = 0.0
+
+    @property
+    def awaiting_stamp_ns(self) -> int | None:
+        """Stamp whose lockstep acknowledgement is awaited, or None."""
+        return self._awaiting
+
+    @property
+    def exhausted(self) -> bool:
+        """All frames were handed out (never true when looping)."""
+        return self._pass > 0 and not self.loop
+
+    @property
+    def finished(self) -> bool:
+        """All frames handed out and no acknowledgement pending."""
+        return self.exhausted and self._awaiting is None
+
+    def acknowledge(self, stamp_ns: int) -> bool:
+        """A lockstep answer with ``stamp_ns`` arrived; True when it releases the next frame."""
+        if self._awaiting is not None and stamp_ns >= self._awaiting:
+            self._awaiting = None
+            return True
+        return False
+
+    def check_timeout(self, now: float) -> bool:
+        """Give up waiting when the lockstep timeout passed; True when it just timed out."""
+        if self._awaiting is None or self.lockstep_timeout is None:
+            return False
+        if now - self._awaiting_since >= self.lockstep_timeout:
+            self._awaiting = None
+            self.stats.lockstep_timeouts += 1
+            return True
+        return False
+
+    def poll(self, now: float) -> FrameEvent | None:
+        """The frame due at ``now`` (monotonic seconds), or None when nothing is due yet."""
+        if self.exhausted:
+            self.check_timeout(now)
+            return None
+        if self._awaiting is not None:
+            self.check_timeout(now)
+            if self._awaiting is not None:
+                return None
+        if self._next_due is None:
+            self._next_due = now
+        if now < self._next_due:
+            return None
+        frame = self.frames[self._index]
+        event = FrameEvent(
+            frame=frame,
+            loop_pass=self._pass,
+            stamp_ns=stamp_ns(self.start_time, frame, self._pass, self.frames_per_pass),
+            dropped=bool(self._drops.random() < self.drop_probability),
+        )
+        if self.period_s > 0:
+            # keep the cadence, but never burst to catch up after a long wait
+            due = self._next_due + self.period_s
+            self._next_due = due if due >= now else now + self.period_s
+        self._index += 1
+        if self._index == len(self.frames):
+            self._index = 0
+            self._pass += 1
+        if event.dropped:
+            self.stats.dropped += 1
+        else:
+            self.stats.published += 1
+            if self.lockstep_timeout is not None:
+                self._awaiting = event.stamp_ns
+                self._awaiting_since = now
+        return event
