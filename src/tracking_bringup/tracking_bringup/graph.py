@@ -1,0 +1,94 @@
+"""The node graph of the stereo tracking pipeline, described once.
+
+Both the project's process launcher (``stereo_tracking_launch``) and the standard ROS launch file
+(``launch/stereo_tracking.launch.py``, for users with a full ROS 2 install) build the graph from
+this description, so the two cannot drift apart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One node process of the graph.
+
+    ``source`` nodes produce the data (the player); the launcher starts them only after every
+    other node's subscriptions are up, so no frame is published into an unready graph.
+    ``finishes`` nodes may exit on their own with code 0 (the player at the end of a sequence).
+    """
+
+    name: str
+    package: str
+    executable: str
+    subscribes: tuple[str, ...] = ()
+    publishes: tuple[str, ...] = ()
+    source: bool = False
+    finishes: bool = False
+    optional: bool = False
+    extra_args: tuple[str, ...] = field(default=())
+
+
+LEFT_IMAGE = "/stereo/left/image_rect"
+RIGHT_IMAGE = "/stereo/right/image_rect"
+LEFT_INFO = "/stereo/left/camera_info"
+RIGHT_INFO = "/stereo/right/camera_info"
+GROUND_TRUTH = "/kitti/ground_truth"
+DETECTIONS_2D = "/vehicles/detections_2d"
+DETECTIONS_3D = "/vehicles/detections_3d"
+TRACKS = "/vehicles/tracks"
+TRACK_MARKERS = "/vehicles/track_markers"
+DISPARITY = "/stereo/disparity"
+
+PLAYER = NodeSpec(
+    name="kitti_player",
+    package="kitti_player_node",
+    executable="kitti_player",
+    subscribes=(TRACKS,),  # lockstep
+    publishes=(LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO, GROUND_TRUTH),
+    source=True,
+    finishes=True,
+)
+DETECTOR = NodeSpec(
+    name="vehicle_detector",
+    package="detector_node",
+    executable="vehicle_detector",
+    subscribes=(LEFT_IMAGE,),
+    publishes=(DETECTIONS_2D,),
+)
+STEREO = NodeSpec(
+    name="stereo_depth",
+    package="stereo_depth_node",
+    executable="stereo_depth",
+    subscribes=(LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO, DETECTIONS_2D),
+    publishes=(DETECTIONS_3D, DISPARITY),
+)
+TRACKER = NodeSpec(
+    name="vehicle_tracker",
+    package="tracker_node",
+    executable="vehicle_tracker",
+    subscribes=(DETECTIONS_3D,),
+    publishes=(TRACKS, TRACK_MARKERS),
+)
+RECORDER = NodeSpec(
+    name="bag_recorder",
+    package="eval_node",
+    executable="bag_recorder",
+    subscribes=(GROUND_TRUTH, DETECTIONS_2D, DETECTIONS_3D, TRACKS),
+    optional=True,
+)
+
+#: The whole pipeline in data-flow order.
+PIPELINE: tuple[NodeSpec, ...] = (PLAYER, DETECTOR, STEREO, TRACKER, RECORDER)
+
+
+def by_name(names: list[str] | None = None) -> list[NodeSpec]:
+    """The pipeline's nodes with the given names (all when None), in data-flow order."""
+    if names is None:
+        return list(PIPELINE)
+    known = {n.name: n for n in PIPELINE}
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ValueError(f"unknown node(s) {', '.join(unknown)}; known: {', '.join(known)}")
+    return [n for n in PIPELINE if n.name in names]

@@ -1,0 +1,403 @@
+"""A process launcher for ROS 2 graphs where ``ros2 launch`` is not available (pip-installed ROS).
+
+It starts each node as its own OS process (real DDS between them) with
+``--ros-args --params-file FILE``, writes one log file per node, checks readiness (every node's
+subscriptions and publications are visible in the ROS graph; data sources such as the player are
+started only once the rest of the graph is up), stops everything cleanly on Ctrl-C or SIGTERM
+(SIGINT to each child in data-flow order, then SIGTERM, then SIGKILL; children are also bound to
+the launcher with PR_SET_PDEATHSIG so none is orphaned), and exits non-zero naming the node when
+one dies.
+
+Command line: ``stereo_tracking_launch [--params FILE] [--nodes a,b] [-p node.param:=value] ...``
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tracking_bringup import graph
+from tracking_bringup.environment import PARAMS_FILE, graph_environment
+
+_PR_SET_PDEATHSIG = 1
+_CLEAN_EXIT_CODES = {0, -signal.SIGINT, 128 + signal.SIGINT, -signal.SIGTERM, 128 + signal.SIGTERM}
+
+
+class LaunchError(RuntimeError):
+    """The graph could not be started, or a node died. ``node`` names it when known."""
+
+    def __init__(self, message: str, node: str | None = None):
+        super().__init__(message)
+        self.node = node
+
+
+@dataclass
+class ProcessSpec:
+    """One process to run: its name (the ROS node name), command line and graph role."""
+
+    name: str
+    argv: list[str]
+    subscribes: tuple[str, ...] = ()
+    publishes: tuple[str, ...] = ()
+    source: bool = False
+    finishes: bool = False
+
+
+@dataclass
+class _Running:
+    spec: ProcessSpec
+    proc: subprocess.Popen
+    log_path: Path
+    log_file: object = field(repr=False)
+    started: float = 0.0
+
+
+def _bind_to_parent() -> None:
+    """In the child before exec: die with SIGTERM when the launcher dies (Linux)."""
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+def resolve_executable(executable: str) -> str:
+    """Path of a console script: next to this interpreter (the venv), else on PATH."""
+    candidate = Path(sys.executable).parent / executable
+    if candidate.is_file():
+        return str(candidate)
+    found = shutil.which(executable)
+    if found is None:
+        raise LaunchError(f"executable {executable!r} not found (is the workspace installed?)")
+    return found
+
+
+def node_command(
+    spec: graph.NodeSpec, params_file: str | os.PathLike | None, overrides: Sequence[str] = ()
+) -> list[str]:
+    """The command line of one graph node: executable + ``--ros-args`` (node name, parameter
+    file, ``-p name:=value`` overrides)."""
+    argv = [resolve_executable(spec.executable), *spec.extra_args, "--ros-args"]
+    argv += ["-r", f"__node:={spec.name}"]
+    if params_file:
+        argv += ["--params-file", str(params_file)]
+    for ov in overrides:
+        argv += ["-p", ov]
+    return argv
+
+
+class GraphLauncher:
+    """Runs a set of processes as one graph. Use as a context manager or call
+    :meth:`start`, :meth:`wait` and :meth:`shutdown`."""
+
+    def __init__(
+        self,
+        specs: Sequence[ProcessSpec],
+        log_dir: str | os.PathLike,
+        env: dict[str, str] | None = None,
+        ready_timeout: float = 60.0,
+        stop_timeout: float = 15.0,
+        echo: bool = False,
+    ):
+        names = [s.name for s in specs]
+        if len(set(names)) != len(names):
+            raise LaunchError(f"duplicate node names in {names}")
+        self.specs = list(specs)
+        self.log_dir = Path(log_dir)
+        self.env = graph_environment(env)
+        self.ready_timeout = ready_timeout
+        self.stop_timeout = stop_timeout
+        self.echo = echo
+        self.running: dict[str, _Running] = {}
+        self._stopping = False
+        self._observer = None
+        self._context = None
+
+    # -- lifecycle -----------------------------------------------------------------------
+
+    def __enter__(self) -> GraphLauncher:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.shutdown()
+
+    def start(self) -> None:
+        """Start the non-source processes, wait until their topics are up, then the sources."""
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            self._open_observer()
+            rest = [s for s in self.specs if not s.source]
+            sources = [s for s in self.specs if s.source]
+            for spec in rest:
+                self._spawn(spec)
+            self._wait_ready(rest)
+            for spec in sources:
+                self._spawn(spec)
+            self._wait_ready(sources)
+        except BaseException:
+            self.shutdown()
+            raise
+
+    def wait(self, until_finished: bool = True, poll: float = 0.2) -> None:
+        """Block while the graph runs. Returns when a ``finishes`` process has exited with
+        code 0 (if ``until_finished``) or when :meth:`request_stop` was called; raises
+        :class:`LaunchError` naming the node when a process dies."""
+        while not self._stopping:
+            for name, run in self.running.items():
+                code = run.proc.poll()
+                if code is None:
+                    continue
+                if run.spec.finishes and code == 0:
+                    if until_finished:
+                        return
+                    continue
+                raise LaunchError(
+                    f"node '{name}' died (exit code {code}); log: {run.log_path}\n"
+                    + _tail(run.log_path),
+                    node=name,
+                )
+            time.sleep(poll)
+
+    def request_stop(self, *_args) -> None:
+        """Ask :meth:`wait` to return (signal handler)."""
+        self._stopping = True
+
+    def shutdown(self) -> dict[str, int]:
+        """Stop every process in data-flow order (SIGINT, then SIGTERM, then SIGKILL) and
+        return their exit codes. Idempotent."""
+        self._stopping = True
+        codes: dict[str, int] = {}
+        for name, run in self.running.items():
+            codes[name] = self._stop(run)
+            run.log_file.close()
+        self.running = {}
+        self._close_observer()
+        return codes
+
+    # -- internals -----------------------------------------------------------------------
+
+    def _spawn(self, spec: ProcessSpec) -> None:
+        log_path = self.log_dir / f"{spec.name}.log"
+        log_file = open(log_path, "ab", buffering=0)  # noqa: SIM115 (closed in shutdown)
+        log_file.write(f"$ {' '.join(spec.argv)}\n".encode())
+        proc = subprocess.Popen(
+            spec.argv,
+            stdin=subprocess.DEVNULL,
+            stdout=None if self.echo else log_file,
+            stderr=subprocess.STDOUT if not self.echo else None,
+            env=self.env,
+            start_new_session=True,  # Ctrl-C reaches the launcher only; it stops the children
+            preexec_fn=_bind_to_parent,
+        )
+        self.running[spec.name] = _Running(spec, proc, log_path, log_file, time.monotonic())
+
+    def _stop(self, run: _Running) -> int:
+        proc = run.proc
+        if proc.poll() is not None:
+            return proc.returncode
+        for sig, timeout in (
+            (signal.SIGINT, self.stop_timeout),
+            (signal.SIGTERM, 5.0),
+            (signal.SIGKILL, 5.0),
+        ):
+            try:
+                proc.send_signal(sig)
+            except ProcessLookupError:
+                break
+            try:
+                return proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                continue
+        return proc.wait()
+
+    def _open_observer(self) -> None:
+        import rclpy
+        from rclpy.context import Context
+
+        os.environ.update(
+            {k: v for k, v in self.env.items() if k.startswith(("ROS_", "RMW_", "FASTRTPS_"))}
+        )
+        self._context = Context()
+        rclpy.init(context=self._context, args=[])
+        self._observer = rclpy.create_node(
+            f"graph_launcher_{os.getpid()}", context=self._context, start_parameter_services=False
+        )
+
+    def _close_observer(self) -> None:
+        if self._observer is not None:
+            self._observer.destroy_node()
+            self._observer = None
+        if self._context is not None:
+            self._context.try_shutdown()
+            self._context = None
+
+    def _missing_endpoints(self, specs: Sequence[ProcessSpec]) -> list[str]:
+        """Human-readable list of endpoints of ``specs`` not yet visible in the graph."""
+        obs = self._observer
+        missing = []
+        for spec in specs:
+            for topic in spec.subscribes:
+                nodes = {i.node_name for i in obs.get_subscriptions_info_by_topic(topic)}
+                if spec.name not in nodes:
+                    missing.append(f"{spec.name} subscription {topic}")
+            for topic in spec.publishes:
+                nodes = {i.node_name for i in obs.get_publishers_info_by_topic(topic)}
+                if spec.name not in nodes:
+                    missing.append(f"{spec.name} publisher {topic}")
+        return missing
+
+    def _wait_ready(self, specs: Sequence[ProcessSpec]) -> None:
+        deadline = time.monotonic() + self.ready_timeout
+        while True:
+            for spec in specs:
+                run = self.running[spec.name]
+                code = run.proc.poll()
+                if code is not None and not (spec.finishes and code == 0):
+                    raise LaunchError(
+                        f"node '{spec.name}' died during start-up (exit code {code}); "
+                        f"log: {run.log_path}\n" + _tail(run.log_path),
+                        node=spec.name,
+                    )
+            missing = self._missing_endpoints(specs)
+            if not missing:
+                return
+            if time.monotonic() > deadline:
+                node = missing[0].split()[0]
+                raise LaunchError(
+                    f"graph not ready after {self.ready_timeout:.0f} s: missing "
+                    + ", ".join(missing),
+                    node=node,
+                )
+            time.sleep(0.1)
+
+
+def _tail(path: Path, lines: int = 15) -> str:
+    try:
+        text = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return ""
+    return "\n".join("    " + line for line in text[-lines:])
+
+
+def graph_processes(
+    nodes: Sequence[graph.NodeSpec],
+    params_file: str | os.PathLike | None = PARAMS_FILE,
+    overrides: Sequence[str] = (),
+) -> list[ProcessSpec]:
+    """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings."""
+    per_node: dict[str, list[str]] = {n.name: [] for n in nodes}
+    for ov in overrides:
+        target, sep, rest = ov.partition(".")
+        if not sep or ":=" not in rest or target not in per_node:
+            raise LaunchError(
+                f"bad parameter override {ov!r}: expected NODE.PARAM:=VALUE with NODE one of "
+                + ", ".join(per_node)
+            )
+        per_node[target].append(rest)
+    return [
+        ProcessSpec(
+            name=n.name,
+            argv=node_command(n, params_file, per_node[n.name]),
+            subscribes=n.subscribes,
+            publishes=n.publishes,
+            source=n.source,
+            finishes=n.finishes,
+        )
+        for n in nodes
+    ]
+
+
+def run_graph(
+    processes: Sequence[ProcessSpec],
+    log_dir: str | os.PathLike,
+    until_finished: bool = True,
+    ready_timeout: float = 60.0,
+    echo: bool = False,
+    announce=print,
+) -> int:
+    """Run processes as a graph until a finishing node is done, Ctrl-C or SIGTERM.
+    Returns the exit code: 0 on a clean run, 1 when a node died (named in the message)."""
+    launcher = GraphLauncher(processes, log_dir, ready_timeout=ready_timeout, echo=echo)
+    previous = {
+        sig: signal.signal(sig, launcher.request_stop) for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    try:
+        launcher.start()
+        announce(f"graph ready: {', '.join(p.name for p in processes)} (logs in {log_dir})")
+        launcher.wait(until_finished=until_finished)
+        return 0
+    except LaunchError as exc:
+        announce(f"error: {exc}")
+        return 1
+    finally:
+        codes = launcher.shutdown()
+        unclean = {n: c for n, c in codes.items() if c not in _CLEAN_EXIT_CODES}
+        if unclean:
+            announce(
+                "warning: unclean exit of "
+                + ", ".join(f"{n} (code {c})" for n, c in unclean.items())
+            )
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="stereo_tracking_launch",
+        description="Start the stereo tracking graph as separate processes (one per node).",
+    )
+    parser.add_argument("--params", default=str(PARAMS_FILE), help="ROS parameter YAML file")
+    parser.add_argument(
+        "--nodes",
+        default=None,
+        help="comma-separated node names (default: all: "
+        + ",".join(n.name for n in graph.PIPELINE)
+        + ")",
+    )
+    parser.add_argument(
+        "-p",
+        "--param",
+        action="append",
+        default=[],
+        metavar="NODE.PARAM:=VALUE",
+        help="override one node parameter (repeatable)",
+    )
+    parser.add_argument("--log-dir", default="output/logs", help="folder for per-node logs")
+    parser.add_argument("--ready-timeout", type=float, default=60.0)
+    parser.add_argument(
+        "--keep-running",
+        action="store_true",
+        help="keep the graph up after the player finished (stop with Ctrl-C)",
+    )
+    parser.add_argument("--echo", action="store_true", help="print node output to the console")
+    args = parser.parse_args(argv)
+    if not Path(args.params).is_file():
+        print(f"error: {args.params}: parameter file not found", file=sys.stderr)
+        return 2
+    try:
+        nodes = graph.by_name(args.nodes.split(",") if args.nodes else None)
+        processes = graph_processes(nodes, args.params, args.param)
+    except (ValueError, LaunchError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return run_graph(
+        processes,
+        args.log_dir,
+        until_finished=not args.keep_running,
+        ready_timeout=args.ready_timeout,
+        echo=args.echo,
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,114 @@
+"""The process launcher: nodes as separate processes exchanging messages over DDS, readiness,
+clean shutdown with nothing left running, and a non-zero exit naming a node that dies."""
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+from tracking_bringup.launcher import GraphLauncher, LaunchError, ProcessSpec, run_graph
+
+NODES = str(Path(__file__).with_name("chatter_nodes.py"))
+
+
+def spec(name, *, source=False, finishes=False, subscribes=(), publishes=(), args=()):
+    return ProcessSpec(
+        name=name,
+        argv=[sys.executable, NODES, name, "--ros-args", *args],
+        subscribes=subscribes,
+        publishes=publishes,
+        source=source,
+        finishes=finishes,
+    )
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # a zombie is not running: look at its state
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().split()[2]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_two_nodes_exchange_messages_and_stop_cleanly(tmp_path):
+    talker = spec("talker", source=True, publishes=("/chatter",))
+    listener = spec("listener", finishes=True, subscribes=("/chatter",), args=("-p", "count:=5"))
+    launcher = GraphLauncher([talker, listener], tmp_path, ready_timeout=30)
+    launcher.start()
+    pids = [r.proc.pid for r in launcher.running.values()]
+    assert len(pids) == 2 and alive(launcher.running["talker"].proc.pid)
+    launcher.wait(until_finished=True)  # returns when the listener heard 5 messages
+    codes = launcher.shutdown()
+    assert codes["listener"] == 0
+    assert codes["talker"] in (0, -2, 130)  # stopped by SIGINT, cleanly
+    assert not any(alive(p) for p in pids)
+    log = (tmp_path / "listener.log").read_text()
+    assert log.count("heard: hello") >= 5
+    assert "listener done after 5 messages" in log
+
+
+def test_dead_node_is_named_and_exit_code_nonzero(tmp_path):
+    talker = spec("talker", source=True, publishes=("/chatter",))
+    crasher = spec("crasher", subscribes=("/chatter",))
+    messages = []
+    code = run_graph([talker, crasher], tmp_path, ready_timeout=30, announce=messages.append)
+    assert code == 1
+    assert any("node 'crasher' died (exit code 3)" in m for m in messages)
+
+
+def test_readiness_timeout_names_the_missing_endpoint(tmp_path):
+    # the listener never publishes /nothing: readiness must fail and name it
+    listener = spec("listener", publishes=("/nothing",))
+    launcher = GraphLauncher([listener], tmp_path, ready_timeout=3)
+    with pytest.raises(LaunchError) as err:
+        launcher.start()
+    assert err.value.node == "listener"
+    assert "listener publisher /nothing" in str(err.value)
+    assert launcher.running == {}
+
+
+def test_sigint_to_launcher_stops_every_child(tmp_path):
+    """Ctrl-C on the launcher process: children stopped, none left running, exit code 0."""
+    import signal
+    import subprocess
+    import time
+    import uuid
+
+    marker = f"marker_{uuid.uuid4().hex}"
+    script = f"""
+import sys
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+from test_launcher import spec
+from tracking_bringup.launcher import run_graph
+talker = spec("talker", source=True, publishes=("/chatter",), args=("-p", "m:={marker}"))
+args = ("-p", "count:=1000000", "-p", "m:={marker}")
+listener = spec("listener", subscribes=("/chatter",), args=args)
+sys.exit(run_graph([talker, listener], {str(tmp_path)!r}, ready_timeout=30))
+"""
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    line = proc.stdout.readline()  # "graph ready: ..."
+    assert line.startswith("graph ready"), line
+
+    def children():
+        found = []
+        for d in Path("/proc").iterdir():
+            if d.name.isdigit():
+                try:
+                    pid = int(d.name)
+                    if pid != proc.pid and marker in (d / "cmdline").read_text() and alive(pid):
+                        found.append(pid)
+                except OSError:
+                    pass
+        return found
+
+    assert len(children()) == 2
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=60) == 0
+    assert children() == []
+    assert "heard: hello" in (tmp_path / "listener.log").read_text()
