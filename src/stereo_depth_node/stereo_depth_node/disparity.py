@@ -1,0 +1,249 @@
+"""Disparity of a rectified stereo pair: semi-global block matching + WLS filtering.
+
+Pure core (numpy/OpenCV, no ROS). A left SGBM matcher and, when ``use_wls`` is set, the matching
+right matcher (``cv2.ximgproc.createRightMatcher``) whose disparities are combined by the
+weighted-least-squares filter (``cv2.ximgproc.createDisparityWLSFilter``, opencv-contrib), as in
+the Stanford stereo tracker (Chan, Galczak & Li, 2019).
+
+The output of :func:`compute_disparity` is a float32 map in pixels of the full-resolution left
+image; pixels without a valid disparity hold :data:`INVALID_DISPARITY` (-1.0, below any valid
+disparity, as stereo_msgs/DisparityImage documents for invalid values).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+#: Value of pixels without a valid disparity (smaller than any valid disparity).
+INVALID_DISPARITY = -1.0
+
+_MODES = {
+    "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
+    "hh": cv2.STEREO_SGBM_MODE_HH,
+    "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    "hh4": cv2.STEREO_SGBM_MODE_HH4,
+}
+
+
+@dataclass(frozen=True)
+class DisparityParams:
+    """Matcher and filter settings (defaults tuned on KITTI 2015, see docs/stereo_depth.md).
+
+    Disparity-related settings (``min_disparity``, ``num_disparities``) are given in pixels of the
+    full-resolution image; with ``downscale`` > 1 the matcher runs on images shrunk by that
+    factor with the disparity range divided accordingly, and the WLS filter (guided by the
+    full-resolution left image) brings the result back to full resolution.
+    """
+
+    min_disparity: int = 0
+    num_disparities: int = 128  # full-resolution pixels; rounded up to a multiple of 16
+    block_size: int = 5
+    p1_factor: float = 8.0  # P1 = p1_factor * channels * block_size^2
+    p2_factor: float = 32.0  # P2 = p2_factor * channels * block_size^2
+    disp12_max_diff: int = 1
+    pre_filter_cap: int = 63
+    uniqueness_ratio: int = 10
+    speckle_window_size: int = 100
+    speckle_range: int = 2
+    mode: str = "sgbm_3way"  # sgbm | hh | sgbm_3way | hh4
+    use_color: bool = False  # match on RGB (3 channels) instead of grayscale
+    use_wls: bool = True
+    wls_lambda: float = 8000.0
+    wls_sigma: float = 1.5
+    wls_lrc_thresh: int = 24  # left-right consistency threshold of the filter (1/16 px units)
+    wls_min_confidence: float = 0.0  # filtered pixels with a lower confidence (0..255) -> invalid
+    downscale: int = 1  # 1 = full resolution, 2 = match at half resolution
+    row_band: tuple[int, int] | None = None  # (top, bottom) rows to match; None = all rows
+
+    def validate(self) -> None:
+        """Raise ValueError for settings OpenCV would reject or misuse."""
+        if self.mode not in _MODES:
+            raise ValueError(f"mode: {self.mode!r} not one of {sorted(_MODES)}")
+        if self.block_size < 1 or self.block_size % 2 == 0:
+            raise ValueError(f"block_size: {self.block_size} must be odd and >= 1")
+        if self.num_disparities < 16:
+            raise ValueError(f"num_disparities: {self.num_disparities} must be >= 16")
+        if self.downscale not in (1, 2, 4):
+            raise ValueError(f"downscale: {self.downscale} must be 1, 2 or 4")
+
+
+def _round16(n: float) -> int:
+    return max(16, int(np.ceil(n / 16.0)) * 16)
+
+
+def create_left_matcher(params: DisparityParams, scale: int = 1) -> cv2.StereoSGBM:
+    """The left SGBM matcher for images shrunk by ``scale``."""
+    channels = 3 if params.use_color else 1
+    area = channels * params.block_size * params.block_size
+    return cv2.StereoSGBM_create(
+        minDisparity=int(params.min_disparity // scale),
+        numDisparities=_round16(params.num_disparities / scale),
+        blockSize=params.block_size,
+        P1=int(params.p1_factor * area),
+        P2=int(params.p2_factor * area),
+        disp12MaxDiff=params.disp12_max_diff,
+        preFilterCap=params.pre_filter_cap,
+        uniquenessRatio=params.uniqueness_ratio,
+        speckleWindowSize=params.speckle_window_size,
+        speckleRange=params.speckle_range,
+        mode=_MODES[params.mode],
+    )
+
+
+def _prepare(img: np.ndarray, params: DisparityParams) -> np.ndarray:
+    if img.ndim == 2:
+        return img if not params.use_color else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    if params.use_color:
+        return cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
+    return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+
+
+def _shrink(img: np.ndarray, scale: int) -> np.ndarray:
+    if scale == 1:
+        return img
+    h, w = img.shape[:2]
+    return cv2.resize(img, (w // scale, h // scale), interpolation=cv2.INTER_AREA)
+
+
+def compute_disparity(
+    left_rgb: np.ndarray, right_rgb: np.ndarray, params: DisparityParams | None = None
+) -> np.ndarray:
+    """Disparity [px] of a rectified pair (RGB uint8 (H, W, 3) or gray (H, W)).
+
+    Returns a float32 (H, W) map; invalid pixels hold :data:`INVALID_DISPARITY`.
+    """
+    params = params or DisparityParams()
+    params.validate()
+    if left_rgb.shape != right_rgb.shape:
+        raise ValueError(f"left {left_rgb.shape} and right {right_rgb.shape} image shapes differ")
+    height, width = left_rgb.shape[:2]
+    out = np.full((height, width), INVALID_DISPARITY, np.float32)
+    top, bottom = 0, height
+    if params.row_band is not None:
+        top = max(0, int(params.row_band[0]))
+        bottom = min(height, int(params.row_band[1]))
+        # keep the band a multiple of the scale so that the filter's resize is exact
+        bottom = top + ((bottom - top) // params.downscale) * params.downscale
+        if bottom - top < 2 * params.block_size * params.downscale:
+            return out
+    left = _prepare(left_rgb[top:bottom], params)
+    right = _prepare(right_rgb[top:bottom], params)
+    band = _match(left, right, left_rgb[top:bottom], params)
+    out[top:bottom] = band
+    return out
+
+
+def _match(
+    left: np.ndarray, right: np.ndarray, left_guide_rgb: np.ndarray, params: DisparityParams
+) -> np.ndarray:
+    scale = params.downscale
+    left_s, right_s = _shrink(left, scale), _shrink(right, scale)
+    matcher = create_left_matcher(params, scale)
+    disp_left = matcher.compute(left_s, right_s)  # int16, 1/16 px at the matching scale
+    full_h, full_w = left.shape[:2]
+    min_d = params.min_disparity
+    if not params.use_wls:
+        disp = disp_left.astype(np.float32) / 16.0
+        valid = disp >= (min_d // scale)
+        if scale != 1:
+            disp = cv2.resize(disp, (full_w, full_h), interpolation=cv2.INTER_NEAREST) * scale
+            valid = cv2.resize(
+                valid.astype(np.uint8), (full_w, full_h), interpolation=cv2.INTER_NEAREST
+            ).astype(bool)
+        valid &= disp > 0
+        return np.where(valid, disp, INVALID_DISPARITY).astype(np.float32)
+
+    right_matcher = cv2.ximgproc.createRightMatcher(matcher)
+    disp_right = right_matcher.compute(right_s, left_s)
+    wls = cv2.ximgproc.createDisparityWLSFilter(matcher)
+    wls.setLambda(params.wls_lambda)
+    wls.setSigmaColor(params.wls_sigma)
+    wls.setLRCthresh(params.wls_lrc_thresh)
+    guide = cv2.cvtColor(left_guide_rgb, cv2.COLOR_RGB2BGR) if left_guide_rgb.ndim == 3 else left
+    # With a full-resolution guide and low-resolution disparities the filter upsamples the
+    # disparities (and multiplies them by the scale) itself.
+    filtered = wls.filter(disp_left, guide, disparity_map_right=disp_right)
+    disp = filtered.astype(np.float32) / 16.0
+    if disp.shape != (full_h, full_w):  # defensive: OpenCV versions differ in the upsampling
+        factor = full_w / disp.shape[1]
+        disp = cv2.resize(disp, (full_w, full_h), interpolation=cv2.INTER_LINEAR) * factor
+    valid = disp > max(0.0, float(min_d))
+    roi = wls.getROI()  # (x, y, w, h) of the area where the filter had both views
+    if roi is not None and len(roi) == 4 and roi[2] > 0:
+        x, y, w, h = (int(v) for v in roi)
+        if scale != 1 and x + w <= full_w // scale + 1 and w < full_w:
+            # ROI reported at the matching scale
+            x, y, w, h = x * scale, y * scale, w * scale, h * scale
+        mask = np.zeros_like(valid)
+        mask[y : y + h, x : x + w] = True
+        valid &= mask
+    if params.wls_min_confidence > 0:
+        conf = wls.getConfidenceMap()
+        if conf is not None and conf.size:
+            conf = np.asarray(conf, np.float32)
+            if conf.shape != valid.shape:
+                conf = cv2.resize(conf, (full_w, full_h), interpolation=cv2.INTER_NEAREST)
+            valid &= conf >= params.wls_min_confidence
+    return np.where(valid, disp, INVALID_DISPARITY).astype(np.float32)
+
+
+def disparity_range(params: DisparityParams) -> tuple[float, float]:
+    """(min, max) disparity in full-resolution pixels the matcher can return."""
+    scale = params.downscale
+    n = _round16(params.num_disparities / scale) * scale
+    lo = float(params.min_disparity)
+    return lo, lo + n - 1.0
+
+
+def d1_error(
+    disparity: np.ndarray, ground_truth: np.ndarray, abs_px: float = 3.0, rel: float = 0.05
+) -> dict[str, float]:
+    """KITTI 2015 D1 figures of a disparity map against ground truth (0 = no ground truth).
+
+    ``d1_all``: share of ground-truth pixels that are bad (|d - gt| > abs_px and > rel * gt),
+    counting pixels without an estimate as bad; ``d1_valid``: the same over estimated pixels only;
+    ``density``: share of ground-truth pixels with an estimate.
+    """
+    gt_mask = ground_truth > 0
+    est = disparity > 0
+    err = np.abs(disparity - ground_truth)
+    bad = (err > abs_px) & (err > rel * ground_truth)
+    n_gt = int(gt_mask.sum())
+    both = gt_mask & est
+    n_both = int(both.sum())
+    bad_all = int((gt_mask & (~est | bad)).sum())
+    return {
+        "d1_all": bad_all / max(n_gt, 1),
+        "d1_valid": int((both & bad).sum()) / max(n_both, 1),
+        "density": n_both / max(n_gt, 1),
+        "n_gt": float(n_gt),
+    }
+
+
+def _fill_along_rows(disp: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    h, w = disp.shape
+    idx = np.where(valid, np.arange(w)[None, :], -1)
+    left_idx = np.maximum.accumulate(idx, axis=1)
+    ridx = np.where(valid, np.arange(w)[None, :], w)
+    right_idx = np.minimum.accumulate(ridx[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(h)[:, None]
+    has_l, has_r = left_idx >= 0, right_idx < w
+    lv = np.where(has_l, disp[rows, np.clip(left_idx, 0, w - 1)], np.inf)
+    rv = np.where(has_r, disp[rows, np.clip(right_idx, 0, w - 1)], np.inf)
+    filled = np.minimum(lv, rv)
+    ok = has_l | has_r
+    return np.where(valid, disp, np.where(ok, filled, 0.0)).astype(np.float32), valid | ok
+
+
+def interpolate_background(disparity: np.ndarray) -> np.ndarray:
+    """Fill invalid pixels as the KITTI devkit does before scoring (each gap of a row takes the
+    smaller, i.e. background, of its two bordering disparities; rows without any estimate take the
+    nearest row's values), so that D1 of sparse and dense maps can be compared."""
+    disp = np.asarray(disparity, np.float32)
+    filled, ok = _fill_along_rows(disp, disp > 0)
+    # rows with no estimate at all: fill along columns (nearest valid row, background choice)
+    filled_t, ok_t = _fill_along_rows(filled.T.copy(), ok.T.copy())
+    return np.where(ok_t.T, filled_t.T, 0.0).astype(np.float32)
