@@ -1,0 +1,157 @@
+"""Replay core (no rclpy): read an MCAP bag (rosbag2 layout or a bare ``.mcap``) as a stream of
+(topic, type name, timestamp, raw CDR bytes) with topic selection and remapping, and pace it.
+
+Used by the ``bag_player`` node (:mod:`.bag_player`), which publishes the bytes as they are.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+
+class BagError(ValueError):
+    """The bag cannot be read or an option does not fit it; the message names what."""
+
+
+@dataclass(frozen=True)
+class BagMessage:
+    """One stored message: output topic (after remapping), type name such as
+    ``std_msgs/msg/String``, receive timestamp in ns and the serialized CDR bytes."""
+
+    topic: str
+    type_name: str
+    timestamp_ns: int
+    data: bytes
+
+
+def parse_remaps(items: Iterable[str]) -> dict[str, str]:
+    """``["/old:=/new", ...]`` -> ``{"/old": "/new"}``."""
+    remap = {}
+    for item in items:
+        old, sep, new = item.partition(":=")
+        if not sep or not old or not new:
+            raise BagError(f"--remap: {item!r} is not of the form /old:=/new")
+        remap[old] = new
+    return remap
+
+
+def parse_topics(items: Iterable[str]) -> list[str] | None:
+    """Comma-separated (and/or repeated) topic lists -> one list, or None for all topics."""
+    topics = [t.strip() for item in items for t in item.split(",") if t.strip()]
+    return topics or None
+
+
+def _reader(path: str | Path):
+    from rosbags.highlevel import AnyReader
+
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f"{path}: bag not found")
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+    return AnyReader([path])
+
+
+def _open(reader, path) -> None:
+    try:
+        reader.open()
+    except Exception as exc:  # rosbags raises several unrelated types for corrupt files
+        raise BagError(f"{path}: cannot read bag ({exc})") from None
+
+
+def bag_topics(path: str | Path) -> dict[str, str]:
+    """``{topic: type name}`` of the bag's connections."""
+    reader = _reader(path)
+    _open(reader, path)
+    try:
+        return {c.topic: c.msgtype for c in reader.connections}
+    finally:
+        reader.close()
+
+
+def iter_bag(
+    path: str | Path,
+    topics: Iterable[str] | None = None,
+    remap: dict[str, str] | None = None,
+) -> Iterator[BagMessage]:
+    """The bag's messages in timestamp order, restricted to ``topics`` (all when None), with
+    topic names remapped. Unknown topics in ``topics`` raise BagError."""
+    remap = remap or {}
+    reader = _reader(path)
+    _open(reader, path)
+    try:
+        available = {c.topic for c in reader.connections}
+        if topics is not None:
+            missing = sorted(set(topics) - available)
+            if missing:
+                raise BagError(f"--topics: {', '.join(missing)} not in bag {path}")
+            conns = [c for c in reader.connections if c.topic in set(topics)]
+        else:
+            conns = list(reader.connections)
+        if not conns:
+            return
+        try:
+            for conn, timestamp, data in reader.messages(connections=conns):
+                yield BagMessage(
+                    remap.get(conn.topic, conn.topic), conn.msgtype, int(timestamp), bytes(data)
+                )
+        except BagError:
+            raise
+        except Exception as exc:
+            raise BagError(f"{path}: cannot read bag ({exc})") from None
+    finally:
+        reader.close()
+
+
+def paced(
+    messages: Iterable[BagMessage],
+    rate: float = 1.0,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> Iterator[BagMessage]:
+    """Yield ``messages`` at their recorded spacing divided by ``rate`` (``rate <= 0``: at once).
+
+    Message i is released at ``t0 + (stamp_i - stamp_0) / rate`` wall seconds, so small delays in
+    publishing do not accumulate.
+    """
+    t0 = first = None
+    for msg in messages:
+        if rate > 0:
+            if t0 is None:
+                t0, first = clock(), msg.timestamp_ns
+            delay = t0 + (msg.timestamp_ns - first) * 1e-9 / rate - clock()
+            if delay > 0:
+                sleep(delay)
+        yield msg
+
+
+def message_class(type_name: str):
+    """The Python message class of ``pkg/msg/Name`` (or ``pkg/Name``)."""
+    parts = type_name.split("/")
+    if len(parts) not in (2, 3) or not all(parts):
+        raise BagError(f"{type_name}: not a ROS message type name")
+    try:
+        return getattr(importlib.import_module(parts[0] + ".msg"), parts[-1])
+    except (ImportError, AttributeError):
+        raise BagError(f"{type_name}: message type not available in this installation") from None
+
+
+def output_types(path: str | Path, topics: list[str] | None, remap: dict[str, str]):
+    """``{output topic: type name}`` of the selected topics after remapping."""
+    types = bag_topics(path)
+    if topics is not None:
+        missing = sorted(set(topics) - set(types))
+        if missing:
+            raise BagError(f"--topics: {', '.join(missing)} not in bag {path}")
+        types = {t: types[t] for t in topics}
+    out: dict[str, str] = {}
+    for topic, type_name in types.items():
+        new = remap.get(topic, topic)
+        if out.get(new, type_name) != type_name:
+            raise BagError(f"--remap: {new} would carry two types ({out[new]}, {type_name})")
+        out[new] = type_name
+    return out
