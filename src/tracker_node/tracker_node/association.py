@@ -1,0 +1,71 @@
+"""Data association: cost matrices (tracks x detections) with gating, and the two solvers.
+
+Solvers: ``hungarian`` (globally optimal, ``scipy.optimize.linear_sum_assignment``) and
+``nearest`` (the paper's greedy: repeatedly take the cheapest remaining track/detection pair).
+Gated-out pairs (cost ``inf``) are never matched.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .overlap import giou_3d_matrix, iou_2d, shape_similarity
+
+
+def euclidean_cost(track_pos: np.ndarray, det_pos: np.ndarray) -> np.ndarray:
+    """Centre distances (N, M) in metres."""
+    d = track_pos[:, None, :] - det_pos[None, :, :]
+    return np.sqrt(np.einsum("nmi,nmi->nm", d, d))
+
+
+def mahalanobis_cost(
+    track_pos: np.ndarray, track_cov: np.ndarray, det_pos: np.ndarray, det_cov: np.ndarray
+) -> np.ndarray:
+    """Squared Mahalanobis distances (N, M) of each detection from each track under the
+    innovation covariance ``S_ij = P_i + R_j`` (P_i the track's predicted position covariance,
+    R_j the detection's)."""
+    d = det_pos[None, :, :] - track_pos[:, None, :]
+    S = track_cov[:, None, :, :] + det_cov[None, :, :, :]
+    sol = np.linalg.solve(S, d[..., None])[..., 0]
+    return np.einsum("nmi,nmi->nm", d, sol)
+
+
+def iou_shape_cost(track_boxes: np.ndarray, det_boxes: np.ndarray) -> np.ndarray:
+    """``1 - IoU * shape similarity`` of 2D boxes (N, 4) vs (M, 4); NaN boxes give cost 1."""
+    aff = iou_2d(track_boxes, det_boxes) * shape_similarity(track_boxes, det_boxes)
+    return 1.0 - np.nan_to_num(aff)
+
+
+def giou_cost(track_boxes: np.ndarray, det_boxes: np.ndarray, candidates=None) -> np.ndarray:
+    """``1 - GIoU`` (in [0, 2]) of 3D boxes (N, 7) vs (M, 7)."""
+    return 1.0 - giou_3d_matrix(track_boxes, det_boxes, candidates)
+
+
+def solve(cost: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray]:
+    """Matched (track rows, detection columns) minimising ``cost`` (inf = forbidden)."""
+    n, m = cost.shape
+    if n == 0 or m == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    valid = np.isfinite(cost)
+    if not valid.any():
+        return np.zeros(0, int), np.zeros(0, int)
+    if method == "hungarian":
+        big = (np.abs(cost[valid]).max() + 1.0) * max(n, m) + 1.0
+        r, c = linear_sum_assignment(np.where(valid, cost, big))
+        ok = valid[r, c]
+        return r[ok], c[ok]
+    if method == "nearest":
+        rows, cols = np.nonzero(valid)
+        order = np.argsort(cost[rows, cols], kind="stable")
+        used_r = np.zeros(n, bool)
+        used_c = np.zeros(m, bool)
+        out_r, out_c = [], []
+        for k in order:
+            i, j = rows[k], cols[k]
+            if not used_r[i] and not used_c[j]:
+                used_r[i] = used_c[j] = True
+                out_r.append(i)
+                out_c.append(j)
+        return np.array(out_r, int), np.array(out_c, int)
+    raise ValueError(f"association: unknown method {method!r}")

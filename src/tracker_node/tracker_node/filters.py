@@ -1,0 +1,118 @@
+"""The motion-filter interface, the unfiltered baseline, and the factory selecting a filter.
+
+Every filter is batched over the tracks (row i = the tracker's i-th track) and offers:
+``add(z, R)``, ``keep(mask)``, ``predict(dt)``, ``update(rows, z, R, dt)`` and the arrays
+``position`` (N, 3), ``velocity`` (N, 3), ``position_cov`` (N, 3, 3), ``velocity_cov`` (N, 3, 3).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from .config import TrackerConfig
+from .kalman import BatchedKalmanFilter
+from .particle import BatchedParticleFilter
+
+
+class MotionFilter(Protocol):
+    """What the tracker needs from a filter (see the module docstring)."""
+
+    name: str
+
+    def __len__(self) -> int: ...
+    def add(self, z: np.ndarray, R: np.ndarray) -> None: ...
+    def keep(self, mask: np.ndarray) -> None: ...
+    def predict(self, dt: float) -> None: ...
+    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray, dt: float) -> None: ...
+
+    @property
+    def position(self) -> np.ndarray: ...
+    @property
+    def velocity(self) -> np.ndarray: ...
+    @property
+    def position_cov(self) -> np.ndarray: ...
+    @property
+    def velocity_cov(self) -> np.ndarray: ...
+
+
+class PassThroughFilter:
+    """The unfiltered baseline: a track's position is its last detection's (held while
+    coasting), its velocity the finite difference of its last two detections."""
+
+    name = "none"
+
+    def __init__(self, init_position_var: float = 1.0, init_velocity_var: float = 50.0):
+        self.pos_var = float(init_position_var)
+        self.vel_var = float(init_velocity_var)
+        self._pos = np.zeros((0, 3))
+        self._vel = np.zeros((0, 3))
+        self._R = np.zeros((0, 3, 3))
+        self._elapsed = np.zeros(0)
+        self._seen = np.zeros(0, dtype=bool)
+
+    def __len__(self) -> int:
+        return len(self._pos)
+
+    def add(self, z: np.ndarray, R: np.ndarray) -> None:
+        m = len(z)
+        self._pos = np.concatenate([self._pos, z])
+        self._vel = np.concatenate([self._vel, np.zeros((m, 3))])
+        self._R = np.concatenate([self._R, R])
+        self._elapsed = np.concatenate([self._elapsed, np.zeros(m)])
+        self._seen = np.concatenate([self._seen, np.zeros(m, dtype=bool)])
+
+    def keep(self, mask: np.ndarray) -> None:
+        self._pos, self._vel, self._R = self._pos[mask], self._vel[mask], self._R[mask]
+        self._elapsed, self._seen = self._elapsed[mask], self._seen[mask]
+
+    def predict(self, dt: float) -> None:
+        self._elapsed = self._elapsed + dt
+
+    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray, dt: float) -> None:
+        if not len(rows):
+            return
+        self._vel[rows] = (z - self._pos[rows]) / np.maximum(self._elapsed[rows], 1e-6)[:, None]
+        self._seen[rows] = True
+        self._pos[rows] = z
+        self._R[rows] = R
+        self._elapsed[rows] = 0.0
+
+    @property
+    def position(self) -> np.ndarray:
+        return self._pos
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return self._vel
+
+    @property
+    def position_cov(self) -> np.ndarray:
+        # the detection's covariance, growing while the track coasts (for gating)
+        grow = (self.vel_var * self._elapsed**2)[:, None, None] * np.eye(3)
+        return self._R + grow
+
+    @property
+    def velocity_cov(self) -> np.ndarray:
+        v = np.where(self._seen, 2.0 * np.trace(self._R, axis1=1, axis2=2) / 3.0 / 0.01, 0.0)
+        v = np.where(self._seen, v, self.vel_var)
+        return v[:, None, None] * np.eye(3)
+
+
+def make_filter(cfg: TrackerConfig) -> MotionFilter:
+    """The batched filter selected by ``cfg.filter``."""
+    if cfg.filter == "kalman":
+        return BatchedKalmanFilter(cfg.process_noise, cfg.init_position_var, cfg.init_velocity_var)
+    if cfg.filter == "particle":
+        return BatchedParticleFilter(
+            cfg.num_particles,
+            cfg.particle_init_radius,
+            cfg.particle_obs_var,
+            cfg.velocity_history,
+            cfg.particle_diffusion,
+            cfg.seed,
+        )
+    if cfg.filter == "none":
+        return PassThroughFilter(cfg.init_position_var, cfg.init_velocity_var)
+    raise ValueError(f"filter: unknown filter {cfg.filter!r}")

@@ -1,0 +1,141 @@
+"""Constant-velocity Kalman filter in 3D (state x, y, z, vx, vy, vz), batched over tracks.
+
+:class:`BatchedKalmanFilter` runs predict/update for all tracks at once in numpy (the tracker's
+filter). :func:`filterpy_reference` builds the equivalent ``filterpy.kalman.KalmanFilter`` for one
+track; it is the documented reference, and the tests check that both give the same estimates.
+
+Model: ``x_k = F(dt) x_{k-1} + w``, ``F = [[I, dt I], [0, I]]``, ``w`` discrete white-noise
+acceleration with spectral density ``q``: ``Q = q [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]]``.
+Measurement: position only, ``z = H x + v``, ``H = [I 0]``, ``v ~ N(0, R)`` with R taken from the
+detection when it has a covariance. Initial covariance: position ``init_position_var`` (1 m^2 in
+the paper), velocity ``init_velocity_var`` (50 (m/s)^2). The update uses the Joseph form, like
+filterpy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_I3 = np.eye(3)
+
+
+def transition(dt: float) -> np.ndarray:
+    """The 6x6 constant-velocity transition matrix F(dt)."""
+    F = np.eye(6)
+    F[:3, 3:] = dt * _I3
+    return F
+
+
+def process_noise(dt: float, q: float) -> np.ndarray:
+    """The 6x6 discrete white-noise-acceleration process covariance Q(dt) for density q."""
+    Q = np.zeros((6, 6))
+    Q[:3, :3] = (dt**3 / 3.0) * _I3
+    Q[:3, 3:] = Q[3:, :3] = (dt**2 / 2.0) * _I3
+    Q[3:, 3:] = dt * _I3
+    return q * Q
+
+
+class BatchedKalmanFilter:
+    """Constant-velocity Kalman filters of N tracks in structure-of-arrays form.
+
+    ``x``: (N, 6) states, ``P``: (N, 6, 6) covariances. Rows are added with :meth:`add` and
+    dropped with :meth:`keep`; row order is the tracker's track order.
+    """
+
+    name = "kalman"
+
+    def __init__(self, q: float, init_position_var: float = 1.0, init_velocity_var: float = 50.0):
+        self.q = float(q)
+        self.P0 = np.diag([init_position_var] * 3 + [init_velocity_var] * 3).astype(float)
+        self.x = np.zeros((0, 6))
+        self.P = np.zeros((0, 6, 6))
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    def add(self, z: np.ndarray, R: np.ndarray) -> None:
+        """Start tracks at positions ``z`` (M, 3), zero velocity. ``R`` (M, 3, 3) unused: the
+        paper's fixed initial covariance is used."""
+        m = len(z)
+        x = np.zeros((m, 6))
+        x[:, :3] = z
+        self.x = np.concatenate([self.x, x])
+        self.P = np.concatenate([self.P, np.broadcast_to(self.P0, (m, 6, 6))])
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Keep only the rows where ``mask`` is true."""
+        self.x = self.x[mask]
+        self.P = self.P[mask]
+
+    def predict(self, dt: float) -> None:
+        """Advance all tracks by ``dt`` seconds."""
+        if not len(self.x):
+            return
+        self.x[:, :3] += dt * self.x[:, 3:]
+        # F P F^T written out blockwise: cheaper than two batched 6x6 products.
+        P = self.P
+        Ppp, Ppv, Pvv = P[:, :3, :3], P[:, :3, 3:], P[:, 3:, 3:]
+        Pvp = P[:, 3:, :3]
+        new = np.empty_like(P)
+        new[:, :3, :3] = Ppp + dt * (Ppv + Pvp) + dt * dt * Pvv
+        new[:, :3, 3:] = Ppv + dt * Pvv
+        new[:, 3:, :3] = Pvp + dt * Pvv
+        new[:, 3:, 3:] = Pvv
+        self.P = new + process_noise(dt, self.q)
+
+    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray, dt: float) -> None:
+        """Correct tracks ``rows`` (M,) with measured positions ``z`` (M, 3), covariances
+        ``R`` (M, 3, 3)."""
+        if not len(rows):
+            return
+        x, P = self.x[rows], self.P[rows]
+        S = P[:, :3, :3] + R
+        PHt = P[:, :, :3]  # (M, 6, 3)
+        K = np.linalg.solve(S, PHt.transpose(0, 2, 1)).transpose(0, 2, 1)  # P H^T S^-1
+        y = z - x[:, :3]
+        x = x + np.einsum("mij,mj->mi", K, y)
+        # Joseph form: (I - KH) P (I - KH)^T + K R K^T
+        IKH = np.broadcast_to(np.eye(6), K.shape[:1] + (6, 6)).copy()
+        IKH[:, :, :3] -= K
+        P = IKH @ P @ IKH.transpose(0, 2, 1) + K @ R @ K.transpose(0, 2, 1)
+        self.x[rows] = x
+        self.P[rows] = P
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.x[:, :3]
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return self.x[:, 3:]
+
+    @property
+    def position_cov(self) -> np.ndarray:
+        return self.P[:, :3, :3]
+
+    @property
+    def velocity_cov(self) -> np.ndarray:
+        return self.P[:, 3:, 3:]
+
+
+def filterpy_reference(
+    z0: np.ndarray,
+    q: float,
+    R: np.ndarray,
+    init_position_var: float = 1.0,
+    init_velocity_var: float = 50.0,
+):
+    """The same filter for one track as a ``filterpy.kalman.KalmanFilter`` (reference).
+
+    Before each ``predict()`` set ``kf.F = transition(dt)`` and ``kf.Q = process_noise(dt, q)``.
+    """
+    from filterpy.kalman import KalmanFilter
+
+    kf = KalmanFilter(dim_x=6, dim_z=3)
+    kf.x = np.concatenate([np.asarray(z0, float), np.zeros(3)])
+    kf.P = np.diag([init_position_var] * 3 + [init_velocity_var] * 3).astype(float)
+    kf.H = np.hstack([_I3, np.zeros((3, 3))])
+    kf.R = np.asarray(R, float)
+    kf.F = transition(0.1)
+    kf.Q = process_noise(0.1, q)
+    return kf

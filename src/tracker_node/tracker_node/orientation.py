@@ -1,0 +1,55 @@
+"""Vehicle heading from the detector's orientation bins and the track's velocity.
+
+The detector's 4 bins are of the KITTI observation angle alpha folded modulo 180 deg, centred on
+0, 45, 90 and 135 deg, so a bin fixes the yaw only up to 180 deg:
+``rotation_y = alpha + atan2(x, z)`` (camera frame, x right, z forward).
+A KITTI box at yaw ``ry`` has its length (front) along ``(cos ry, -sin ry)`` in the camera x-z
+plane (``kitti_player_node.box3d``), so a vehicle moving with velocity ``(vx, vz)`` heads at
+``ry = atan2(-vz, vx)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+BIN_WIDTH = np.pi / 4.0
+
+
+def wrap(a):
+    """Wrap angles to (-pi, pi]."""
+    a = np.asarray(a, dtype=float)
+    out = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
+    return np.where(out == -np.pi, np.pi, out)
+
+
+def yaw_from_bin(orientation_bin, x, z):
+    """A yaw (one of the two 180-degree-apart candidates) from an orientation bin at (x, z)."""
+    return wrap(np.asarray(orientation_bin, float) * BIN_WIDTH + np.arctan2(x, z))
+
+
+def bin_from_alpha(alpha):
+    """The orientation bin (0..3) of observation angles ``alpha`` (folded mod 180 deg)."""
+    folded = np.mod(np.asarray(alpha, float), np.pi)
+    return (np.round(folded / BIN_WIDTH).astype(int)) % 4
+
+
+def heading_from_velocity(vx, vz):
+    """KITTI rotation_y of a vehicle moving with camera-frame velocity (vx, vz)."""
+    return np.arctan2(-np.asarray(vz, float), np.asarray(vx, float))
+
+
+def align_to(yaw, reference):
+    """``yaw`` or ``yaw + pi``, whichever is closer to ``reference`` (resolves the 180-degree
+    ambiguity)."""
+    yaw = np.asarray(yaw, float)
+    flip = np.abs(wrap(yaw - reference)) > np.pi / 2.0
+    return wrap(np.where(flip, yaw + np.pi, yaw))
+
+
+def resolve_heading(yaw, velocity, min_speed: float):
+    """Yaws flipped by 180 deg where needed to agree with the motion direction of tracks whose
+    ground speed (x-z plane) exceeds ``min_speed``; others unchanged. ``velocity``: (N, 3)."""
+    v = np.asarray(velocity, float)
+    speed = np.hypot(v[:, 0], v[:, 2])
+    heading = heading_from_velocity(v[:, 0], v[:, 2])
+    return np.where(speed > min_speed, align_to(yaw, heading), wrap(yaw))
