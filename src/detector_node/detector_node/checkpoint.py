@@ -1,0 +1,57 @@
+"""Checkpoints: tensors + model config, loadable with ``torch.load(weights_only=True)``."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+
+from .model import DetectorConfig, YoloV2Passthrough
+
+#: The checkpoint shipped in the repository (trained on synthetic KITTI-format sequences).
+SHIPPED_CHECKPOINT = Path(__file__).resolve().parent.parent / "models" / "tiny_synthetic.pt"
+FORMAT_VERSION = 1
+
+
+def save_checkpoint(
+    path: str | os.PathLike,
+    model: YoloV2Passthrough,
+    extra: dict | None = None,
+) -> None:
+    """Save the weights, the config (dict of plain values) and optional plain extras
+    (epoch, optimizer state, metrics...)."""
+    state = {
+        "format_version": FORMAT_VERSION,
+        "config": model.config.to_dict(),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+    }
+    if extra:
+        state.update(extra)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(
+    path: str | os.PathLike, device: str | torch.device = "cpu"
+) -> tuple[YoloV2Passthrough, dict]:
+    """Load a checkpoint safely (``weights_only=True``); returns (model in eval mode, raw dict).
+
+    Raises ValueError naming the file when it is missing or not a detector checkpoint.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: checkpoint not found")
+    try:
+        state = torch.load(path, map_location=device, weights_only=True)
+    except Exception as exc:  # unpickling errors come in many types
+        raise ValueError(f"{path}: not a loadable weights-only checkpoint ({exc})") from None
+    if not isinstance(state, dict) or "config" not in state or "state_dict" not in state:
+        raise ValueError(f"{path}: not a detector checkpoint (config/state_dict missing)")
+    model = YoloV2Passthrough(DetectorConfig.from_dict(state["config"]))
+    model.load_state_dict(state["state_dict"])
+    model.to(device).eval()
+    return model, state

@@ -1,0 +1,138 @@
+"""Running the detector on an RGB image: preprocessing, decoding and NMS."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .boxes import decode_raw, nms
+from .checkpoint import SHIPPED_CHECKPOINT, load_checkpoint
+from .dataset import resize_image
+from .model import DetectorConfig, YoloV2Passthrough, split_output
+
+
+@dataclass
+class Detection:
+    """One 2D vehicle detection in original image pixels."""
+
+    box: tuple[float, float, float, float]  # x1, y1, x2, y2 [px]
+    score: float  # objectness (one object class: class confidence is 1)
+    orientation_bin: int
+    orientation_probs: tuple[float, float, float, float]
+
+
+def choose_device(device: str = "auto") -> torch.device:
+    """'auto' -> CUDA when available, else CPU; 'cpu' / 'cuda' as given."""
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if device not in ("cpu", "cuda"):
+        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device 'cuda' requested but CUDA is not available")
+    return torch.device(device)
+
+
+def to_tensor(images: list[np.ndarray], device: torch.device) -> torch.Tensor:
+    """uint8 RGB (H, W, 3) images -> float (B, 3, H, W) in [0, 1]."""
+    x = torch.from_numpy(np.stack(images)).to(device)
+    return x.permute(0, 3, 1, 2).float().div_(255.0)
+
+
+def decode_output(
+    raw: torch.Tensor,
+    config: DetectorConfig,
+    score_threshold: float,
+    nms_iou: float,
+    scale: tuple[float, float] = (1.0, 1.0),
+    max_detections: int = 100,
+) -> list[list[Detection]]:
+    """Raw network output (B, A*9, H, W) -> detections per image, in original px (divided by
+    ``scale`` = input px per original px). Score = sigmoid(objectness); class-agnostic NMS;
+    orientation = argmax of the softmax over the 4 bins."""
+    out = split_output(raw.float(), config.num_anchors)
+    gh, gw = out.shape[-2:]
+    stride = (config.input_width / gw, config.input_height / gh)
+    anchors = torch.tensor(config.anchors, dtype=out.dtype, device=out.device)
+    boxes = decode_raw(out[:, :, :4], anchors, stride)  # (B, A, H, W, 4)
+    scores = torch.sigmoid(out[:, :, 4])
+    probs = torch.softmax(out[:, :, 5:], dim=2).permute(0, 1, 3, 4, 2)  # (B, A, H, W, 4)
+    result = []
+    s = np.array([scale[0], scale[1], scale[0], scale[1]])
+    for i in range(out.shape[0]):
+        sc = scores[i].reshape(-1).cpu().numpy()
+        keep = np.nonzero(sc >= score_threshold)[0]
+        bx = boxes[i].reshape(-1, 4).cpu().numpy()[keep] / s
+        pr = probs[i].reshape(-1, 4).cpu().numpy()[keep]
+        sc = sc[keep]
+        bx[:, [0, 2]] = np.clip(bx[:, [0, 2]], 0, config.input_width / scale[0])
+        bx[:, [1, 3]] = np.clip(bx[:, [1, 3]], 0, config.input_height / scale[1])
+        valid = (bx[:, 2] > bx[:, 0]) & (bx[:, 3] > bx[:, 1])
+        bx, pr, sc = bx[valid], pr[valid], sc[valid]
+        order = nms(bx, sc, nms_iou)[:max_detections]
+        result.append(
+            [
+                Detection(
+                    box=tuple(float(v) for v in bx[j]),
+                    score=float(sc[j]),
+                    orientation_bin=int(np.argmax(pr[j])),
+                    orientation_probs=tuple(float(p) for p in pr[j]),
+                )
+                for j in order
+            ]
+        )
+    return result
+
+
+class CnnDetector:
+    """The CNN backend: a model from a checkpoint plus its input size."""
+
+    def __init__(
+        self,
+        model: YoloV2Passthrough,
+        device: torch.device | str = "cpu",
+        score_threshold: float = 0.3,
+        nms_iou: float = 0.45,
+    ) -> None:
+        self.device = torch.device(device)
+        self.model = model.to(self.device).eval()
+        self.config = model.config
+        self.score_threshold = score_threshold
+        self.nms_iou = nms_iou
+
+    @classmethod
+    def from_checkpoint(
+        cls,
+        path: str = "",
+        device: str = "auto",
+        score_threshold: float = 0.3,
+        nms_iou: float = 0.45,
+        input_width: int = 0,
+        input_height: int = 0,
+    ) -> CnnDetector:
+        """Load ``path`` ('' = the shipped checkpoint); a non-zero input size overrides the
+        checkpoint's (multiples of 32; the network is fully convolutional)."""
+        dev = choose_device(device)
+        model, _ = load_checkpoint(path or SHIPPED_CHECKPOINT, dev)
+        if input_width or input_height:
+            c = model.config
+            w, h = input_width or c.input_width, input_height or c.input_height
+            sx, sy = w / c.input_width, h / c.input_height
+            cfg = DetectorConfig.from_dict(
+                {
+                    **c.to_dict(),
+                    "input_width": w,
+                    "input_height": h,
+                    "anchors": [[aw * sx, ah * sy] for aw, ah in c.anchors],
+                }
+            )
+            model.config = cfg
+        return cls(model, dev, score_threshold, nms_iou)
+
+    @torch.no_grad()
+    def detect(self, rgb: np.ndarray) -> list[Detection]:
+        """Detections in an RGB uint8 image (H, W, 3), boxes in its pixels."""
+        img, scale = resize_image(rgb, self.config.input_width, self.config.input_height)
+        raw = self.model(to_tensor([img], self.device))
+        return decode_output(raw, self.config, self.score_threshold, self.nms_iou, scale)[0]
