@@ -1,0 +1,86 @@
+"""KITTI difficulty levels and class rules shared by the detection and tracking metrics.
+
+Object benchmark (KITTI object devkit, ``evaluate_object.cpp`` / kitti-object-eval-python):
+
+==========  =====================  ==============  ===============
+level       min 2D box height      max occlusion   max truncation
+==========  =====================  ==============  ===============
+easy        40 px                  0 (visible)     0.15
+moderate    25 px                  1               0.30
+hard        25 px                  2               0.50
+==========  =====================  ==============  ===============
+
+Ground truth of the evaluated class outside the level, and ground truth of the neighbouring class
+(``Van`` for ``Car``, ``Person_sitting`` for ``Pedestrian``), is *ignored*: matching it is neither a
+true nor a false positive, missing it is not a false negative. Predictions lower than the level's
+minimum height are ignored too.
+
+Tracking benchmark (KITTI tracking devkit): ground truth counts when occlusion <= 2, truncation <= 0
+and 2D height > 25 px; unmatched tracker boxes of height <= 25 px are ignored.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from kitti_player_node.kitti import KittiObject
+
+
+@dataclass(frozen=True)
+class Difficulty:
+    """One KITTI object-benchmark difficulty level."""
+
+    name: str
+    min_height: float
+    max_occlusion: int
+    max_truncation: float
+
+
+EASY = Difficulty("easy", 40.0, 0, 0.15)
+MODERATE = Difficulty("moderate", 25.0, 1, 0.30)
+HARD = Difficulty("hard", 25.0, 2, 0.50)
+#: The three object-benchmark levels by name.
+DIFFICULTIES: dict[str, Difficulty] = {d.name: d for d in (EASY, MODERATE, HARD)}
+
+#: Tracking devkit limits for counted ground truth and ignored tracker boxes.
+TRACKING_MAX_OCCLUSION = 2
+TRACKING_MAX_TRUNCATION = 0.0
+TRACKING_MIN_HEIGHT = 25.0
+
+#: Neighbouring (ignored) class of each evaluated class.
+NEIGHBOUR_CLASS = {"car": "van", "pedestrian": "person_sitting"}
+
+
+def class_status(obj_type: str, cls: str) -> int:
+    """1 if ``obj_type`` is the evaluated class ``cls``, 0 if it is its neighbouring class
+    (ignored), -1 otherwise (case-insensitive)."""
+    t, c = obj_type.lower(), cls.lower()
+    if t == c:
+        return 1
+    if NEIGHBOUR_CLASS.get(c) == t:
+        return 0
+    return -1
+
+
+def gt_within_difficulty(obj: KittiObject, level: Difficulty) -> bool:
+    """Whether a ground-truth box satisfies a level (height >= min, occlusion, truncation)."""
+    return (
+        obj.height_px >= level.min_height
+        and int(obj.occluded) <= level.max_occlusion
+        and float(obj.truncated) <= level.max_truncation
+    )
+
+
+def gt_counted_for_tracking(obj: KittiObject) -> bool:
+    """Whether the tracking devkit counts a ground-truth box (its class aside)."""
+    return (
+        int(obj.occluded) <= TRACKING_MAX_OCCLUSION
+        and float(obj.truncated) <= TRACKING_MAX_TRUNCATION
+        and obj.height_px > TRACKING_MIN_HEIGHT
+    )
+
+
+def heights(objects: list[KittiObject]) -> np.ndarray:
+    """2D box heights (pixels) of a list of objects, as an array."""
+    return np.array([abs(o.bbox[3] - o.bbox[1]) for o in objects], dtype=float)
