@@ -1,0 +1,137 @@
+"""In-process tests of the vehicle_detector node: oracle and CNN backends, one output per image."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from detector_node.oracle import OracleDetector, StampPairing
+from kitti_player_node.kitti import KittiObject
+
+
+def _objects():
+    return [
+        KittiObject("Car", alpha=math.radians(40), bbox=(100.0, 150.0, 220.0, 230.0)),
+        KittiObject("Van", alpha=math.radians(-90), bbox=(400.0, 140.0, 480.0, 220.0)),
+        KittiObject("Pedestrian", alpha=0.0, bbox=(600.0, 150.0, 620.0, 230.0)),
+        KittiObject("DontCare", bbox=(700.0, 150.0, 760.0, 180.0)),
+    ]
+
+
+def test_oracle_core_noise_drop_and_bins():
+    exact = OracleDetector(score=0.8).detect(_objects())
+    assert [d.box for d in exact] == [(100.0, 150.0, 220.0, 230.0), (400.0, 140.0, 480.0, 220.0)]
+    assert [d.orientation_bin for d in exact] == [1, 2]
+    assert exact[0].orientation_probs == (0.0, 1.0, 0.0, 0.0) and exact[0].score == 0.8
+    cars_only = OracleDetector(positive_types=("Car",)).detect(_objects())
+    assert len(cars_only) == 1
+    noisy = [OracleDetector(box_noise_px=3.0, seed=5).detect(_objects()) for _ in range(2)]
+    assert noisy[0][0].box == noisy[1][0].box  # seeded
+    err = np.array(noisy[0][0].box) - np.array(exact[0].box)
+    assert 0 < np.abs(err).max() < 15
+    dropper = OracleDetector(drop_probability=0.5, seed=1)
+    kept = sum(len(dropper.detect(_objects())) for _ in range(200))
+    assert 150 < kept < 250  # 400 boxes offered, about half kept
+
+
+def test_stamp_pairing_any_order_bounded():
+    p = StampPairing(max_pending=2, max_labels=3)
+    assert p.add_image(1, "img1") == []
+    assert p.add_labels(1, "gt1") == [("img1", "gt1")]
+    assert p.add_labels(2, "gt2") == []
+    assert p.add_image(2, "img2") == [("img2", "gt2")]
+    assert p.add_image(3, "img3") == [] and p.add_image(4, "img4") == []
+    assert p.add_image(5, "img5") == [("img3", None)]  # the oldest is released unpaired
+    assert p.pending_images == 2
+
+
+def _spin_until(executor, cond, timeout):
+    deadline = time.monotonic() + timeout
+    while not cond() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.02)
+    return cond()
+
+
+def _run_node(context, params, publish):
+    """Start the detector with ``params``, wait for matching, call ``publish(pubs)`` and collect
+    the arrays published on /vehicles/detections_2d."""
+    from detector_node.node import VehicleDetectorNode, _qos
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import Image
+    from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2DArray
+
+    det = VehicleDetectorNode(
+        context=context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
+    )
+    test = Node("detector_test", context=context)
+    got = []
+    test.create_subscription(
+        VehicleDetection2DArray, "/vehicles/detections_2d", got.append, _qos(10)
+    )
+    pubs = {
+        "image": test.create_publisher(Image, "/stereo/left/image_rect", _qos(5)),
+        "gt": test.create_publisher(KittiFrameLabels, "/kitti/ground_truth", _qos(10)),
+    }
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(det)
+    ex.add_node(test)
+    need_gt = params.get("backend") == "oracle"
+    assert _spin_until(
+        ex,
+        lambda: (
+            pubs["image"].get_subscription_count() > 0
+            and (not need_gt or pubs["gt"].get_subscription_count() > 0)
+            and det.pub.get_subscription_count() > 0
+        ),
+        10,
+    ), "detector and test node did not match"
+    n = publish(pubs)
+    assert _spin_until(ex, lambda: len(got) >= n, 30), f"got {len(got)} of {n} arrays"
+    ex.spin_once(timeout_sec=0.2)
+    ex.shutdown()
+    det.destroy_node()
+    test.destroy_node()
+    return got
+
+
+def _stamp_ns(h):
+    return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
+
+
+def test_oracle_backend_republishes_ground_truth(rclpy_context):
+    from kitti_player_node.frame_messages import ground_truth_message, header
+    from kitti_player_node.image_conversion import numpy_to_image
+    from kitti_player_node.kitti import stereo_calibration
+
+    calib = stereo_calibration(700.0, 700.0, 620.0, 187.0, 0.54)
+    img = np.zeros((375, 1242, 3), np.uint8)
+
+    def publish(pubs):
+        s1, s2 = 5_000_000_000, 5_100_000_000
+        # frame 1: GT first; frame 2: image first
+        pubs["gt"].publish(ground_truth_message("0000", 0, calib, _objects(), s1))
+        time.sleep(0.05)
+        pubs["image"].publish(numpy_to_image(img, "rgb8", header(s1, "left_camera_optical_frame")))
+        pubs["image"].publish(numpy_to_image(img, "rgb8", header(s2, "left_camera_optical_frame")))
+        time.sleep(0.05)
+        pubs["gt"].publish(ground_truth_message("0000", 1, calib, _objects()[:1], s2))
+        return 2
+
+    got = _run_node(rclpy_context, {"backend": "oracle", "oracle_score": 0.9}, publish)
+    assert len(got) == 2
+    by_stamp = {_stamp_ns(m.header): m for m in got}
+    first, second = by_stamp[5_000_000_000], by_stamp[5_100_000_000]
+    assert first.header.frame_id == "left_camera_optical_frame"
+    assert [d.class_id for d in first.detections] == ["car", "car"]
+    d0 = first.detections[0]
+    assert (d0.bbox.center_x, d0.bbox.center_y, d0.bbox.size_x, d0.bbox.size_y) == pytest.approx(
+        (160.0, 190.0, 120.0, 80.0)
+    )
+    assert d0.orientation_bin == 1 and d0.score == pytest.approx(0.9)
+    assert list(d0.orientation_probs) == pytest.approx([0, 1, 0, 0])
+    assert first.detections[1].orientation_bin == 2
+    assert len(second.detections) == 1
