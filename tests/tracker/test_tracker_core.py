@@ -1,0 +1,243 @@
+"""Core tracker tests: filters, association, lifecycle, orientation (no ROS)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from kitti_player_node.box3d import box_corners
+from tracker_node.config import TrackerConfig, TrackerConfigError
+from tracker_node.kalman import BatchedKalmanFilter, filterpy_reference, process_noise, transition
+from tracker_node.orientation import align_to, bin_from_alpha, heading_from_velocity, yaw_from_bin
+from tracker_node.overlap import giou_3d
+from tracker_node.particle import BatchedParticleFilter
+from tracker_node.tracker import COASTING, CONFIRMED, TENTATIVE, DetectionBatch, Tracker
+
+
+def test_kalman_matches_filterpy_reference():
+    rng = np.random.default_rng(1)
+    q, R = 2.0, np.diag([0.2, 0.1, 0.5])
+    z0 = np.array([1.0, 1.5, 20.0])
+    kf = filterpy_reference(z0, q, R)
+    bf = BatchedKalmanFilter(q)
+    bf.add(z0[None], R[None])
+    for k in range(1, 15):
+        dt = 0.1 if k % 3 else 0.25  # uneven stamps
+        kf.F, kf.Q = transition(dt), process_noise(dt, q)
+        kf.predict()
+        bf.predict(dt)
+        if k % 4 != 0:  # some frames without a measurement
+            z = z0 + np.array([0.5, 0.0, -1.0]) * 0.1 * k + rng.normal(scale=0.3, size=3)
+            kf.update(z)
+            bf.update(np.array([0]), z[None], R[None], dt)
+        np.testing.assert_allclose(bf.x[0], kf.x, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(bf.P[0], kf.P, rtol=1e-9, atol=1e-9)
+
+
+def _cv_targets(starts, vels, k, dt=0.1):
+    return np.asarray(starts, float) + np.asarray(vels, float) * k * dt
+
+
+def test_constant_velocity_target_coasts_through_three_missed_frames():
+    cfg = TrackerConfig(max_staleness=3, measurement_noise=0.1)
+    trk = Tracker(cfg)
+    start, vel = np.array([[2.0, 1.0, 15.0]]), np.array([[1.0, 0.0, 8.0]])
+    out = None
+    for k in range(20):
+        pos = _cv_targets(start, vel, k)
+        dets = DetectionBatch.empty() if k in (15, 16, 17) else DetectionBatch.create(pos)
+        out = trk.step(dets, stamp=100.0 + 0.1 * k)
+        if k in (15, 16, 17):
+            assert len(out) == 1 or k == 17  # reported while confidence allows
+            assert trk.misses[0] == k - 14
+            err = np.linalg.norm(trk.filter.position[0] - pos[0])
+            assert err < 0.2, (k, err)
+            if len(out):
+                assert out.state[0] == COASTING
+    assert list(out.track_id) == [1]
+    assert out.state[0] == CONFIRMED
+    np.testing.assert_allclose(out.velocity[0], vel[0], atol=0.3)
+
+
+def test_dt_comes_from_stamps():
+    trk = Tracker(TrackerConfig(measurement_noise=0.05))
+    for k in range(10):  # 0.5 s between frames, 2 m/s along z
+        trk.step(DetectionBatch.create([[0.0, 1.0, 10.0 + 1.0 * k]]), stamp=0.5 * k)
+    assert trk.filter.velocity[0, 2] == pytest.approx(2.0, abs=0.1)
+
+
+def test_crossing_targets_keep_ids_with_hungarian_mahalanobis():
+    cfg = TrackerConfig(association="hungarian", cost="mahalanobis", measurement_noise=0.2)
+    trk = Tracker(cfg)
+    rng = np.random.default_rng(3)
+    a0, av = np.array([-4.0, 1.0, 20.0]), np.array([8.0, 0.0, 0.0])
+    b0, bv = np.array([4.0, 1.0, 20.6]), np.array([-8.0, 0.0, 0.0])
+    ids_a, ids_b = set(), set()
+    for k in range(11):  # they pass within 0.6 m of each other at k = 5
+        pa = a0 + av * 0.1 * k + rng.normal(scale=0.05, size=3)
+        pb = b0 + bv * 0.1 * k + rng.normal(scale=0.05, size=3)
+        order = [pb, pa] if k % 2 else [pa, pb]
+        out = trk.step(DetectionBatch.create(np.array(order)), stamp=0.1 * k)
+        ia, ib = (1, 0) if k % 2 else (0, 1)
+        for col, ids in ((ia, ids_a), (ib, ids_b)):
+            ids.update(out.track_id[out.det_index == col].tolist())
+    assert ids_a == {1} and ids_b == {2}
+
+
+def test_nearest_and_hungarian_differ_on_a_contested_pair():
+    # greedy takes the globally cheapest pair first; Hungarian minimises the total
+    from tracker_node.association import solve
+
+    cost = np.array([[1.0, 2.0], [1.1, 10.0]])
+    r, c = solve(cost, "nearest")
+    assert dict(zip(r.tolist(), c.tolist(), strict=True)) == {0: 0, 1: 1}  # total 11
+    r2, c2 = solve(cost, "hungarian")
+    assert dict(zip(r2.tolist(), c2.tolist(), strict=True)) == {0: 1, 1: 0}  # total 3.1
+
+
+def test_particle_filter_converges_on_noisy_straight_track():
+    pf = BatchedParticleFilter(num_particles=100, seed=7)
+    rng = np.random.default_rng(7)
+    start, vel = np.array([0.0, 1.0, 10.0]), np.array([0.5, 0.0, 3.0])
+    pf.add(start[None] + rng.normal(scale=0.3, size=(1, 3)), np.eye(3)[None])
+    errs = []
+    for k in range(1, 60):
+        pf.predict(0.1)
+        truth = start + vel * 0.1 * k
+        z = truth + rng.normal(scale=0.3, size=3)
+        pf.update(np.array([0]), z[None], np.eye(3)[None], 0.1)
+        errs.append(np.linalg.norm(pf.position[0] - truth))
+    assert np.mean(errs[-20:]) < 1.0
+    np.testing.assert_allclose(pf.velocity[0], vel, atol=1.5)
+
+
+def test_particle_filter_reseeds_when_weights_vanish():
+    pf = BatchedParticleFilter(seed=0)
+    pf.add(np.array([[0.0, 0.0, 10.0]]), np.eye(3)[None])
+    pf.predict(0.1)
+    far = np.array([[200.0, 0.0, 10.0]])
+    pf.update(np.array([0]), far, np.eye(3)[None], 0.1)
+    assert pf.reseeds == 1
+    assert np.linalg.norm(pf.position[0] - far[0]) < 0.5
+
+
+def test_yaw_geometry_matches_box_corners():
+    # the box front (corners 0, 1: +x in the box frame) points along the heading direction
+    for ry in (-2.5, -1.57, 0.0, 0.7, 3.0):
+        c = box_corners((1.5, 1.6, 4.0), (0.0, 0.0, 0.0), ry)
+        front = c[[0, 1]].mean(axis=0) - c.mean(axis=0)
+        assert heading_from_velocity(front[0], front[2]) == pytest.approx(ry, abs=1e-9)
+
+
+def test_bins_and_yaw_from_labels(shared_kitti):
+    from kitti_player_node.kitti import read_tracking_labels
+
+    labels = read_tracking_labels(shared_kitti / "tracking/training/label_02/0001.txt")
+    n = 0
+    for objs in labels.values():
+        for o in objs:
+            if o.type != "Car":
+                continue
+            x, _, z = o.location
+            yaw = yaw_from_bin(bin_from_alpha(o.alpha), x, z)
+            # one of yaw, yaw+pi lies within half a bin (22.5 deg) of the true rotation_y
+            d = abs(align_to(yaw, o.rotation_y) - o.rotation_y)
+            # (+0.08 rad: KITTI computes alpha from camera 2, rotation_y in camera 0)
+            assert min(d, 2 * np.pi - d) <= np.pi / 8 + 0.08
+            n += 1
+    assert n > 100
+
+
+def test_velocity_disambiguates_180_degree_heading():
+    # a car driving to the right (+x) seen straight ahead: true yaw 0, bin 2 (alpha ~ 90 deg
+    # folded) gives yaw 0 or pi from the bin; the track's velocity must pick 0
+    cfg = TrackerConfig(min_heading_speed=1.0, measurement_noise=0.1)
+    trk = Tracker(cfg)
+    true_yaw = 0.0
+    for k in range(12):
+        x, z = -3.0 + 0.8 * k, 20.0
+        alpha = true_yaw - np.arctan2(x, z) + np.pi  # the detector cannot tell front from back
+        out = trk.step(
+            DetectionBatch.create([[x, 1.0, z]], orientation_bin=[bin_from_alpha(alpha)]),
+            stamp=0.1 * k,
+        )
+    assert abs(out.yaw[0] - true_yaw) < np.pi / 8
+    # the same car moving left gets the opposite heading
+    trk = Tracker(cfg)
+    for k in range(12):
+        x, z = 5.0 - 0.8 * k, 20.0
+        alpha = np.pi - np.arctan2(x, z)
+        out = trk.step(
+            DetectionBatch.create([[x, 1.0, z]], orientation_bin=[bin_from_alpha(alpha)]),
+            stamp=0.1 * k,
+        )
+    assert abs(abs(out.yaw[0]) - np.pi) < np.pi / 8
+
+
+def test_stationary_track_keeps_bin_yaw():
+    trk = Tracker(TrackerConfig(min_heading_speed=1.0))
+    for k in range(5):
+        out = trk.step(DetectionBatch.create([[0.0, 1.0, 20.0]], orientation_bin=[1]), 0.1 * k)
+    assert out.yaw[0] == pytest.approx(np.pi / 4, abs=1e-6)
+
+
+def test_ids_never_reused_and_min_hits():
+    trk = Tracker(TrackerConfig(min_hits=2, max_staleness=1))
+    seen = []
+    for k in range(30):
+        # a vehicle appears for 3 frames, vanishes for 3, at a new place each cycle
+        present = k % 6 < 3
+        pos = [[float(k // 6) * 10.0, 1.0, 20.0]] if present else np.zeros((0, 3))
+        out = trk.step(DetectionBatch.create(pos), 0.1 * k)
+        if present and k % 6 == 0:
+            assert out.state.tolist() == [TENTATIVE]
+        if present and k % 6 == 1:
+            assert out.state.tolist() == [CONFIRMED]
+        seen.append(out.track_id.tolist())
+    first = [ids[0] for ids in seen if ids]
+    assert sorted(set(first)) == [1, 2, 3, 4, 5]
+    assert first == sorted(first)
+
+
+def test_tentative_track_dies_on_first_miss():
+    trk = Tracker(TrackerConfig(min_hits=3))
+    trk.step(DetectionBatch.create([[0.0, 1.0, 10.0]]), 0.0)
+    out = trk.step(DetectionBatch.empty(), 0.1)
+    assert len(out) == 0 and len(trk) == 0
+
+
+@pytest.mark.parametrize("flt", ["kalman", "particle", "none"])
+@pytest.mark.parametrize("cost", ["mahalanobis", "euclidean", "iou2d", "giou3d"])
+def test_every_filter_and_cost_tracks_two_separate_cars(flt, cost):
+    trk = Tracker(TrackerConfig(filter=flt, cost=cost, association="nearest"))
+    for k in range(8):
+        pos = np.array([[-4.0, 1.0, 15.0 + 0.3 * k], [4.0, 1.0, 25.0 - 0.3 * k]])
+        bbox = np.array([[300.0 + k, 150, 420 + k, 230], [800.0 - k, 160, 860 - k, 200]])
+        out = trk.step(
+            DetectionBatch.create(pos, size=[[3.9, 1.6, 1.5]] * 2, yaw=[0.0, 0.0], bbox=bbox),
+            0.1 * k,
+        )
+    assert out.track_id.tolist() == [1, 2]
+    assert out.det_index.tolist() == [0, 1]
+
+
+def test_giou_of_identical_and_disjoint_boxes():
+    a = np.array([0.0, 1.0, 10.0, 4.0, 1.6, 1.5, 0.3])
+    iou, giou = giou_3d(a, a)
+    assert iou == pytest.approx(1.0) and giou == pytest.approx(1.0)
+    b = a.copy()
+    b[0] += 2.0  # half the length along a rotated axis: partial overlap
+    assert 0.0 < giou_3d(a, b)[0] < 1.0
+    c = a.copy()
+    c[2] += 10.0
+    iou, giou = giou_3d(a, c)
+    assert iou == 0.0 and -1.0 < giou < 0.0
+
+
+def test_config_from_yaml(tmp_path):
+    p = tmp_path / "p.yaml"
+    p.write_text("vehicle_tracker:\n  ros__parameters:\n    filter: particle\n    min_hits: 1\n")
+    cfg = TrackerConfig.from_yaml(p)
+    assert cfg.filter == "particle" and cfg.min_hits == 1 and cfg.cost == "mahalanobis"
+    p.write_text("vehicle_tracker:\n  ros__parameters:\n    filter: magic\n")
+    with pytest.raises(TrackerConfigError, match="filter"):
+        TrackerConfig.from_yaml(p)
