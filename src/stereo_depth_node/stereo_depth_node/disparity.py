@@ -57,6 +57,8 @@ class DisparityParams:
     wls_min_confidence: float = 0.0  # filtered pixels with a lower confidence (0..255) -> invalid
     downscale: int = 1  # 1 = full resolution, 2 = match at half resolution
     row_band: tuple[int, int] | None = None  # (top, bottom) rows to match; None = all rows
+    pad_left: bool = True  # pad images on the left so the leftmost num_disparities columns
+    # (which SGBM cannot match) still get disparities where their match lies inside the right view
 
     def validate(self) -> None:
         """Raise ValueError for settings OpenCV would reject or misuse."""
@@ -129,10 +131,19 @@ def compute_disparity(
         bottom = top + ((bottom - top) // params.downscale) * params.downscale
         if bottom - top < 2 * params.block_size * params.downscale:
             return out
-    left = _prepare(left_rgb[top:bottom], params)
-    right = _prepare(right_rgb[top:bottom], params)
-    band = _match(left, right, left_rgb[top:bottom], params)
-    out[top:bottom] = band
+    left_rgb, right_rgb = left_rgb[top:bottom], right_rgb[top:bottom]
+    pad = 0
+    if params.pad_left:
+        pad = int(disparity_range(params)[1]) + 1
+        pad += (-pad) % (16 * params.downscale)
+
+        def padded(img: np.ndarray) -> np.ndarray:
+            return cv2.copyMakeBorder(img, 0, 0, pad, 0, cv2.BORDER_CONSTANT, value=0)
+
+        left_rgb, right_rgb = padded(left_rgb), padded(right_rgb)
+    left, right = _prepare(left_rgb, params), _prepare(right_rgb, params)
+    band = _match(left, right, left_rgb, params)
+    out[top:bottom] = band[:, pad:]
     return out
 
 

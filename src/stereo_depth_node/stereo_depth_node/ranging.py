@@ -126,7 +126,8 @@ def robust_disparity(
     nbins = max(1, int(np.ceil((hi - lo) / params.mode_bin)) + 1)
     hist, edges = np.histogram(logd, bins=nbins, range=(lo, lo + nbins * params.mode_bin))
     # smooth with a 3-bin window so that a surface split across two bins stays one mode
-    sm = np.convolve(hist.astype(float), [1.0, 1.0, 1.0], mode="same")
+    hp = np.pad(hist.astype(float), 1)
+    sm = hp[:-2] + hp[1:-1] + hp[2:]
     padded = np.concatenate([[-1.0], sm, [-1.0]])
     peaks = np.flatnonzero((sm >= padded[:-2]) & (sm > padded[2:]) & (sm > 0))
     if peaks.size == 0:

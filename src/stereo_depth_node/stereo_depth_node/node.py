@@ -1,0 +1,349 @@
+"""ROS 2 node ``stereo_depth``: disparity, optional point cloud, and 3D ranging of 2D detections.
+
+Subscribes to the rectified stereo pair, its CameraInfos and ``/vehicles/detections_2d``; publishes
+``/stereo/disparity`` (stereo_msgs/DisparityImage, invalid pixels -1.0), ``/stereo/points``
+(sensor_msgs/PointCloud2, off by default) and ``/vehicles/detections_3d``. Left and right images
+are paired, and detection arrays matched to their stereo frame, by exact header stamp through
+bounded caches (:mod:`.stamp_sync`). All computation is in the pure core modules.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+
+import numpy as np
+from kitti_player_node.image_conversion import (
+    ImageConversionError,
+    image_to_rgb,
+    numpy_to_image,
+)
+
+from .disparity import DisparityParams, compute_disparity, disparity_range
+from .ranging import RangingParams, range_boxes
+from .reprojection import StereoGeometry, decimated_points
+from .stamp_sync import ExactStampSync
+
+NODE_NAME = "stereo_depth"
+TOPIC_LEFT = "/stereo/left/image_rect"
+TOPIC_RIGHT = "/stereo/right/image_rect"
+TOPIC_LEFT_INFO = "/stereo/left/camera_info"
+TOPIC_RIGHT_INFO = "/stereo/right/camera_info"
+TOPIC_DETECTIONS_2D = "/vehicles/detections_2d"
+TOPIC_DISPARITY = "/stereo/disparity"
+TOPIC_POINTS = "/stereo/points"
+TOPIC_DETECTIONS_3D = "/vehicles/detections_3d"
+
+# Parameter names that differ from the core dataclass field names.
+_RENAMED = {"method": "ranging_method"}
+_NODE_PARAMS = {
+    "publish_disparity": True,
+    "publish_points": False,
+    "points_decimation": 4,
+    "points_max_depth": 80.0,
+    "points_rgb": False,
+    "sync_cache_size": 10,
+    "match_rows": [0, 0],  # [top, bottom) rows to match; bottom <= top means all rows
+}
+
+
+def _param_default(value):
+    if isinstance(value, tuple):
+        return [float(v) for v in value]
+    return value
+
+
+def _core_fields(cls):
+    for f in dataclasses.fields(cls):
+        if f.name == "row_band":
+            continue
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        yield f.name, _RENAMED.get(f.name, f.name), default
+
+
+def _stamp_key(header) -> tuple[int, int]:
+    return int(header.stamp.sec), int(header.stamp.nanosec)
+
+
+@dataclasses.dataclass
+class _Frame:
+    """A processed stereo frame waiting for its detection array (None fields: it failed)."""
+
+    header: object
+    disparity: np.ndarray | None
+    geometry: StereoGeometry | None
+
+
+def build_point_cloud(points: np.ndarray, colours: np.ndarray | None, header):
+    """sensor_msgs/PointCloud2 of (N, 3) float32 points (+ packed rgb float32 when given)."""
+    from sensor_msgs.msg import PointCloud2, PointField
+
+    fields = [
+        PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
+        for i, n in enumerate("xyz")
+    ]
+    cols = [points.astype(np.float32)]
+    if colours is not None:
+        fields.append(PointField(name="rgb", offset=12, datatype=PointField.FLOAT32, count=1))
+        c = colours.astype(np.uint32)
+        packed = ((c[:, 0] << 16) | (c[:, 1] << 8) | c[:, 2]).astype(np.uint32)
+        cols.append(packed.view(np.float32)[:, None])
+    data = np.ascontiguousarray(np.hstack(cols), dtype=np.float32)
+    msg = PointCloud2()
+    msg.header = header
+    msg.height, msg.width = 1, int(data.shape[0])
+    msg.fields = fields
+    msg.is_bigendian = False
+    msg.point_step = 4 * data.shape[1]
+    msg.row_step = msg.point_step * msg.width
+    msg.is_dense = True
+    msg.data = data.tobytes()
+    return msg
+
+
+def _make_node_class():
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile
+    from sensor_msgs.msg import CameraInfo, Image
+    from stereo_msgs.msg import DisparityImage
+    from stereo_vehicle_msgs.msg import (
+        VehicleDetection2DArray,
+        VehicleDetection3D,
+        VehicleDetection3DArray,
+    )
+
+    class StereoDepthNode(Node):
+        """Thin ROS wrapper around compute_disparity / range_boxes."""
+
+        def __init__(self, **kwargs):
+            super().__init__(NODE_NAME, **kwargs)
+            self.disparity_params = self._read_disparity_params()
+            self.ranging_params = self._read_ranging_params()
+            p = {k: self.declare_parameter(k, v).value for k, v in _NODE_PARAMS.items()}
+            self.publish_disparity = bool(p["publish_disparity"])
+            self.publish_points = bool(p["publish_points"])
+            self.points_decimation = int(p["points_decimation"])
+            self.points_max_depth = float(p["points_max_depth"])
+            self.points_rgb = bool(p["points_rgb"])
+            cache = max(1, int(p["sync_cache_size"]))
+            self.pair_sync = ExactStampSync(("left", "right"), cache)
+            self.frame_sync = ExactStampSync(("frame", "detections"), cache)
+            self.left_info = None
+            self.right_info = None
+            self.dropped_detection_arrays = 0
+            self.unranged_detections = 0
+            self.frames_processed = 0
+
+            self.pub_disparity = self.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)
+            self.pub_points = None
+            if self.publish_points:
+                from sensor_msgs.msg import PointCloud2
+
+                self.pub_points = self.create_publisher(PointCloud2, TOPIC_POINTS, 5)
+            self.pub_det3d = self.create_publisher(VehicleDetection3DArray, TOPIC_DETECTIONS_3D, 10)
+            self._msg_types = (DisparityImage, VehicleDetection3D, VehicleDetection3DArray)
+            self.create_subscription(Image, TOPIC_LEFT, lambda m: self._on_image("left", m), 5)
+            self.create_subscription(Image, TOPIC_RIGHT, lambda m: self._on_image("right", m), 5)
+            self.create_subscription(CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, 5)
+            self.create_subscription(CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, 5)
+            self.create_subscription(
+                VehicleDetection2DArray,
+                TOPIC_DETECTIONS_2D,
+                self._on_detections,
+                QoSProfile(depth=10),
+            )
+
+        # ------------------------------------------------------------------ parameters
+        def _declare_fields(self, cls) -> dict:
+            values = {}
+            for field, name, default in _core_fields(cls):
+                value = self.declare_parameter(name, _param_default(default)).value
+                if isinstance(default, tuple):
+                    value = tuple(float(v) for v in value)
+                values[field] = value
+            return values
+
+        def _read_disparity_params(self) -> DisparityParams:
+            params = DisparityParams(**self._declare_fields(DisparityParams))
+            params.validate()
+            return params
+
+        def _read_ranging_params(self) -> RangingParams:
+            params = RangingParams(**self._declare_fields(RangingParams))
+            params.validate()
+            return params
+
+        def _match_band(self, height: int):
+            top, bottom = (int(v) for v in self.get_parameter("match_rows").value)
+            if bottom <= top:
+                return None
+            return (max(0, top), min(height, bottom))
+
+        # ------------------------------------------------------------------ callbacks
+        def _on_left_info(self, msg) -> None:
+            self.left_info = msg
+
+        def _on_right_info(self, msg) -> None:
+            self.right_info = msg
+
+        def _on_image(self, side: str, msg) -> None:
+            group = self.pair_sync.add(_stamp_key(msg.header), side, msg)
+            for ev in self.pair_sync.take_evicted():
+                self.get_logger().warning(
+                    f"stereo pair at stamp {ev.stamp[0]}.{ev.stamp[1]:09d} incomplete (missing "
+                    f"{', '.join(ev.missing(self.pair_sync.slots))}); dropped"
+                )
+            if group is not None:
+                self._process_pair(group["left"], group["right"])
+
+        def _on_detections(self, msg) -> None:
+            self._add_to_frame_sync(_stamp_key(msg.header), "detections", msg)
+
+        def _add_to_frame_sync(self, key, slot, value) -> None:
+            group = self.frame_sync.add(key, slot, value)
+            for ev in self.frame_sync.take_evicted():
+                if "detections" in ev.values:
+                    self.dropped_detection_arrays += 1
+                    self.get_logger().warning(
+                        f"{TOPIC_DETECTIONS_2D}: detection array at stamp "
+                        f"{ev.stamp[0]}.{ev.stamp[1]:09d} dropped, its stereo frame never arrived "
+                        f"({self.dropped_detection_arrays} dropped so far)"
+                    )
+            if group is not None:
+                self._publish_detections(group["frame"], group["detections"])
+
+        # ------------------------------------------------------------------ processing
+        def _process_pair(self, left_msg, right_msg) -> None:
+            frame = _Frame(left_msg.header, None, None)
+            try:
+                frame.geometry = self._geometry()
+                left = image_to_rgb(left_msg)
+                right = image_to_rgb(right_msg)
+                if left.shape != right.shape:
+                    raise ImageConversionError(
+                        f"left {left.shape[1]}x{left.shape[0]} and right "
+                        f"{right.shape[1]}x{right.shape[0]} sizes differ"
+                    )
+                params = dataclasses.replace(
+                    self.disparity_params, row_band=self._match_band(left.shape[0])
+                )
+                frame.disparity = compute_disparity(left, right, params)
+            except (ImageConversionError, ValueError) as exc:
+                self.get_logger().warning(f"{TOPIC_LEFT}/{TOPIC_RIGHT}: {exc}; frame skipped")
+                frame.disparity = None
+            if frame.disparity is not None:
+                self.frames_processed += 1
+                if self.publish_disparity:
+                    self.pub_disparity.publish(self._disparity_msg(frame))
+                if self.pub_points is not None:
+                    pts, rgb = decimated_points(
+                        frame.disparity,
+                        frame.geometry,
+                        self.points_decimation,
+                        left if self.points_rgb else None,
+                        self.points_max_depth,
+                    )
+                    self.pub_points.publish(build_point_cloud(pts, rgb, left_msg.header))
+            self._add_to_frame_sync(_stamp_key(left_msg.header), "frame", frame)
+
+        def _geometry(self) -> StereoGeometry:
+            if self.left_info is None or self.right_info is None:
+                raise ValueError("no CameraInfo received yet on both camera_info topics")
+            return StereoGeometry.from_camera_infos(self.left_info, self.right_info)
+
+        def _disparity_msg(self, frame: _Frame):
+            DisparityImage = self._msg_types[0]
+            msg = DisparityImage()
+            msg.header = frame.header
+            msg.image = numpy_to_image(frame.disparity, "32FC1", frame.header)
+            msg.f = float(frame.geometry.fx)
+            msg.t = float(frame.geometry.baseline)
+            lo, hi = disparity_range(self.disparity_params)
+            msg.min_disparity, msg.max_disparity = float(lo), float(hi)
+            p = self.disparity_params
+            msg.delta_d = 1.0 / 16.0 if p.use_wls else p.downscale / 16.0
+            valid = frame.disparity > 0
+            if valid.any():
+                rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+                msg.valid_window.x_offset, msg.valid_window.y_offset = int(cols[0]), int(rows[0])
+                msg.valid_window.width = int(cols[-1] - cols[0] + 1)
+                msg.valid_window.height = int(rows[-1] - rows[0] + 1)
+            return msg
+
+        def _publish_detections(self, frame: _Frame, det_msg) -> None:
+            _, VehicleDetection3D, VehicleDetection3DArray = self._msg_types
+            out = VehicleDetection3DArray()
+            out.header = frame.header if frame.disparity is not None else det_msg.header
+            dets = list(det_msg.detections)
+            if frame.disparity is not None and dets:
+                boxes, bins = [], []
+                for d in dets:
+                    b = d.bbox
+                    boxes.append(
+                        [
+                            b.center_x - b.size_x / 2,
+                            b.center_y - b.size_y / 2,
+                            b.center_x + b.size_x / 2,
+                            b.center_y + b.size_y / 2,
+                        ]
+                    )
+                    bins.append(int(d.orientation_bin))
+                results = range_boxes(
+                    frame.disparity, boxes, frame.geometry, self.ranging_params, bins
+                )
+            else:
+                results = [None] * len(dets)
+            for d, r in zip(dets, results, strict=True):
+                if r is None:
+                    self.unranged_detections += 1
+                    self.get_logger().debug(
+                        f"detection {d.id!r}: no valid depth in its box "
+                        f"({self.unranged_detections} unranged so far)"
+                    )
+                    continue
+                m = VehicleDetection3D()
+                m.id, m.class_id, m.score = d.id, d.class_id, float(d.score)
+                m.position.x, m.position.y, m.position.z = (float(v) for v in r.position)
+                m.position_covariance = [float(v) for v in r.covariance.ravel()]
+                m.bbox = d.bbox
+                m.orientation_bin = d.orientation_bin
+                m.orientation_probs = [float(v) for v in d.orientation_probs]
+                m.disparity = float(r.disparity)
+                m.valid_pixel_fraction = float(r.valid_pixel_fraction)
+                out.detections.append(m)
+            self.pub_det3d.publish(out)
+
+    return StereoDepthNode
+
+
+def create_node(**kwargs):
+    """A StereoDepthNode (rclpy must be initialised; kwargs go to rclpy.node.Node)."""
+    return _make_node_class()(**kwargs)
+
+
+def main(args=None) -> int:
+    """Console script ``stereo_depth``."""
+    import cv2
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    cv2.setNumThreads(2)
+    rclpy.init(args=args)
+    try:
+        node = create_node()
+    except ValueError as exc:
+        print(f"error: parameters: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,143 @@
+"""Disparity and reprojection core: synthetic pairs with known disparity, Q, KITTI baseline."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from stereo_depth_node.disparity import (
+    INVALID_DISPARITY,
+    DisparityParams,
+    compute_disparity,
+    d1_error,
+    interpolate_background,
+)
+from stereo_depth_node.reprojection import StereoGeometry, decimated_points, reproject
+
+# KITTI tracking 0005 (camera 2/3): fx, fy, cx, cy and the 0.54 m baseline
+KITTI = StereoGeometry(721.5377, 721.5377, 609.5593, 172.854, 0.5371)
+
+
+def textured_pair(disparity: int, height: int = 120, width: int = 320, seed: int = 0):
+    """A random-texture RGB pair whose right image is the left one shifted by ``disparity``."""
+    rng = np.random.default_rng(seed)
+    big = rng.integers(0, 256, (height, width + disparity, 3), dtype=np.uint8)
+    big = cv2.GaussianBlur(big, (3, 3), 0)
+    left = np.ascontiguousarray(big[:, :width])  # left pixel x shows what right shows at x - d
+    right = np.ascontiguousarray(big[:, disparity:])
+    return left, right
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        DisparityParams(num_disparities=64, use_wls=False),
+        DisparityParams(num_disparities=64, use_wls=True),
+        DisparityParams(num_disparities=64, use_wls=True, downscale=2),
+        DisparityParams(num_disparities=64, use_wls=True, pad_left=False),
+    ],
+    ids=["sgbm", "wls", "wls-half", "wls-nopad"],
+)
+def test_constant_disparity_is_recovered(params):
+    left, right = textured_pair(24)
+    disp = compute_disparity(left, right, params)
+    assert disp.shape == left.shape[:2] and disp.dtype == np.float32
+    valid = disp > 0
+    assert np.all(disp[~valid] == INVALID_DISPARITY)
+    inner = disp[10:-10, 80:-10]  # away from the borders
+    assert (inner > 0).mean() > 0.9
+    assert abs(float(np.median(inner[inner > 0])) - 24.0) < 0.5
+    assert np.mean(np.abs(inner[inner > 0] - 24.0) < 1.0) > 0.9
+
+
+def test_left_padding_recovers_the_left_border():
+    left, right = textured_pair(16, width=256)
+    padded = compute_disparity(left, right, DisparityParams(num_disparities=64, use_wls=False))
+    plain = compute_disparity(
+        left, right, DisparityParams(num_disparities=64, use_wls=False, pad_left=False)
+    )
+    border_p, border_n = padded[10:-10, 20:60], plain[10:-10, 20:60]
+    assert (border_n > 0).mean() < 0.1  # SGBM leaves the first num_disparities columns empty
+    assert (border_p > 0).mean() > 0.9
+    assert abs(float(np.median(border_p[border_p > 0])) - 16.0) < 0.5
+
+
+def test_row_band_only_fills_its_rows():
+    left, right = textured_pair(20)
+    p = DisparityParams(num_disparities=48, use_wls=True, row_band=(40, 100))
+    disp = compute_disparity(left, right, p)
+    assert np.all(disp[:40] == INVALID_DISPARITY) and np.all(disp[100:] == INVALID_DISPARITY)
+    band = disp[45:95, 80:-10]
+    assert abs(float(np.median(band[band > 0])) - 20.0) < 0.5
+
+
+def test_bad_settings_and_shapes_raise():
+    left, right = textured_pair(8)
+    with pytest.raises(ValueError):
+        compute_disparity(left, right, DisparityParams(block_size=4))
+    with pytest.raises(ValueError):
+        compute_disparity(left, right[:, :-2], DisparityParams())
+
+
+def test_d1_error_counts_bad_and_missing_pixels():
+    gt = np.full((4, 5), 20.0, np.float32)
+    gt[0, 0] = 0.0  # no ground truth: ignored
+    est = gt.copy()
+    est[1, 1] = 24.0  # bad (4 px and 20 %)
+    est[1, 2] = 22.0  # within 3 px: good
+    est[2, 2] = INVALID_DISPARITY  # hole
+    e = d1_error(est, gt)
+    assert e["n_gt"] == 19
+    assert e["d1_all"] == pytest.approx(2 / 19)
+    assert e["d1_valid"] == pytest.approx(1 / 18)
+    assert e["density"] == pytest.approx(18 / 19)
+
+
+def test_interpolate_background_takes_the_smaller_neighbour():
+    d = np.array([[-1, 10, -1, -1, 30, -1]], np.float32)
+    filled = interpolate_background(d)
+    np.testing.assert_allclose(filled, [[10, 10, 10, 10, 30, 30]])
+
+
+def test_reprojection_gives_kitti_depth():
+    # 38.75 px disparity at the KITTI baseline: z = f B / d = 10.0 m
+    d = KITTI.fx * KITTI.baseline / 10.0
+    disp = np.full((375, 1242), d, np.float32)
+    disp[0, 0] = INVALID_DISPARITY
+    pts, valid = reproject(disp, KITTI)
+    assert not valid[0, 0] and np.all(np.isnan(pts[0, 0]))
+    np.testing.assert_allclose(pts[valid][:, 2], 10.0, rtol=1e-5)
+    u, v = 1000, 300
+    np.testing.assert_allclose(
+        pts[v, u], [(u - KITTI.cx) * 10 / KITTI.fx, (v - KITTI.cy) * 10 / KITTI.fy, 10.0], rtol=1e-5
+    )
+    # same points as OpenCV's reprojection with our Q
+    cv_pts = cv2.reprojectImageTo3D(disp, KITTI.q_matrix.astype(np.float32))
+    np.testing.assert_allclose(cv_pts[v, u], pts[v, u], rtol=1e-4)
+    assert KITTI.depth(d) == pytest.approx(10.0)
+
+
+def test_geometry_from_camera_infos_builds_q():
+    from kitti_player_node.image_conversion import camera_info_from_projection
+
+    K = np.array([[700.0, 0, 600], [0, 710.0, 180], [0, 0, 1]])
+    Pl = np.hstack([K, np.zeros((3, 1))])
+    Pr = np.hstack([K, np.array([[-700.0 * 0.5], [0], [0]])])
+    geo = StereoGeometry.from_camera_infos(
+        camera_info_from_projection(Pl, 1200, 360), camera_info_from_projection(Pr, 1200, 360)
+    )
+    assert (geo.fx, geo.fy, geo.cx, geo.cy) == (700.0, 710.0, 600.0, 180.0)
+    assert geo.baseline == pytest.approx(0.5)
+    X = geo.q_matrix @ np.array([650.0, 200.0, 35.0, 1.0])
+    np.testing.assert_allclose(X[:3] / X[3], [50 * 10 / 700, 20 * 10 / 710, 10.0])
+
+
+def test_decimated_points_subsample_and_clip_depth():
+    disp = np.full((40, 60), KITTI.fx * KITTI.baseline / 20.0, np.float32)
+    disp[:, :30] = KITTI.fx * KITTI.baseline / 100.0  # beyond max_depth
+    rgb = np.zeros((40, 60, 3), np.uint8)
+    rgb[..., 1] = 200
+    pts, cols = decimated_points(disp, KITTI, step=4, rgb=rgb, max_depth=80.0)
+    assert pts.shape == (10 * 7, 3) and cols.shape == (70, 3)  # columns 32..56
+    np.testing.assert_allclose(pts[:, 2], 20.0, rtol=1e-5)
+    assert np.all(cols[:, 1] == 200)
