@@ -284,3 +284,23 @@ class BagWriter:
         tmp = self.path / "metadata.yaml.tmp"
         tmp.write_text(out.getvalue())
         tmp.replace(self.path / "metadata.yaml")
+
+
+def ros_type_name(msg) -> str:
+    """``pkg/msg/Type`` of an rclpy message instance."""
+    return f"{type(msg).__module__.split('.')[0]}/msg/{type(msg).__name__}"
+
+
+def write_bag(path: str | Path, messages, **options) -> dict[str, int]:
+    """Write ``(topic, rclpy message, receive time ns)`` items to a new bag (for tools and
+    tests; needs rclpy for serialisation). ``options`` go to :class:`BagWriter`."""
+    from rclpy.serialization import serialize_message
+
+    writer = BagWriter(path, **options)
+    try:
+        for topic, msg, t_ns in messages:
+            writer.add_topic(topic, ros_type_name(msg))
+            writer.write(topic, serialize_message(msg), t_ns)
+    finally:
+        counts = writer.close()
+    return counts

@@ -1,0 +1,246 @@
+"""Offline evaluation of a recorded run (a bag of the pipeline's topics) by KITTI rules.
+
+:func:`evaluate_bag` reads the bag (:mod:`eval_node.bag_reader`), takes the ground truth from
+the recorded ``/kitti/ground_truth`` or from KITTI label files, and computes, in one dict that is
+also the JSON output:
+
+- ``detections_3d`` / ``tracks_3d``: 3D localisation AP (centre distance 1.5/3/5/10 m) per
+  difficulty of the unfiltered 3D detections and of the tracks (AP|R40, fractions);
+- ``detections_2d``: 2D AP at IoU 0.5 and 0.7 (AP|R40) and Pascal VOC 11-point AP at 0.5;
+- ``orientation``: orientation-bin accuracy and 4x4 confusion of the 2D detections;
+- ``tracking``: CLEAR-MOT and HOTA of the tracks; ``velocity``: velocity error and stability;
+- ``filter_comparison``: the tracker core re-run on the recorded 3D detections with each
+  filter (Table 1, 3D AP at 1.5 m per difficulty);
+- ``throughput``: frames processed, frames per second and latency from receive times;
+- ``curves``: sampled precision/recall curves for the report's figures.
+
+All AP values are fractions in [0, 1]; NaN (``null`` in JSON) where nothing is counted.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from kitti_player_node.kitti import KittiObject, read_calib, read_tracking_labels
+
+from eval_node.bag_reader import (
+    DET3D_TOPIC,
+    GT_TOPIC,
+    TRACKS_TOPIC,
+    BagReadError,
+    RecordedRun,
+    read_run,
+)
+from eval_node.detection_metrics import orientation_accuracy, precision_recall, voc07_ap
+from eval_node.tracking_metrics import evaluate_tracking, match_tracks
+
+DISTANCES = (1.5, 3.0, 5.0, 10.0)
+IOUS = (0.5, 0.7)
+LEVELS = ("easy", "moderate", "hard")
+
+
+def key(threshold: float) -> str:
+    """JSON key of a threshold: 1.5 -> "1.5", 3.0 -> "3"."""
+    return f"{float(threshold):g}"
+
+
+def load_labels(labels_dir: str | Path, sequence: str) -> dict[int, list[KittiObject]]:
+    """Ground truth of ``sequence`` from ``labels_dir/SSSS.txt`` (or ``labels_dir/label_02/``)."""
+    d = Path(labels_dir)
+    for cand in (d / f"{sequence}.txt", d / "label_02" / f"{sequence}.txt"):
+        if cand.is_file():
+            return read_tracking_labels(cand)
+    raise BagReadError(f"{d / (sequence + '.txt')}: label file of sequence {sequence} not found")
+
+
+def _ap_table(gt, pred, criterion: str, thresholds, curves: dict | None = None) -> dict:
+    table: dict[str, dict[str, float]] = {}
+    for t in thresholds:
+        row = {}
+        for level in LEVELS:
+            pr = precision_recall(gt, pred, criterion=criterion, threshold=t, difficulty=level)
+            row[level] = pr.ap_r40
+            row[f"{level}_r11"] = pr.ap_r11
+            if curves is not None:
+                curves.setdefault(level, {})[key(t)] = {
+                    "precision": pr.precision.tolist(),
+                    "recall": pr.recall.tolist(),
+                }
+        table[key(t)] = row
+    return table
+
+
+def tracking_scores(gt, tracks) -> dict:
+    """CLEAR-MOT + HOTA of the tracks (KITTI devkit rules, 2D IoU 0.5) and CLEAR-MOT with 3D
+    IoU 0.25 under ``iou3d``."""
+    res = evaluate_tracking(gt, tracks, similarity="iou2d")
+    res.pop("hota_per_alpha", None)
+    res3 = evaluate_tracking(gt, tracks, similarity="iou3d", hota=False)
+    res["iou3d"] = {k: v for k, v in res3.items() if k != "all_rows"}
+    return res
+
+
+def _frame_dt(run: RecordedRun) -> dict[int, float]:
+    """Seconds between each frame and the previous recorded one (0.1 s for the first)."""
+    out, prev = {}, None
+    for f in run.frames:
+        out[f.frame] = (
+            (f.stamp_ns - prev.stamp_ns) * 1e-9 / max(f.frame - prev.frame, 1)
+            if (prev is not None and f.stamp_ns > prev.stamp_ns)
+            else 0.1
+        )
+        prev = f
+    return out
+
+
+def velocity_scores(run: RecordedRun, gt) -> dict:
+    """Velocity error of the tracks against ground-truth finite differences, and stability.
+
+    Tracks are paired with ground truth by the tracking matcher (2D IoU 0.5); a ground-truth
+    velocity is the central (or one-sided) difference of the object's centre of mass over
+    neighbouring frames of the same track id. ``rmse``/``mean``/``median`` [m/s] of the 3D
+    velocity error norm; ``jitter`` [m/s]: RMS of the frame-to-frame change of each track's
+    velocity (lower is steadier); ``n_pairs``."""
+    vel_of = {}
+    for f in run.frames:
+        for o, v in zip(f.tracks, f.track_velocities, strict=False):
+            vel_of[id(o)] = v
+    tracks = {f.frame: f.tracks for f in run.frames}
+    dt = _frame_dt(run)
+    centres: dict[tuple[int, int], np.ndarray] = {}
+    for k, objs in gt.items():
+        for o in objs:
+            if o.track_id >= 0 and not o.is_dontcare:
+                centres[(o.track_id, k)] = o.centre_of_mass
+    errors = []
+    for k, pairs in match_tracks(gt, tracks).items():
+        for g, p in pairs:
+            a, b = centres.get((g.track_id, k - 1)), centres.get((g.track_id, k + 1))
+            c = centres[(g.track_id, k)]
+            if a is not None and b is not None:
+                v_gt = (b - a) / (dt.get(k, 0.1) + dt.get(k + 1, 0.1))
+            elif a is not None:
+                v_gt = (c - a) / dt.get(k, 0.1)
+            elif b is not None:
+                v_gt = (b - c) / dt.get(k + 1, 0.1)
+            else:
+                continue
+            errors.append(float(np.linalg.norm(vel_of[id(p)] - v_gt)))
+    by_track: dict[int, list[np.ndarray]] = {}
+    for f in run.frames:
+        for o, v in zip(f.tracks, f.track_velocities, strict=False):
+            by_track.setdefault(o.track_id, []).append(v)
+    steps = [
+        float(np.linalg.norm(d))
+        for vs in by_track.values()
+        if len(vs) > 1
+        for d in np.diff(np.array(vs), axis=0)
+    ]
+    e = np.array(errors)
+    return {
+        "rmse": float(np.sqrt(np.mean(e**2))) if len(e) else math.nan,
+        "mean": float(e.mean()) if len(e) else math.nan,
+        "median": float(np.median(e)) if len(e) else math.nan,
+        "jitter": float(np.sqrt(np.mean(np.square(steps)))) if steps else math.nan,
+        "n_pairs": int(len(e)),
+    }
+
+
+def trajectories(run: RecordedRun, gt) -> dict:
+    """Bird's-eye-view paths (x, z in camera 0) per ground-truth and track id."""
+    out: dict[str, dict] = {"gt": {}, "tracks": {}}
+    for k in sorted(gt):
+        for o in gt[k]:
+            if not o.is_dontcare and o.type in ("Car", "Van"):
+                out["gt"].setdefault(str(o.track_id), []).append([o.location[0], o.location[2]])
+    for f in run.frames:
+        for o in f.tracks:
+            out["tracks"].setdefault(str(o.track_id), []).append([o.location[0], o.location[2]])
+    return out
+
+
+def _throughput(run: RecordedRun) -> dict:
+    t_tracks = [f.receive_ns[TRACKS_TOPIC] for f in run.frames if TRACKS_TOPIC in f.receive_ns]
+    lat = [
+        (f.receive_ns[TRACKS_TOPIC] - f.receive_ns[GT_TOPIC]) * 1e-6
+        for f in run.frames
+        if TRACKS_TOPIC in f.receive_ns and GT_TOPIC in f.receive_ns
+    ]
+    stamps = [f.stamp_ns for f in run.frames if TRACKS_TOPIC in f.receive_ns]
+    out = {
+        "frames": len(run.frames),
+        "frames_with_tracks": len(t_tracks),
+        "frames_with_detections_3d": sum(DET3D_TOPIC in f.receive_ns for f in run.frames),
+        "fps": math.nan,
+        "dataset_fps": math.nan,
+        "latency_ms_mean": float(np.mean(lat)) if lat else math.nan,
+        "latency_ms_max": float(np.max(lat)) if lat else math.nan,
+    }
+    if len(t_tracks) > 1:
+        span = (max(t_tracks) - min(t_tracks)) * 1e-9
+        out["fps"] = (len(t_tracks) - 1) / span if span > 0 else math.nan
+        span_s = (max(stamps) - min(stamps)) * 1e-9
+        out["dataset_fps"] = (len(stamps) - 1) / span_s if span_s > 0 else math.nan
+    return out
+
+
+def evaluate_bag(
+    bag_path: str | Path,
+    labels_dir: str | Path | None = None,
+    sequence: str | None = None,
+    run_filters: bool = True,
+    tracker_config=None,
+    progress: bool = False,
+    calib_dir: str | Path | None = None,
+) -> dict:
+    """Evaluate a recorded run; returns the results dict described in the module docstring.
+    Raises BagReadError (a KittiFormatError) naming the file for unusable input."""
+    run = read_run(bag_path, progress=progress)
+    if not run.frames:
+        raise BagReadError(f"{bag_path}: no frames (no {GT_TOPIC} and no pipeline outputs)")
+    seq = sequence or run.sequence or "0000"
+    if calib_dir is not None and run.P_left is None:
+        run.P_left = read_calib(Path(calib_dir) / f"{seq}.txt").P2
+    if labels_dir is not None:
+        labels = load_labels(labels_dir, seq)
+        gt = {
+            f.frame: [o.with_(frame=f.frame) for o in labels.get(f.frame, [])] for f in run.frames
+        }
+        gt_source = "labels"
+    else:
+        gt = {f.frame: f.gt for f in run.frames}
+        gt_source = "bag" if any(GT_TOPIC in f.receive_ns for f in run.frames) else "none"
+    det2d = {f.frame: f.det2d for f in run.frames}
+    det3d = {f.frame: f.det3d for f in run.frames}
+    tracks = {f.frame: f.tracks for f in run.frames}
+
+    curves: dict = {"detections_3d": {}, "tracks_3d": {}, "detections_2d": {}}
+    res: dict = {
+        "bag": str(bag_path),
+        "sequence": seq,
+        "gt_source": gt_source,
+        "frames": len(run.frames),
+        "topics": run.topics,
+        "unmatched_stamps": run.unmatched_stamps,
+        "detections_3d": _ap_table(
+            gt, det3d, "centre_distance", DISTANCES, curves["detections_3d"]
+        ),
+        "tracks_3d": _ap_table(gt, tracks, "centre_distance", DISTANCES, curves["tracks_3d"]),
+        "detections_2d": _ap_table(gt, det2d, "iou2d", IOUS, curves["detections_2d"]),
+    }
+    res["detections_2d"]["voc11_0.5"] = {
+        level: voc07_ap(gt, det2d, 0.5, difficulty=level) for level in LEVELS
+    }
+    res["orientation"] = orientation_accuracy(gt, det2d, iou=0.5).as_dict()
+    res["tracking"] = tracking_scores(gt, tracks)
+    res["velocity"] = velocity_scores(run, gt)
+    res["trajectories"] = trajectories(run, gt)
+    res["throughput"] = _throughput(run)
+    if run_filters:
+        from eval_node.filter_comparison import compare_filters
+
+        res["filter_comparison"] = compare_filters(run, gt, tracker_config, progress=progress)
+    res["curves"] = curves
+    return res

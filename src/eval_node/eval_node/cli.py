@@ -1,0 +1,147 @@
+"""``evaluate``: offline evaluation of KITTI tracking results or of a recorded run (bag).
+
+    evaluate tracking --results DIR --labels DIR [--seqs 0001 0006] [--calib DIR] --json FILE
+    evaluate bag BAG [--labels DIR] [--sequence 0000] [--calib DIR] [--images DIR]
+                 [--json FILE] [--report DIR] [--no-filters] [--tracker-params FILE]
+
+Bad input prints one line ``error: <file>: <what>`` on stderr and exits with code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from kitti_player_node.kitti import KittiFormatError
+
+
+def _jsonable(obj):
+    """NaN/inf -> None, numpy scalars/arrays -> Python, dict keys -> str."""
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def write_json(path: str | Path, results: dict) -> None:
+    """Write results as strict JSON (NaN as null)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(_jsonable(results), indent=1) + "\n")
+
+
+def _pct(v) -> str:
+    return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{100 * v:.1f}"
+
+
+def tracking_table(res: dict) -> str:
+    """Compact per-sequence CLEAR-MOT/HOTA table of ``evaluate tracking``."""
+    cols = ["mota", "motp", "hota", "samota", "idsw", "frag", "fp", "fn"]
+    rows = [(name, m) for name, m in res["per_sequence"].items()] + [("total", res["total"])]
+    lines = ["seq     " + " ".join(f"{c.upper():>7}" for c in cols)]
+    for name, m in rows:
+        cells = []
+        for c in cols:
+            v = m.get(c)
+            cells.append(f"{_pct(v):>7}" if c in ("mota", "motp", "hota", "samota") else f"{v:>7}")
+        lines.append(f"{name:<8}" + " ".join(cells))
+    return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="evaluate", description=__doc__.split("\n")[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    t = sub.add_parser("tracking", help="score KITTI tracking result files")
+    t.add_argument("--results", required=True, help="folder of SSSS.txt result files")
+    t.add_argument("--labels", required=True, help="folder of SSSS.txt label files (label_02)")
+    t.add_argument("--seqs", nargs="*", help="sequences (default: all with results)")
+    t.add_argument("--calib", help="calib folder: fills missing 2D boxes by projection")
+    t.add_argument("--similarity", choices=["iou2d", "iou3d"], default="iou2d")
+    t.add_argument("--json", help="write the metrics here")
+    b = sub.add_parser("bag", help="evaluate a recorded run")
+    b.add_argument("bag", help="bag directory (metadata.yaml + .mcap) or .mcap file")
+    b.add_argument("--labels", help="label_02 folder (default: ground truth recorded in the bag)")
+    b.add_argument("--sequence", help="sequence name (default: the one recorded)")
+    b.add_argument("--calib", help="KITTI calib folder (projection for the overlay without "
+                   "camera_info)")  # fmt: skip
+    b.add_argument("--images", help="KITTI tracking root with image_02 (overlay GIF)")
+    b.add_argument("--json", help="write the metrics here")
+    b.add_argument("--report", help="write the Markdown/HTML report and figures here")
+    b.add_argument("--no-filters", action="store_true", help="skip the filter comparison")
+    b.add_argument("--tracker-params", help="ROS params file for the re-run tracker")
+    b.add_argument("--no-progress", action="store_true", help="no progress bars")
+    return p
+
+
+def _run_tracking(args) -> int:
+    from eval_node.tracking_metrics import evaluate_tracking_dirs
+
+    res = evaluate_tracking_dirs(
+        args.results, args.labels, seqs=args.seqs, calib_dir=args.calib, similarity=args.similarity
+    )
+    for m in [res["total"], *res["per_sequence"].values()]:
+        m.pop("hota_per_alpha", None)
+    if args.json:
+        write_json(args.json, res)
+    print(tracking_table(res))
+    return 0
+
+
+def _run_bag(args) -> int:
+    from eval_node.bag_evaluation import evaluate_bag
+    from eval_node.report import results_table, write_report
+
+    config = None
+    if args.tracker_params:
+        from tracker_node.config import TrackerConfig, TrackerConfigError
+
+        try:
+            config = TrackerConfig.from_yaml(args.tracker_params)
+        except (OSError, TrackerConfigError) as exc:
+            raise KittiFormatError(f"{args.tracker_params}: {exc}") from None
+    if args.calib and not Path(args.calib).is_dir():
+        raise KittiFormatError(f"{args.calib}: calib folder not found")
+    res = evaluate_bag(
+        args.bag,
+        labels_dir=args.labels,
+        sequence=args.sequence,
+        run_filters=not args.no_filters,
+        tracker_config=config,
+        progress=not args.no_progress,
+        calib_dir=args.calib,
+    )
+    if args.json:
+        write_json(args.json, res)
+    if args.report:
+        files = write_report(res, args.report, images_dir=args.images)
+        res_files = ", ".join(sorted(p.name for p in files.values()))
+        print(f"report: {args.report} ({res_files})", file=sys.stderr)
+    print(results_table(res))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``evaluate`` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return _run_tracking(args) if args.command == "tracking" else _run_bag(args)
+    except (KittiFormatError, OSError) as exc:
+        msg = str(exc) if isinstance(exc, KittiFormatError) else f"{exc.filename}: {exc.strerror}"
+        print(f"error: {msg}".splitlines()[0], file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
