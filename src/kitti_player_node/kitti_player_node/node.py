@@ -205,8 +205,7 @@ class KittiPlayerNode(Node):
                 try:
                     self._publish(event)
                 except KittiFormatError as exc:
-                    self.error = str(exc)
-                    self.get_logger().error(self.error)
+                    self.error = str(exc)  # main() prints it as the one error line
                     self.done = True
                     return
             stats = self.scheduler.stats
