@@ -133,6 +133,7 @@ def _make_node_class():
             self.dropped_detection_arrays = 0
             self.unranged_detections = 0
             self.frames_processed = 0
+            self.frames_failed = 0
 
             self.pub_disparity = self.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)
             self.pub_points = None
@@ -229,6 +230,7 @@ def _make_node_class():
                 )
                 frame.disparity = compute_disparity(left, right, params)
             except (ImageConversionError, ValueError) as exc:
+                self.frames_failed += 1
                 self.get_logger().warning(f"{TOPIC_LEFT}/{TOPIC_RIGHT}: {exc}; frame skipped")
                 frame.disparity = None
             if frame.disparity is not None:

@@ -1,0 +1,169 @@
+"""In-process test of the stereo_depth node: stamps, one 3D array per 2D array, robustness."""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from kitti_player_node.image_conversion import (  # noqa: E402
+    camera_info_from_projection,
+    numpy_to_image,
+)
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+
+FX, B, DISP = 700.0, 0.5, 20
+H, W = 120, 320
+
+
+def textured_pair():
+    rng = np.random.default_rng(3)
+    big = cv2.GaussianBlur(rng.integers(0, 256, (H, W + DISP, 3), dtype=np.uint8), (3, 3), 0)
+    return np.ascontiguousarray(big[:, :W]), np.ascontiguousarray(big[:, DISP:])
+
+
+class Harness:
+    def __init__(self, ctx, **params):
+        from sensor_msgs.msg import CameraInfo, Image
+        from stereo_depth_node.node import create_node
+        from stereo_msgs.msg import DisparityImage
+        from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
+
+        overrides = [Parameter("num_disparities", value=48)]
+        overrides += [Parameter(k, value=v) for k, v in params.items()]
+        self.node = create_node(context=ctx, parameter_overrides=overrides)
+        self.io = __import__("rclpy").create_node("stereo_depth_test_io", context=ctx)
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.io)
+        pub = self.io.create_publisher
+        self.pubs = {
+            "left": pub(Image, "/stereo/left/image_rect", 5),
+            "right": pub(Image, "/stereo/right/image_rect", 5),
+            "linfo": pub(CameraInfo, "/stereo/left/camera_info", 5),
+            "rinfo": pub(CameraInfo, "/stereo/right/camera_info", 5),
+            "det": pub(VehicleDetection2DArray, "/vehicles/detections_2d", 10),
+        }
+        self.det3d, self.disp = [], []
+        self.io.create_subscription(
+            VehicleDetection3DArray, "/vehicles/detections_3d", self.det3d.append, 10
+        )
+        self.io.create_subscription(DisparityImage, "/stereo/disparity", self.disp.append, 5)
+        self.spin_until(
+            lambda: (
+                all(p.get_subscription_count() > 0 for p in self.pubs.values())
+                and self.io.count_publishers("/vehicles/detections_3d") > 0
+            )
+        )
+        K = np.array([[FX, 0, W / 2], [0, FX, H / 2], [0, 0, 1]])
+        self.infos = (
+            camera_info_from_projection(np.hstack([K, np.zeros((3, 1))]), W, H),
+            camera_info_from_projection(np.hstack([K, [[-FX * B], [0], [0]]]), W, H),
+        )
+        self.left, self.right = textured_pair()
+
+    def spin_until(self, cond, timeout=10.0):
+        end = time.monotonic() + timeout
+        while not cond() and time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.05)
+        return cond()
+
+    def header(self, sec):
+        from std_msgs.msg import Header
+
+        h = Header(frame_id="left_camera_optical_frame")
+        h.stamp.sec, h.stamp.nanosec = sec, 500
+        return h
+
+    def send_frame(self, sec, bad_step=False):
+        hdr = self.header(sec)
+        for name, info in zip(("linfo", "rinfo"), self.infos, strict=True):
+            info.header = hdr
+            self.pubs[name].publish(info)
+        self.spin_until(lambda: self.node.left_info is not None, 2.0)
+        left = numpy_to_image(self.left, "rgb8", hdr)
+        if bad_step:
+            left.step = left.step - 3  # inconsistent with width * 3
+        self.pubs["left"].publish(left)
+        self.pubs["right"].publish(numpy_to_image(self.right, "rgb8", hdr))
+
+    def send_detections(self, sec, boxes):
+        from stereo_vehicle_msgs.msg import VehicleDetection2D, VehicleDetection2DArray
+
+        msg = VehicleDetection2DArray(header=self.header(sec))
+        for i, (x1, y1, x2, y2) in enumerate(boxes):
+            d = VehicleDetection2D(id=str(i), class_id="car", score=0.9, orientation_bin=2)
+            d.bbox.center_x, d.bbox.center_y = (x1 + x2) / 2, (y1 + y2) / 2
+            d.bbox.size_x, d.bbox.size_y = float(x2 - x1), float(y2 - y1)
+            d.orientation_probs = [0.1, 0.1, 0.7, 0.1]
+            msg.detections.append(d)
+        self.pubs["det"].publish(msg)
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.io.destroy_node()
+
+
+@pytest.fixture
+def harness(rclpy_context):
+    h = Harness(rclpy_context, sync_cache_size=3)
+    yield h
+    h.close()
+
+
+def test_publishes_one_3d_detection_per_rangeable_2d_detection(harness):
+    harness.send_frame(7)
+    harness.send_detections(7, [(150, 30, 250, 90), (400, 30, 450, 90)])  # 2nd is off-image
+    assert harness.spin_until(lambda: harness.det3d and harness.disp)
+    arr = harness.det3d[0]
+    assert (arr.header.stamp.sec, arr.header.stamp.nanosec) == (7, 500)
+    assert arr.header.frame_id == "left_camera_optical_frame"
+    assert harness.node.frames_failed == 0
+    assert [d.id for d in arr.detections] == ["0"]
+    det = arr.detections[0]
+    z = FX * B / DISP  # 17.5 m
+    assert det.position.z == pytest.approx(z, rel=0.03)
+    assert det.position.x == pytest.approx((200 - W / 2) * det.position.z / FX, rel=1e-6)
+    assert det.disparity == pytest.approx(DISP, abs=0.5)
+    assert det.valid_pixel_fraction > 0.9
+    assert (det.class_id, det.score, det.orientation_bin) == ("car", 0.9, 2)
+    assert det.bbox.size_x == 100.0
+    cov = np.array(det.position_covariance).reshape(3, 3)
+    assert np.allclose(cov, cov.T) and cov[2, 2] > 0
+    assert harness.node.unranged_detections == 1
+    disp = harness.disp[0]
+    assert disp.header.stamp.sec == 7 and disp.image.encoding == "32FC1"
+    assert (disp.f, disp.t) == (FX, pytest.approx(B))
+    img = np.frombuffer(bytes(disp.image.data), np.float32).reshape(H, W)
+    assert np.median(img[20:-20, 60:-20]) == pytest.approx(DISP, abs=0.5)
+
+
+def test_malformed_image_is_skipped_and_node_keeps_working(harness):
+    harness.send_frame(1, bad_step=True)
+    harness.send_detections(1, [(150, 30, 250, 90)])
+    assert harness.spin_until(lambda: len(harness.det3d) == 1)
+    assert harness.node.frames_failed == 1
+    assert harness.det3d[0].header.stamp.sec == 1 and harness.det3d[0].detections == []
+    harness.send_frame(2)
+    harness.send_detections(2, [(150, 30, 250, 90)])
+    assert harness.spin_until(lambda: len(harness.det3d) == 2)
+    assert harness.det3d[1].header.stamp.sec == 2 and len(harness.det3d[1].detections) == 1
+
+
+def test_detections_whose_frame_never_arrives_are_dropped_and_counted(harness):
+    harness.send_detections(50, [(150, 30, 250, 90)])  # stereo frame 50 never comes
+    assert harness.spin_until(lambda: len(harness.node.frame_sync) == 1)
+    for sec in (51, 52, 53):  # frames without detections fill the cache (size 3)
+        harness.send_frame(sec)
+        assert harness.spin_until(lambda s=sec: harness.node.frames_processed == s - 50)
+    assert harness.node.dropped_detection_arrays == 1
+    assert len(harness.node.frame_sync) <= 3
+    harness.send_detections(53, [(150, 30, 250, 90)])
+    assert harness.spin_until(lambda: len(harness.det3d) == 1)
+    assert harness.det3d[0].header.stamp.sec == 53
