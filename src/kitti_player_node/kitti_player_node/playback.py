@@ -75,7 +75,9 @@ def add_snr_noise(image: np.ndarray, snr_db: float, rng: np.random.Generator) ->
         return image
     img = np.asarray(image)
     sigma = noise_std(float(img.std()), snr_db)
-    noisy = img.astype(np.float32) + rng.normal(0.0, sigma, size=img.shape).astype(np.float32)
+    noisy = img.astype(np.float32) + np.float32(sigma) * rng.standard_normal(
+        img.shape, dtype=np.float32
+    )
     return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
 
 
