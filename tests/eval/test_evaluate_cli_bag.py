@@ -70,7 +70,7 @@ def make_messages(track_offset_x: float = 0.0, images: bool = False):
         info.k = CALIB.K.ravel().tolist()
         out.append(("/stereo/left/camera_info", info, t))
         if images:
-            img = np.full((SIZE[1], SIZE[0], 3), 60 + 10 * k, np.uint8)
+            img = np.full((SIZE[1], SIZE[0], 3), 60 + 5 * k, np.uint8)
             msg = numpy_to_image(img, "rgb8")
             msg.header.stamp, msg.header.frame_id = stamp, frame_id
             out.append(("/stereo/left/image_rect", msg, t))
@@ -208,3 +208,17 @@ def test_evaluate_cli_bag_json_and_table(tmp_path):
     assert res["tracking"]["mota"] == pytest.approx(1.0)
     assert "MOTA" in p.stdout and "100.0" in p.stdout
     assert math.isfinite(res["throughput"]["fps"])
+
+
+def test_evaluate_bag_with_label_files(tmp_path):
+    from eval_node.bag_evaluation import evaluate_bag
+    from kitti_player_node.kitti import write_tracking_labels
+
+    labels = tmp_path / "label_02"
+    rows = [o for k in range(N_FRAMES) for o in gt_objects(k)]
+    write_tracking_labels(labels / "0003.txt", rows[: len(rows) // 2])  # first half labelled
+    res = evaluate_bag(make_bag(tmp_path / "bag"), labels_dir=labels, run_filters=False)
+    assert res["gt_source"] == "labels"
+    assert res["tracking"]["fn"] == 0 and res["tracking"]["fp"] == len(rows) - len(rows) // 2
+    with pytest.raises(Exception, match="0007.txt"):
+        evaluate_bag(tmp_path / "bag", labels_dir=labels, sequence="0007", run_filters=False)

@@ -190,6 +190,9 @@ def read_run(
     gts: dict[int, object] = {}
     msgs: dict[str, dict[int, tuple[object, int]]] = {t: {} for t in wanted}
     P_left, image_size, info_seen = None, None, None
+    if not conns:
+        reader.close()
+        raise BagReadError(f"{path}: none of the pipeline's topics ({', '.join(sorted(wanted))})")
     try:
         it = reader.messages(connections=conns)
         if progress:
@@ -296,6 +299,8 @@ def read_left_images(path: str | Path, stamps: set[int] | None = None) -> dict[i
     out: dict[int, np.ndarray] = {}
     try:
         conns = [c for c in reader.connections if c.topic == LEFT_IMAGE_TOPIC]
+        if not conns:  # (rosbags reads every connection when given none)
+            return out
         for conn, _t, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
             s = _stamp_ns(msg.header)
