@@ -31,6 +31,7 @@ from collections.abc import Hashable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+from detector_node.orientation import alpha_to_bin
 from kitti_player_node.kitti import KittiObject
 from scipy.optimize import linear_sum_assignment
 
@@ -95,18 +96,6 @@ def centre_distances(pred: Iterable[KittiObject], gt: Iterable[KittiObject]) -> 
     """Pairwise Euclidean distances (N_pred, N_gt) between 3D centres of mass, metres."""
     p, g = centres_of_mass(pred), centres_of_mass(gt)
     return np.linalg.norm(p[:, None, :] - g[None, :, :], axis=-1)
-
-
-# ----------------------------------------------------------------------------- orientation
-
-
-def orientation_bin(alpha: float) -> int:
-    """Orientation bin 0..3 of an observation angle: alpha folded modulo pi into [0, pi), bins
-    centred on 0, 45, 90 and 135 degrees (``round(folded / (pi/4)) % 4``)."""
-    folded = math.fmod(float(alpha), math.pi)
-    if folded < 0.0:
-        folded += math.pi
-    return int(round(folded / (math.pi / 4.0))) % 4
 
 
 # ----------------------------------------------------------------------------- KITTI devkit AP
@@ -522,7 +511,8 @@ def orientation_accuracy(
     cls: str = "Car",
     difficulty: str | Difficulty | None = None,
 ) -> OrientationResult:
-    """Accuracy of the 4 orientation bins (:func:`orientation_bin` of ``alpha``) over ground
+    """Accuracy of the 4 orientation bins (the detector's ``orientation.alpha_to_bin`` of
+    ``alpha``: folded modulo pi, bins centred on 0, 45, 90, 135 deg) over ground
     truth / prediction pairs matched per frame by 2D IoU >= ``iou`` (Hungarian). Ground truth of
     class ``cls`` only (within ``difficulty`` when given); predictions of class ``cls``."""
     level = DIFFICULTIES[difficulty] if isinstance(difficulty, str) else difficulty
@@ -535,7 +525,7 @@ def orientation_accuracy(
         ]
         p = [o for o in pred.get(k, []) if class_status(o.type, cls) == 1]
         for gi, pi, _ in match_2d(g, p, iou):
-            confusion[orientation_bin(g[gi].alpha), orientation_bin(p[pi].alpha)] += 1
+            confusion[alpha_to_bin(g[gi].alpha), alpha_to_bin(p[pi].alpha)] += 1
     n = int(confusion.sum())
     acc = float(np.trace(confusion) / n) if n else math.nan
     return OrientationResult(acc, confusion, n)
