@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from .kalman import inv3_sym
 from .overlap import giou_3d_matrix, iou_2d, shape_similarity
 
 
@@ -27,8 +28,8 @@ def mahalanobis_cost(
     R_j the detection's)."""
     d = det_pos[None, :, :] - track_pos[:, None, :]
     S = track_cov[:, None, :, :] + det_cov[None, :, :, :]
-    sol = np.linalg.solve(S, d[..., None])[..., 0]
-    return np.einsum("nmi,nmi->nm", d, sol)
+    Si = inv3_sym(S)
+    return np.einsum("nmi,nmij,nmj->nm", d, Si, d)
 
 
 def iou_shape_cost(track_boxes: np.ndarray, det_boxes: np.ndarray) -> np.ndarray:

@@ -257,11 +257,9 @@ class Tracker:
 
     def _det_covariances(self, dets: DetectionBatch) -> np.ndarray:
         R = dets.covariance.copy()
-        bad = ~np.isfinite(R).all(axis=(1, 2))
-        if len(R):
-            # a covariance must be symmetric positive definite; fall back otherwise
-            diag = np.einsum("mii->mi", np.nan_to_num(R))
-            bad |= (diag <= 0).any(axis=1)
+        # a usable covariance is finite with a positive diagonal; fall back otherwise
+        diag = R[:, [0, 1, 2], [0, 1, 2]]
+        bad = ~np.isfinite(R).all(axis=(1, 2)) | ~(diag > 0).all(axis=1)
         R[bad] = self._R0
         return R
 

@@ -1,0 +1,106 @@
+"""tracker_offline CLI: rows written for a small detection file, bad input exits 2."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from kitti_player_node.kitti import read_tracking_labels
+from tracker_node.offline import main
+
+
+def _write_dets(path, n_frames=6):
+    rows = []
+    for f in range(n_frames):
+        # one car driving away, one parked; a frame without the first one (f == 3)
+        if f != 3:
+            z = 10.0 + 0.8 * f
+            rows.append(f"{f},2,600,170,700,230,9.5,1.5,1.6,3.9,1.0,1.7,{z},-1.57,-1.66")
+        rows.append(f"{f},2,300,180,380,220,7.0,1.4,1.7,4.2,-6.0,1.8,25.0,1.5,1.73")
+        rows.append(f"{f},1,500,170,520,230,3.0,1.7,0.6,0.8,0.0,1.7,12.0,0.0,0.0")  # pedestrian
+    path.write_text("\n".join(rows) + "\n")
+
+
+def test_offline_writes_expected_rows(tmp_path, capsys):
+    dets, out = tmp_path / "dets", tmp_path / "out"
+    dets.mkdir()
+    _write_dets(dets / "0007.txt")
+    params = tmp_path / "p.yaml"
+    params.write_text("vehicle_tracker:\n  ros__parameters:\n    min_hits: 1\n    size_gain: 1.0\n")
+    rc = main(
+        [
+            "--detections",
+            str(dets),
+            "--output",
+            str(out),
+            "--seqs",
+            "7",
+            "--params",
+            str(params),
+            "--calib",
+            str(tmp_path),
+        ]
+    )  # no calib file there
+    assert rc == 0
+    res = read_tracking_labels(out / "0007.txt")
+    assert sorted(res) == list(range(6))
+    assert all(o.type == "Car" for objs in res.values() for o in objs)
+    ids = {o.track_id for objs in res.values() for o in objs}
+    assert ids == {1, 2}  # the pedestrian rows are not tracked as cars
+    parked = [o for objs in res.values() for o in objs if o.track_id == 2]
+    assert len(parked) == 6
+    for o in parked:
+        np.testing.assert_allclose(o.location, (-6.0, 1.8, 25.0), atol=0.05)
+        np.testing.assert_allclose(o.dimensions, (1.4, 1.7, 4.2), atol=1e-4)
+        assert o.rotation_y == pytest.approx(1.5, abs=1e-3)
+        assert o.bbox == pytest.approx((300, 180, 380, 220))
+        assert o.score == pytest.approx(7.0)
+    moving = {o.frame: o for objs in res.values() for o in objs if o.track_id == 1}
+    assert set(moving) == set(range(6))  # frame 3 coasts on the prediction
+    assert 11.7 < moving[3].location[2] < 12.6  # predicted beyond the last seen z = 11.6
+    assert moving[3].score < moving[2].score  # confidence decayed while coasting
+    assert moving[3].bbox == pytest.approx((600, 170, 700, 230))  # last box (no calib)
+
+
+def test_offline_with_shared_calib_projects_boxes(tmp_path, shared_kitti):
+    dets, out = tmp_path / "dets", tmp_path / "out"
+    dets.mkdir()
+    _write_dets(dets / "0001.txt")
+    calib = shared_kitti / "tracking/training/calib"
+    assert main(["--detections", str(dets), "--output", str(out), "--calib", str(calib)]) == 0
+    res = read_tracking_labels(out / "0001.txt")
+    coast = [o for o in res[3] if o.track_id == 1]
+    assert len(coast) == 1
+    x1, y1, x2, y2 = coast[0].bbox
+    assert y2 - y1 > 25 and x2 > x1  # projection of the coasting 3D box
+
+
+@pytest.mark.parametrize(
+    "content, needle",
+    [
+        ("0,2,1,2,3\n", "0009.txt:1"),
+        (
+            "0,2,600,170,700,230,9.5,1.5,1.6,3.9,1.0,1.7,10,-1.57,-1.66\n0,2,a,b,c,d,e,f,g,h,i,j,k,l,m\n",
+            "0009.txt:2",
+        ),
+    ],
+)
+def test_offline_bad_input_exits_2_with_one_line(tmp_path, capsys, content, needle):
+    dets = tmp_path / "dets"
+    dets.mkdir()
+    (dets / "0009.txt").write_text(content)
+    rc = main(["--detections", str(dets), "--output", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err.startswith("error: ") and needle in err and err.count("\n") == 1
+
+
+def test_offline_missing_file_and_bad_params(tmp_path, capsys):
+    dets = tmp_path / "dets"
+    dets.mkdir()
+    assert main(["--detections", str(dets), "--output", str(tmp_path), "--seqs", "3"]) == 2
+    assert "0003.txt" in capsys.readouterr().err
+    p = tmp_path / "p.yaml"
+    p.write_text("vehicle_tracker:\n  ros__parameters:\n    min_hits: two\n")
+    assert main(["--detections", str(dets), "--output", str(tmp_path), "--params", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert "min_hits" in err and err.count("\n") == 1
