@@ -162,7 +162,9 @@ def test_evaluate_bag_perfect_outputs(tmp_path):
     assert res["tracking"]["mota"] == pytest.approx(1.0)
     assert res["tracking"]["idsw"] == 0
     assert res["orientation"]["accuracy"] == pytest.approx(1.0)
-    assert res["velocity"]["rmse"] == pytest.approx(0.0, abs=1e-9)
+    assert res["velocity"]["rmse"] == pytest.approx(0.0, abs=1e-6)
+    assert res["velocity"]["n"] == 2 * N_FRAMES
+    assert res["velocity"]["velocity_jitter"] == pytest.approx(0.0)
 
 
 def test_evaluate_bag_offset_tracks_fail_tight_threshold(tmp_path):
@@ -172,6 +174,22 @@ def test_evaluate_bag_offset_tracks_fail_tight_threshold(tmp_path):
     assert res["tracks_3d"]["1.5"]["moderate"] == pytest.approx(0.0)
     assert res["tracks_3d"]["3"]["moderate"] == pytest.approx(1.0)
     assert res["detections_3d"]["1.5"]["moderate"] == pytest.approx(1.0)
+    assert res["velocity"]["rmse"] == pytest.approx(0.0, abs=1e-6)  # a constant offset
+
+
+def test_evaluate_bag_velocity_error(tmp_path):
+    from eval_node.bag_evaluation import evaluate_bag
+    from eval_node.bag_writer import write_bag
+
+    msgs = make_messages()
+    for topic, m, _t in msgs:
+        if topic == "/vehicles/tracks":
+            for v in m.vehicles:
+                v.velocity.x += 3.0  # 3 m/s sideways error
+    write_bag(tmp_path / "bag", msgs)
+    res = evaluate_bag(tmp_path / "bag", run_filters=False)
+    assert res["velocity"]["rmse"] == pytest.approx(3.0, abs=1e-6)
+    assert res["velocity"]["mae"] == pytest.approx(3.0, abs=1e-6)
 
 
 def test_evaluate_cli_missing_bag_exits_2(tmp_path):

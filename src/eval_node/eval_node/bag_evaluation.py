@@ -8,7 +8,8 @@ also the JSON output:
   difficulty of the unfiltered 3D detections and of the tracks (AP|R40, fractions);
 - ``detections_2d``: 2D AP at IoU 0.5 and 0.7 (AP|R40) and Pascal VOC 11-point AP at 0.5;
 - ``orientation``: orientation-bin accuracy and 4x4 confusion of the 2D detections;
-- ``tracking``: CLEAR-MOT and HOTA of the tracks; ``velocity``: velocity error and stability;
+- ``tracking``: CLEAR-MOT and HOTA of the tracks (2D IoU 0.5; ``iou3d``: 3D IoU 0.25);
+- ``velocity``: velocity error (``rmse``, ``mae`` [m/s], per speed bucket) and stability;
 - ``filter_comparison``: the tracker core re-run on the recorded 3D detections with each
   filter (Table 1, 3D AP at 1.5 m per difficulty);
 - ``throughput``: frames processed, frames per second and latency from receive times;
@@ -34,7 +35,7 @@ from eval_node.bag_reader import (
     read_run,
 )
 from eval_node.detection_metrics import orientation_accuracy, precision_recall, voc07_ap
-from eval_node.tracking_metrics import evaluate_tracking, match_tracks
+from eval_node.tracking_metrics import evaluate_tracking
 
 DISTANCES = (1.5, 3.0, 5.0, 10.0)
 IOUS = (0.5, 0.7)
@@ -82,70 +83,31 @@ def tracking_scores(gt, tracks) -> dict:
     return res
 
 
-def _frame_dt(run: RecordedRun) -> dict[int, float]:
-    """Seconds between each frame and the previous recorded one (0.1 s for the first)."""
-    out, prev = {}, None
-    for f in run.frames:
-        out[f.frame] = (
-            (f.stamp_ns - prev.stamp_ns) * 1e-9 / max(f.frame - prev.frame, 1)
-            if (prev is not None and f.stamp_ns > prev.stamp_ns)
-            else 0.1
-        )
-        prev = f
-    return out
-
-
 def velocity_scores(run: RecordedRun, gt) -> dict:
-    """Velocity error of the tracks against ground-truth finite differences, and stability.
+    """Velocity error of the tracks' filtered velocities against ground-truth finite differences
+    on the ground plane (x, z) and stability (:mod:`eval_node.motion_metrics`; tracks paired with
+    ground truth by the tracking matcher, times from the stamps). Adds ``velocity_jitter`` [m/s]:
+    RMS of the frame-to-frame change of each track's reported velocity (lower is steadier)."""
+    from eval_node.motion_metrics import stability, velocity_errors
 
-    Tracks are paired with ground truth by the tracking matcher (2D IoU 0.5); a ground-truth
-    velocity is the central (or one-sided) difference of the object's centre of mass over
-    neighbouring frames of the same track id. ``rmse``/``mean``/``median`` [m/s] of the 3D
-    velocity error norm; ``jitter`` [m/s]: RMS of the frame-to-frame change of each track's
-    velocity (lower is steadier); ``n_pairs``."""
-    vel_of = {}
+    pred_v, by_track = {}, {}
     for f in run.frames:
-        for o, v in zip(f.tracks, f.track_velocities, strict=False):
-            vel_of[id(o)] = v
-    tracks = {f.frame: f.tracks for f in run.frames}
-    dt = _frame_dt(run)
-    centres: dict[tuple[int, int], np.ndarray] = {}
-    for k, objs in gt.items():
-        for o in objs:
-            if o.track_id >= 0 and not o.is_dontcare:
-                centres[(o.track_id, k)] = o.centre_of_mass
-    errors = []
-    for k, pairs in match_tracks(gt, tracks).items():
-        for g, p in pairs:
-            a, b = centres.get((g.track_id, k - 1)), centres.get((g.track_id, k + 1))
-            c = centres[(g.track_id, k)]
-            if a is not None and b is not None:
-                v_gt = (b - a) / (dt.get(k, 0.1) + dt.get(k + 1, 0.1))
-            elif a is not None:
-                v_gt = (c - a) / dt.get(k, 0.1)
-            elif b is not None:
-                v_gt = (b - c) / dt.get(k + 1, 0.1)
-            else:
-                continue
-            errors.append(float(np.linalg.norm(vel_of[id(p)] - v_gt)))
-    by_track: dict[int, list[np.ndarray]] = {}
-    for f in run.frames:
-        for o, v in zip(f.tracks, f.track_velocities, strict=False):
+        for o, v in zip(f.tracks, f.track_velocities, strict=True):
+            pred_v[(f.frame, o.track_id)] = v[[0, 2]]
             by_track.setdefault(o.track_id, []).append(v)
+    tracks = {f.frame: f.tracks for f in run.frames}
+    stamps = {f.frame: f.stamp_ns * 1e-9 for f in run.frames}
+    stamps.update({k: 0.1 * k for k in gt if k not in stamps})
+    res = velocity_errors(gt, tracks, pred_velocities=pred_v, stamps=stamps)
+    res["stability"] = stability(gt, tracks)
     steps = [
         float(np.linalg.norm(d))
         for vs in by_track.values()
         if len(vs) > 1
         for d in np.diff(np.array(vs), axis=0)
     ]
-    e = np.array(errors)
-    return {
-        "rmse": float(np.sqrt(np.mean(e**2))) if len(e) else math.nan,
-        "mean": float(e.mean()) if len(e) else math.nan,
-        "median": float(np.median(e)) if len(e) else math.nan,
-        "jitter": float(np.sqrt(np.mean(np.square(steps)))) if steps else math.nan,
-        "n_pairs": int(len(e)),
-    }
+    res["velocity_jitter"] = float(np.sqrt(np.mean(np.square(steps)))) if steps else math.nan
+    return res
 
 
 def trajectories(run: RecordedRun, gt) -> dict:
