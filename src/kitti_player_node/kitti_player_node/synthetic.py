@@ -77,9 +77,25 @@ def build_renderer(
 
 
 def to_uint8(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Float RGB in [0, 1] -> uint8 with mild seeded sensor noise."""
-    noise = rng.standard_normal(image.shape, dtype=np.float32) * np.float32(IMAGE_NOISE_STD)
-    return np.clip(image * np.float32(255.0) + noise + np.float32(0.5), 0, 255).astype(np.uint8)
+    """Float RGB in [0, 1] -> uint8 with mild seeded sensor noise (Gaussian, IMAGE_NOISE_STD)."""
+    n = image.size
+    pool = _noise_pool(n)
+    start = int(rng.integers(0, pool.size - n))
+    noise = pool[start : start + n].reshape(image.shape)
+    return np.clip(image * np.float32(255.0) + noise, 0, 255).astype(np.uint8)
+
+
+_NOISE_POOLS: dict[int, np.ndarray] = {}
+
+
+def _noise_pool(n: int) -> np.ndarray:
+    """A fixed pool of Gaussian noise (+0.5 for rounding) from which images take windows."""
+    if n not in _NOISE_POOLS:
+        rng = np.random.default_rng(0x401CE)
+        pool = rng.standard_normal(n + 65536, dtype=np.float32) * np.float32(IMAGE_NOISE_STD)
+        _NOISE_POOLS.clear()
+        _NOISE_POOLS[n] = pool + np.float32(0.5)
+    return _NOISE_POOLS[n]
 
 
 def render_stereo_frame(renderer: StereoRenderer, frame: int, sequence: str = "0000"):
@@ -194,7 +210,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--height", type=int, default=KITTI_HEIGHT, help="image height (default 375)")
     p.add_argument("--force", action="store_true", help="render even if up to date")
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    args = p.parse_args(argv)
+    try:
+        args = p.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a usage error (2, already reported)
+        return int(exc.code or 0)
     out = Path(args.output)
     try:
         _check_settings(
