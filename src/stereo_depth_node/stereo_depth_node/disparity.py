@@ -39,8 +39,8 @@ class DisparityParams:
     """
 
     min_disparity: int = 0
-    num_disparities: int = 128  # full-resolution pixels; rounded up to a multiple of 16
-    block_size: int = 5
+    num_disparities: int = 96  # full-resolution pixels (z >= f*B/96 = 4.0 m on KITTI)
+    block_size: int = 3
     p1_factor: float = 8.0  # P1 = p1_factor * channels * block_size^2
     p2_factor: float = 32.0  # P2 = p2_factor * channels * block_size^2
     disp12_max_diff: int = 1
@@ -55,7 +55,7 @@ class DisparityParams:
     wls_sigma: float = 1.5
     wls_lrc_thresh: int = 24  # left-right consistency threshold of the filter (1/16 px units)
     wls_min_confidence: float = 0.0  # filtered pixels with a lower confidence (0..255) -> invalid
-    downscale: int = 1  # 1 = full resolution, 2 = match at half resolution
+    downscale: int = 2  # 1 = full resolution, 2 = match at half resolution
     row_band: tuple[int, int] | None = None  # (top, bottom) rows to match; None = all rows
     pad_left: bool = True  # pad images on the left so the leftmost num_disparities columns
     # (which SGBM cannot match) still get disparities where their match lies inside the right view

@@ -6,10 +6,13 @@ Pure core. Two estimators of the box's disparity:
   baseline). In an occluded box it returns the occluder's distance.
 - ``robust``: pixels of the box's core (central ``core_fraction`` of width and height), without
   ground pixels (3D height below the camera more than ``ground_height - ground_margin``); their
-  log-disparity histogram gives candidate surfaces (modes); each mode is scored by its support
-  times a prior on the depth from the box height (a car of ``prior_height`` metres); the best
-  mode's median disparity is taken. An occluder covers only part of the box and sits at a depth
-  inconsistent with the box height, so the occluded car's own surface wins.
+  log-disparity histogram gives candidate surfaces (modes, at least ``min_mode_fraction`` of the
+  core); each mode is scored by its support, times a prior on the depth from the box height (a
+  car of ``prior_height`` metres), times a weight toward the far side
+  ``(d_nearest_mode / d_mode)^far_weight``; the best mode's median disparity is taken. An
+  occluder is nearer than the occluded car, so the car's own surface wins even when the occluder
+  covers most of the core; the core restriction and the minimum support keep the background
+  around the car from winning.
 
 The visible surface of a car is nearer than its centre of mass; ``depth_offset`` (per
 orientation bin, metres) moves the estimate away from the camera along the viewing ray.
@@ -33,7 +36,7 @@ class RangingParams:
     """Settings of :func:`range_boxes` (defaults chosen on KITTI tracking 0005, see docs)."""
 
     method: str = "robust"
-    sigma_d: float = 1.0  # [px] disparity std of the stereo error model
+    sigma_d: float = 0.8  # [px] disparity std of the stereo error model (measured, see docs)
     sigma_pixel: float = 3.0  # [px] std of the box centre in the image
     depth_offset_std: float = 0.5  # [m] std added to z for the visible-surface -> centre offset
     min_valid_pixels: int = 20  # fewer valid pixels -> no estimate
@@ -44,6 +47,7 @@ class RangingParams:
     ground_margin: float = 0.3  # [m] pixels lower than ground_height - margin are ground
     mode_bin: float = 0.04  # robust: histogram bin width in log-disparity
     min_mode_fraction: float = 0.1  # robust: a mode needs this share of the core pixels
+    far_weight: float = 4.0  # robust: mode score x (d_nearest_mode / d_mode)^far_weight
     prior_height: float = 1.5  # [m] typical car height for the depth prior from box height
     prior_log_sigma: float = 0.5  # log-depth std of that prior (0 disables the prior)
     depth_offset: tuple[float, float, float, float] = field(
@@ -143,6 +147,8 @@ def robust_disparity(
         z_prior = geometry.fy * params.prior_height / box_h
         z_mode = geometry.fx * geometry.baseline / np.exp(centres)
         score *= np.exp(-0.5 * ((np.log(z_mode) - np.log(z_prior)) / params.prior_log_sigma) ** 2)
+    if params.far_weight > 0:
+        score *= np.exp(params.far_weight * (centres.max() - centres))
     best = centres[int(np.argmax(score))]
     in_mode = np.abs(logd - best) <= 1.5 * params.mode_bin
     if not in_mode.any():
