@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         return _run_tracking(args) if args.command == "tracking" else _run_bag(args)
     except (KittiFormatError, OSError) as exc:
         msg = str(exc) if isinstance(exc, KittiFormatError) else f"{exc.filename}: {exc.strerror}"
-        print(f"error: {msg}".splitlines()[0], file=sys.stderr)
+        print("error: " + " ".join(msg.split()), file=sys.stderr)
         return 2
 
 

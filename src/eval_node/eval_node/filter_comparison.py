@@ -94,6 +94,7 @@ def compare_filters(
     """Table 1: ``{filter: {"easy", "moderate", "hard": AP|R40, "ap_r11": {...}, "fps": ...}}``
     of the re-tracked detections at centre distance ``distance`` (``fps``: frames per second of
     the tracker core on this machine)."""
+    import tracker_node.tracker  # noqa: F401  (imported before timing)
     from tracker_node.config import TrackerConfig
 
     base = config or TrackerConfig()
