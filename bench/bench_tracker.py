@@ -202,7 +202,8 @@ def cmd_sim(args) -> None:
     for flt, (unf, err) in results.items():
         print(
             f"  {flt:8s}: mean position error {np.mean(err):.3f} m (median {np.median(err):.3f})"
-            f"  vs raw detections {np.mean(unf):.3f} m  -> {100 * (1 - np.mean(err) / np.mean(unf)):+.1f} %"
+            f"  vs raw detections {np.mean(unf):.3f} m"
+            f"  -> {100 * (1 - np.mean(err) / np.mean(unf)):+.1f} %"
         )
 
 

@@ -29,7 +29,24 @@ def mahalanobis_cost(
     d = det_pos[None, :, :] - track_pos[:, None, :]
     S = track_cov[:, None, :, :] + det_cov[None, :, :, :]
     Si = inv3_sym(S)
-    return np.einsum("nmi,nmij,nmj->nm", d, Si, d)
+    return (d * (Si @ d[..., None])[..., 0]).sum(axis=-1)
+
+
+def mahalanobis_cost_gated(
+    track_pos: np.ndarray,
+    track_cov: np.ndarray,
+    det_pos: np.ndarray,
+    det_cov: np.ndarray,
+    candidates: np.ndarray,
+) -> np.ndarray:
+    """:func:`mahalanobis_cost` computed only for ``candidates`` (bool (N, M)); others inf."""
+    out = np.full(candidates.shape, np.inf)
+    r, c = np.nonzero(candidates)
+    if len(r):
+        d = det_pos[c] - track_pos[r]
+        Si = inv3_sym(track_cov[r] + det_cov[c])
+        out[r, c] = (d * (Si @ d[..., None])[..., 0]).sum(axis=-1)
+    return out
 
 
 def iou_shape_cost(track_boxes: np.ndarray, det_boxes: np.ndarray) -> np.ndarray:

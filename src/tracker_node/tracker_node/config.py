@@ -29,14 +29,14 @@ class TrackerConfig:
     association: str = "hungarian"  # hungarian | nearest (the paper's greedy)
     cost: str = "mahalanobis"  # mahalanobis | euclidean | iou2d | giou3d
     dist_cap: float = 4.0  # [m] gate on the centre distance (all costs)
-    mahalanobis_gate: float = 16.0  # gate on the squared Mahalanobis distance (3 dof)
+    mahalanobis_gate: float = 25.0  # gate on the squared Mahalanobis distance (3 dof)
     min_iou: float = 0.1  # gate of the iou2d cost: minimum IoU x shape similarity
     min_giou: float = -0.2  # gate of the giou3d cost: minimum 3D GIoU (in [-1, 1])
-    process_noise: float = 2.0  # [m^2/s^3] white-acceleration spectral density
-    measurement_noise: float = 0.5  # [m] position std used when a detection has no covariance
+    process_noise: float = 8.0  # [m^2/s^3] white-acceleration spectral density
+    measurement_noise: float = 0.3  # [m] position std used when a detection has no covariance
     init_position_var: float = 1.0  # [m^2] initial position variance (paper)
     init_velocity_var: float = 50.0  # [(m/s)^2] initial velocity variance (paper)
-    max_staleness: int = 3  # [frames] a track unmatched for more frames is deleted
+    max_staleness: int = 2  # [frames] a track unmatched for more frames is deleted
     decay_rate: float = 0.8  # confidence factor per unmatched frame
     restoration_conf_threshold: float = 0.5  # coasting tracks are reported while conf >= this
     min_hits: int = 2  # matched frames before a track is confirmed

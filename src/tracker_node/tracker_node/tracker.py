@@ -21,7 +21,7 @@ from .association import (
     euclidean_cost,
     giou_cost,
     iou_shape_cost,
-    mahalanobis_cost,
+    mahalanobis_cost_gated,
     solve,
 )
 from .config import TrackerConfig
@@ -285,7 +285,7 @@ class Tracker:
         if cfg.cost == "euclidean":
             cost = dist
         elif cfg.cost == "mahalanobis":
-            cost = mahalanobis_cost(tpos, self.filter.position_cov, dets.position, R)
+            cost = mahalanobis_cost_gated(tpos, self.filter.position_cov, dets.position, R, near)
             near &= cost <= cfg.mahalanobis_gate
         elif cfg.cost == "iou2d":
             cost = iou_shape_cost(self._predicted_bboxes(), dets.bbox)
