@@ -117,6 +117,21 @@ def test_score_threshold_drops_low_scoring_false_positive():
     assert m["mota"] == pytest.approx(1 - 2 / 12)
 
 
+def test_track_mean_scores_and_rows_without_id():
+    """A false track with row scores 0.95 and 0.05 has the mean 0.5: the threshold 0.9 (all TP
+    scores) drops it whole under AB3DMOT's rule, but keeps its 0.95 row with row scores."""
+    gt = {f: [box(f, 0)] for f in range(4)}
+    pred = {f: [box(f, 1, score=0.9)] for f in range(4)}
+    pred[0].append(box(0, 2, x1=600.0, score=0.95))
+    pred[1].append(box(1, 2, x1=600.0, score=0.05))
+    pred[2].append(box(2, -1, x1=900.0, score=0.99))  # no track id: dropped
+    m = evaluate_tracking(gt, pred, hota=False)
+    assert (m["score_threshold"], m["fp"], m["mota"]) == (0.9, 0, 1.0)
+    assert m["all_rows"]["fp"] == 2
+    m = evaluate_tracking(gt, pred, hota=False, score_mode="row")
+    assert (m["score_threshold"], m["fp"], m["mota"]) == (0.9, 1, 0.75)
+
+
 def test_id_switch_across_gap_is_fragmentation_only():
     gt = {f: [box(f, 0)] for f in range(5)}
     pred = {f: [box(f, 1 if f < 2 else 2)] for f in (0, 1, 3, 4)}
@@ -138,7 +153,7 @@ def test_ignore_rules():
             box(0, 1, x1=300.0, type="Van"),  # neighbouring class
             box(0, 2, x1=500.0, occ=3),  # too occluded (unmatched: no FN)
             box(0, 3, x1=700.0, trunc=0.1),  # truncated (matched: no TP, no FP)
-            box(0, 4, x1=900.0, h=25.0),  # not higher than 25 px
+            box(0, 4, x1=900.0, h=25.0),  # 25 px: counted by the devkit, not by gt_min_height=25
             box(0, -1, x1=1000.0, y1=200.0, w=200.0, h=100.0, type="DontCare"),
             box(0, 5, x1=1100.0, y1=20.0, type="Pedestrian"),
         ]
@@ -148,7 +163,7 @@ def test_ignore_rules():
             box(0, 10),  # TP
             box(0, 11, x1=300.0),  # on the Van
             box(0, 13, x1=700.0),  # on the truncated car
-            box(0, 14, x1=900.0, h=25.0),  # on the small car
+            box(0, 14, x1=900.0, h=25.0),  # on the small car (a TP, or ignored with the limit)
             box(0, 15, x1=1050.0, y1=220.0),  # inside the DontCare box
             box(0, 16, x1=300.0, y1=250.0, h=20.0),  # unmatched and 20 px high
             box(0, 17, x1=500.0, y1=300.0, type="Van"),  # unmatched tracker Van
@@ -156,6 +171,10 @@ def test_ignore_rules():
         ]
     }
     m = evaluate_tracking(gt, pred)
+    assert (m["tp"], m["fp"], m["fn"], m["n_gt"]) == (2, 1, 0, 2)
+    assert m["mota"] == 0.5
+    assert m["hota"] == pytest.approx(math.sqrt(2 / 3))  # DetA 2/3 (TP 2, FP 1), AssA 1
+    m = evaluate_tracking(gt, pred, gt_min_height=25.0)
     assert (m["tp"], m["fp"], m["fn"], m["n_gt"]) == (1, 1, 0, 1)
     assert m["mota"] == 0.0
     assert m["hota"] == pytest.approx(math.sqrt(0.5))  # DetA 1/2 (TP 1, FP 1), AssA 1

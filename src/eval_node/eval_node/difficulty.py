@@ -15,8 +15,11 @@ Ground truth of the evaluated class outside the level, and ground truth of the n
 true nor a false positive, missing it is not a false negative. Predictions lower than the level's
 minimum height are ignored too.
 
-Tracking benchmark (KITTI tracking devkit): ground truth counts when occlusion <= 2, truncation <= 0
-and 2D height > 25 px; unmatched tracker boxes of height <= 25 px are ignored.
+Tracking benchmark (KITTI tracking devkit ``evaluate_tracking.py`` and AB3DMOT's port): ground
+truth counts when occlusion <= 2 and truncation <= 0; unmatched tracker boxes of 2D height
+<= 25 px are ignored. The devkit's code applies no height limit to ground truth (its
+``min_height`` is only used on tracker boxes); ``gt_counted_for_tracking(obj, min_height=25.0)``
+gives the stricter rule of shared/notes/kitti-tracking-eval.md where wanted.
 """
 
 from __future__ import annotations
@@ -72,12 +75,13 @@ def gt_within_difficulty(obj: KittiObject, level: Difficulty) -> bool:
     )
 
 
-def gt_counted_for_tracking(obj: KittiObject) -> bool:
-    """Whether the tracking devkit counts a ground-truth box (its class aside)."""
+def gt_counted_for_tracking(obj: KittiObject, min_height: float | None = None) -> bool:
+    """Whether the tracking devkit counts a ground-truth box (its class aside): occlusion <= 2
+    and truncation <= 0, and 2D height > ``min_height`` when one is given (the devkit: none)."""
     return (
         int(obj.occluded) <= TRACKING_MAX_OCCLUSION
         and float(obj.truncated) <= TRACKING_MAX_TRUNCATION
-        and obj.height_px > TRACKING_MIN_HEIGHT
+        and (min_height is None or obj.height_px > min_height)
     )
 
 

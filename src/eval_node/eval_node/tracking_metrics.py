@@ -8,8 +8,9 @@ missing score counts as 1.0). Rules (KITTI tracking devkit; shared/notes/kitti-t
 
 - Class ``cls`` (default Car) is evaluated; ground truth of the neighbouring class (Van) takes part
   in the matching but is ignored; tracker rows of other classes than ``cls``/neighbour are dropped.
-- Ground truth counts only when occlusion <= 2, truncation <= 0 and 2D height > 25 px; matching an
-  ignored ground truth is neither TP nor FP, missing it is not a FN.
+- Ground truth counts only when occlusion <= 2 and truncation <= 0 (and 2D height >
+  ``gt_min_height`` when given: the devkit's code has no such rule, shared/notes says 25 px);
+  matching an ignored ground truth is neither TP nor FP, missing it is not a FN.
 - Unmatched tracker boxes are ignored when they are of the neighbouring class, 2D height <= 25 px,
   or cover a DontCare box (intersection over the tracker box's area > 0.5).
 - Per frame, Hungarian matching on ``1 - similarity`` with pairs below ``iou_threshold``
@@ -17,7 +18,10 @@ missing score counts as 1.0). Rules (KITTI tracking devkit; shared/notes/kitti-t
 - ID switches, fragmentations and MT/PT/ML (80 % / 20 %) are counted on ground-truth trajectories
   exactly as the devkit's loop does (an ID switch also counts as a fragmentation there; a change
   of id across a gap is a fragmentation only).
-- Score thresholds are sampled at 40 recall points from the true positives' scores (AB3DMOT); the
+- Tracker rows without an id (-1) are dropped, as the devkit does.
+- Scores (AB3DMOT's evaluation): every row takes its track's mean score in the sequence
+  (``score_mode="track_mean"``; ``"row"`` keeps row scores), score thresholds are sampled at 40
+  recall points from the matched rows' scores, a threshold drops whole tracks below it; the
   headline figures (``mota``, ``motp``, ``fp``...) are those of the threshold with the best MOTA,
   and ``samota``/``amota``/``amotp`` average over the recall points.
 - MOTP is the mean similarity over counted TPs (the devkit also adds ignored pairs' overlaps to
@@ -173,18 +177,26 @@ class _FrameResult:
     tp_scores: list[float]
     g_tracker: list[int]  # matched tracker id per ground truth, -1 if none
     t_kept: np.ndarray  # bool (n_kept,): tracker counted (not ignored) -- for HOTA
+    pairs: list[tuple[int, int]]  # (gt index, tracker column) of the counted TPs
 
 
 def _prepare_frame(
-    gt: list[KittiObject], pred: list[KittiObject], cls: str, similarity: str, hota_similarity: str
+    gt: list[KittiObject],
+    pred: list[KittiObject],
+    cls: str,
+    similarity: str,
+    hota_similarity: str,
+    gt_min_height: float | None = None,
 ) -> _Frame:
     g = [o for o in gt if not o.is_dontcare and class_status(o.type, cls) >= 0]
     dc = boxes_2d([o for o in gt if o.is_dontcare])
-    t = sorted(
-        (o for o in pred if class_status(o.type, cls) >= 0), key=lambda o: -_score(o)
-    )  # stable: file order among equal scores
+    t = _tracker_rows(pred, cls)
     g_ign = np.array(
-        [class_status(o.type, cls) == 0 or not gt_counted_for_tracking(o) for o in g], dtype=bool
+        [
+            class_status(o.type, cls) == 0 or not gt_counted_for_tracking(o, gt_min_height)
+            for o in g
+        ],
+        dtype=bool,
     )
     tb = boxes_2d(t)
     t_ign = np.array([class_status(o.type, cls) == 0 for o in t], dtype=bool) | (
@@ -221,6 +233,7 @@ def _match_frame(fr: _Frame, k: int, threshold: float) -> _FrameResult:
     tp = fn = 0
     sim_sum = 0.0
     tp_scores = []
+    pairs = []
     if n_g and k:
         cost = np.where(sim >= threshold, 1.0 - sim, _MAX_COST)
         rows, cols = linear_sum_assignment(cost)
@@ -229,18 +242,19 @@ def _match_frame(fr: _Frame, k: int, threshold: float) -> _FrameResult:
                 continue
             g_tracker[r] = fr.t_ids[c]
             t_matched[c] = True
+            tp_scores.append(float(fr.t_scores[c]))  # the devkit keeps ignored pairs' too
             if fr.g_ign[r]:
                 t_to_ign_gt[c] = True
             else:
                 tp += 1
                 sim_sum += float(sim[r, c])
-                tp_scores.append(float(fr.t_scores[c]))
+                pairs.append((r, c))
     for r in range(n_g):
         if g_tracker[r] < 0 and not fr.g_ign[r]:
             fn += 1
     t_kept = ~t_to_ign_gt & (t_matched | ~fr.t_ign[:k])
     fp = int((~t_matched & ~fr.t_ign[:k]).sum())
-    return _FrameResult(tp, fp, fn, sim_sum, tp_scores, g_tracker, t_kept)
+    return _FrameResult(tp, fp, fn, sim_sum, tp_scores, g_tracker, t_kept, pairs)
 
 
 def _frame_result(fr: _Frame, threshold_score: float | None, iou_threshold: float):
@@ -425,15 +439,43 @@ def _hota_summary(parts: list[dict]) -> dict:
 # ----------------------------------------------------------------------------- public API
 
 
+def _tracker_rows(pred: list[KittiObject], cls: str) -> list[KittiObject]:
+    """Rows of class ``cls`` or its neighbour with a track id, by descending score (stable)."""
+    rows = (o for o in pred if o.track_id >= 0 and class_status(o.type, cls) >= 0)
+    return sorted(rows, key=lambda o: -_score(o))
+
+
+def track_mean_scores(pred: Frames) -> dict[int, list[KittiObject]]:
+    """A copy of a sequence's tracker output whose rows carry their track's mean score."""
+    scores: dict[int, list[float]] = {}
+    for objs in pred.values():
+        for o in objs:
+            scores.setdefault(o.track_id, []).append(_score(o))
+    mean = {tid: sum(v) / len(v) for tid, v in scores.items()}
+    return {k: [o.with_(score=mean[o.track_id]) for o in objs] for k, objs in pred.items()}
+
+
 def _prepare_sequences(
-    gts: list[Frames], preds: list[Frames], cls: str, similarity: str, hota_similarity: str
+    gts: list[Frames],
+    preds: list[Frames],
+    cls: str,
+    similarity: str,
+    hota_similarity: str,
+    score_mode: str = "track_mean",
+    gt_min_height: float | None = None,
 ) -> list[list[_Frame]]:
+    if score_mode not in ("track_mean", "row"):
+        raise ValueError(f"unknown score_mode {score_mode!r} (track_mean or row)")
     seqs = []
-    for gt, pred in zip(gts, preds, strict=False):
+    for gt, pred in zip(gts, preds, strict=True):
+        if score_mode == "track_mean":
+            pred = track_mean_scores(pred)
         keys = sorted(set(gt) | set(pred))
         seqs.append(
             [
-                _prepare_frame(gt.get(k, []), pred.get(k, []), cls, similarity, hota_similarity)
+                _prepare_frame(
+                    gt.get(k, []), pred.get(k, []), cls, similarity, hota_similarity, gt_min_height
+                )
                 for k in keys
             ]
         )
@@ -448,7 +490,10 @@ def _evaluate(
 ) -> dict:
     base = _clear_mot(seqs, None, iou_threshold)
     n_gt = base["n_gt"]
-    thresholds = sample_thresholds(base["_tp_scores"], n_gt, n_sample_pts)[1:] if n_gt else []
+    thresholds = sample_thresholds(base["_tp_scores"], n_gt, n_sample_pts) if n_gt else []
+    # drop the recall-0 sample; at most n_sample_pts - 1 points (ignored pairs' scores count
+    # among the TP scores, as in the devkit, so recall could otherwise pass 1)
+    thresholds = thresholds[1:n_sample_pts]
     recalls = [(i + 1) / (n_sample_pts - 1.0) for i in range(len(thresholds))]
     best = None
     samota = amota = amotp = 0.0
@@ -485,6 +530,8 @@ def evaluate_tracking(
     hota_similarity: str = "iou2d",
     n_sample_pts: int = N_SAMPLE_PTS,
     hota: bool = True,
+    score_mode: str = "track_mean",
+    gt_min_height: float | None = None,
 ) -> dict:
     """All tracking metrics of one sequence; see :func:`evaluate_tracking_sequences`."""
     return evaluate_tracking_sequences(
@@ -496,6 +543,8 @@ def evaluate_tracking(
         hota_similarity=hota_similarity,
         n_sample_pts=n_sample_pts,
         hota=hota,
+        score_mode=score_mode,
+        gt_min_height=gt_min_height,
     )["total"]
 
 
@@ -509,6 +558,8 @@ def evaluate_tracking_sequences(
     hota_similarity: str = "iou2d",
     n_sample_pts: int = N_SAMPLE_PTS,
     hota: bool = True,
+    score_mode: str = "track_mean",
+    gt_min_height: float | None = None,
 ) -> dict:
     """Tracking metrics per sequence and over all of them: ``{"per_sequence": {seq: m},
     "total": m}``. Sequences missing from ``preds`` count as empty output.
@@ -520,7 +571,9 @@ def evaluate_tracking_sequences(
     over the recall samples; ``all_rows`` (the same CLEAR-MOT figures without a score threshold);
     with ``hota``: ``hota``, ``deta``, ``assa``, ``loca``, ``detre``, ``detpr``,
     ``hota_per_alpha`` (on all rows, as TrackEval). The total pools all sequences as the devkit
-    does (one set of score thresholds)."""
+    does (one set of score thresholds). ``score_mode``: ``"track_mean"`` (AB3DMOT: rows take
+    their track's mean score) or ``"row"``. ``gt_min_height``: count only ground truth higher
+    than this (pixels; None = the devkit's code, no limit)."""
     if iou_threshold is None:
         iou_threshold = 0.25 if similarity == "iou3d" else 0.5
     names = list(gts.keys())
@@ -530,6 +583,8 @@ def evaluate_tracking_sequences(
         cls,
         similarity,
         hota_similarity,
+        score_mode,
+        gt_min_height,
     )
     per = {
         n: _evaluate([s], iou_threshold, n_sample_pts, hota)
@@ -549,6 +604,7 @@ def match_tracks(
     cls: str = "Car",
     similarity: str = "iou2d",
     iou_threshold: float | None = None,
+    gt_min_height: float | None = None,
 ) -> dict[int, list[tuple[KittiObject, KittiObject]]]:
     """Per-frame (ground truth, prediction) pairs of the tracking matcher that count as true
     positives (ignored ground truth excluded): ``{frame: [(gt_obj, pred_obj), ...]}``."""
@@ -557,21 +613,11 @@ def match_tracks(
     out: dict[int, list] = {}
     for k in sorted(set(gt) | set(pred)):
         g_all, p_all = gt.get(k, []), pred.get(k, [])
-        fr = _prepare_frame(g_all, p_all, cls, similarity, "iou2d")
+        fr = _prepare_frame(g_all, p_all, cls, similarity, similarity, gt_min_height)
         res = _match_frame(fr, len(fr.t_ids), iou_threshold)
         g = [o for o in g_all if not o.is_dontcare and class_status(o.type, cls) >= 0]
-        t = sorted((o for o in p_all if class_status(o.type, cls) >= 0), key=lambda o: -_score(o))
-        by_id: dict[int, list[int]] = {}
-        for j, tid in enumerate(fr.t_ids):
-            by_id.setdefault(tid, []).append(j)
-        pairs = []
-        for r, tid in enumerate(res.g_tracker):
-            if tid < 0 or fr.g_ign[r]:
-                continue
-            js = by_id[tid]
-            j = max(js, key=lambda c: fr.sim[r, c])
-            pairs.append((g[r], t[j]))
-        out[k] = pairs
+        t = _tracker_rows(p_all, cls)
+        out[k] = [(g[r], t[c]) for r, c in res.pairs]
     return out
 
 
