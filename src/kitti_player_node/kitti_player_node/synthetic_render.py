@@ -45,8 +45,15 @@ DONTCARE_MIN_HEIGHT_PX = 15.0  # smaller 2D boxes become DontCare rows
 DONTCARE_MAX_DEPTH = 70.0  # farther vehicles become DontCare rows
 MIN_VISIBLE_PX = 12  # vehicles showing fewer pixels are not labelled at all
 
+GROUND_CLEARANCE = 0.17  # m between the road and the underbody
+WHEEL_POS = 0.33  # wheel centres at +-WHEEL_POS * l from the box centre
 SKY_ID, GROUND_ID, WALL_ID0, VEHICLE_ID0 = -1, -2, -10, 0  # values of the id buffer
 _SUN = np.array([0.35, -0.85, -0.40]) / np.linalg.norm([0.35, -0.85, -0.40])  # towards the sun
+
+
+def wheel_radius(vehicle: Vehicle) -> float:
+    """Wheel radius of a vehicle (m)."""
+    return min(0.34, 0.45 * vehicle.shape.body_height * vehicle.dimensions[0])
 
 
 # ----------------------------------------------------------------------------- textures
@@ -73,13 +80,16 @@ class Ripmap:
         self.flat = np.concatenate(blocks)
         self.offsets = offsets
 
-    def sample(self, s, t, fs, ft) -> np.ndarray:
-        """Texture at texel coordinates (s, t) with footprints (fs, ft) in texels."""
-        lu = np.clip(np.rint(np.log2(np.maximum(fs, 1.0))), 0, self.levels - 1).astype(np.int64)
-        lv = np.clip(np.rint(np.log2(np.maximum(ft, 1.0))), 0, self.levels - 1).astype(np.int64)
+    def sample(self, s, t, log_fs, log_ft, texel: float) -> np.ndarray:
+        """Texture at surface coordinates (s, t) (metres) for a texel size ``texel`` (metres),
+        with pixel footprints given as log2 of metres along s and t."""
+        shift = math.log2(texel)
+        top = self.levels - 1
+        lu = np.clip(np.rint(log_fs - shift), 0, top).astype(np.int64)
+        lv = np.clip(np.rint(log_ft - shift), 0, top).astype(np.int64)
         wu = self.n >> lu
-        si = (np.floor(s).astype(np.int64) >> lu) & (wu - 1)
-        ti = (np.floor(t).astype(np.int64) >> lv) & ((self.n >> lv) - 1)
+        si = (np.floor(s * (1.0 / texel)).astype(np.int64) >> lu) & (wu - 1)
+        ti = (np.floor(t * (1.0 / texel)).astype(np.int64) >> lv) & ((self.n >> lv) - 1)
         return self.flat[self.offsets[lv, lu] + ti * wu + si]
 
 
@@ -138,9 +148,20 @@ class CameraRays:
             hg = CAMERA_HEIGHT - cy
             tg = np.where(self.dy > 1e-9, hg / self.dy, np.inf)
             self.ground_t = tg
+            self.ground_ids = np.where(np.isfinite(tg), GROUND_ID, SKY_ID).astype(np.int32)
             self.ground_x = cx + tg * self.dx
             self.ground_fx = np.maximum(tg / self.fx, np.abs(self.dx) * tg * tg / (hg * self.fy))
             self.ground_fz = tg * tg / (hg * self.fy)
+            # flat float32 copies for shading, with log2 footprints (static mip levels)
+            f32 = np.float32
+            self.flat_ground = (
+                self.ground_x.astype(f32).ravel(),
+                tg.astype(f32).ravel(),
+                self.ground_fx.astype(f32).ravel(),
+                self.ground_fz.astype(f32).ravel(),
+                np.log2(self.ground_fx).astype(f32).ravel(),
+                np.log2(self.ground_fz).astype(f32).ravel(),
+            )
             self.walls = []
             for wall in walls:
                 ox = wall.x - cx
@@ -151,7 +172,10 @@ class CameraRays:
                 y = cy + t * self.dy.ravel()[idx]
                 fz = t * t / (abs(ox) * self.fx)
                 fy = np.maximum(t / self.fy, np.abs(self.dy.ravel()[idx]) * fz)
-                self.walls.append((wall, idx, t, y, fz, fy))
+                lfz, lfy = np.log2(fz).astype(f32), np.log2(fy).astype(f32)
+                self.walls.append(
+                    (wall, idx, t, y.astype(f32), fz.astype(f32), fy.astype(f32), lfz, lfy)
+                )
 
 
 @dataclass
@@ -196,18 +220,18 @@ class StereoRenderer:
         # clouds and a far hill line, both at infinity (identical in both views)
         ang_u = np.arctan(cam.dx) * 600.0
         ang_v = np.arctan(cam.dy) * 600.0
-        clouds = self.tex_pink.sample(ang_u, ang_v * 2.0, 1.0, 1.0)
+        clouds = self.tex_pink.sample(ang_u, ang_v * 2.0, 0.0, 0.0, 1.0)
         sky = sky + 0.06 * clouds[..., None]
-        hill = 0.04 + 0.03 * self.tex_pink.sample(ang_u * 0.3, 7.0, 1.0, 1.0)
+        hill = 0.04 + 0.03 * self.tex_pink.sample(ang_u * 0.3, 7.0, 0.0, 0.0, 1.0)
         hill_mask = (elev < hill)[..., None]
-        tree = 0.25 + 0.08 * self.tex_leaf.sample(ang_u * 4.0, ang_v * 4.0, 1.0, 1.0)
+        tree = 0.25 + 0.08 * self.tex_leaf.sample(ang_u * 4.0, ang_v * 4.0, 0.0, 0.0, 1.0)
         hills = np.stack([tree * 0.8, tree, tree * 0.7], axis=-1)
         return np.where(hill_mask, hills, sky).astype(np.float32)
 
-    def _shade_ground(self, X, Z, fx, fz) -> np.ndarray:
+    def _shade_ground(self, X, Z, fx, fz, lfx, lfz) -> np.ndarray:
         tex, pink = self.tex_fine, self.tex_pink
-        n1 = tex.sample(X / 0.015, Z / 0.015, fx / 0.015, fz / 0.015)
-        n2 = pink.sample(X / 0.12, Z / 0.12, fx / 0.12, fz / 0.12)
+        n1 = tex.sample(X, Z, lfx, lfz, 0.015)
+        n2 = pink.sample(X, Z, lfx, lfz, 0.12)
         grey = 0.34 + 0.05 * n1 + 0.04 * n2
         in_cross = np.abs(Z - self.scene.junction_z) < CROSS_HALF_WIDTH
         # lane markings on the carriageway (not across the junction)
@@ -228,22 +252,23 @@ class StereoRenderer:
         side = ((X < PARKING_LEFT) | (X > PARKING_RIGHT)) & ~in_cross
         if side.any():
             xs, zs, fxs, fzs = X[side], Z[side], fx[side], fz[side]
+            lxs, lzs = lfx[side], lfz[side]
             joints = np.maximum(pulses(xs, fxs, 0.6, 0.0, 0.04), pulses(zs, fzs, 0.6, 0.0, 0.04))
-            ns = self.tex_fine.sample(xs / 0.01, zs / 0.01, fxs / 0.01, fzs / 0.01)
+            ns = self.tex_fine.sample(xs, zs, lxs, lzs, 0.01)
             pv = 0.55 + 0.05 * ns - 0.25 * joints
             paving = np.stack([pv, pv * 0.97, pv * 0.92], axis=-1)
             outside = (xs < WALL_LEFT) | (xs > WALL_RIGHT)
-            g = 0.3 + 0.08 * self.tex_leaf.sample(xs / 0.03, zs / 0.03, fxs / 0.03, fzs / 0.03)
+            g = 0.3 + 0.08 * self.tex_leaf.sample(xs, zs, lxs, lzs, 0.03)
             grass = np.stack([g * 0.6, g, g * 0.4], axis=-1)
             rgb[side] = np.where(outside[:, None], grass, paving)
         return rgb
 
-    def _shade_wall(self, wall, seg, Z, Y, fz, fy) -> np.ndarray:
+    def _shade_wall(self, wall, seg, Z, Y, fz, fy, lfz, lfy) -> np.ndarray:
         kinds = wall.kinds[seg]
         base = wall.colours[seg]
         up = CAMERA_HEIGHT - Y  # height above ground
-        n = self.tex_pink.sample(Z / 0.05, up / 0.05, fz / 0.05, fy / 0.05)
-        nf = self.tex_fine.sample(Z / 0.02, up / 0.02, fz / 0.02, fy / 0.02)
+        n = self.tex_pink.sample(Z, up, lfz, lfy, 0.05)
+        nf = self.tex_fine.sample(Z, up, lfz, lfy, 0.02)
         period = wall.window_period[seg]
         # windows: one per period along z, one row per 3 m floor
         wz = pulses(Z / period, fz / period, 1.0, 0.3, 0.45)
@@ -252,7 +277,7 @@ class StereoRenderer:
         facade = base * (1.0 + 0.10 * n + 0.05 * nf)[:, None]
         glass = (0.18 + 0.06 * n)[:, None] * np.array([0.8, 0.9, 1.1], np.float32)
         building = facade * (1 - win) + glass * win
-        leaf = self.tex_leaf.sample(Z / 0.04, up / 0.04, fz / 0.04, fy / 0.04)
+        leaf = self.tex_leaf.sample(Z, up, lfz, lfy, 0.04)
         vegetation = base * (1.0 + 0.35 * leaf + 0.1 * n)[:, None]
         return np.where((kinds == BUILDING)[:, None], building, vegetation)
 
@@ -280,10 +305,14 @@ class StereoRenderer:
         lc = sh.cabin_length * length
         xc = sh.cabin_offset * length
         wc = sh.cabin_width * w
+        wr = wheel_radius(vehicle)
         parts = [
-            ((-length / 2, length / 2), (-hb, 0.0), (-w / 2, w / 2)),
+            ((-length / 2, length / 2), (-hb, -GROUND_CLEARANCE), (-w / 2, w / 2)),
             ((xc - lc / 2, xc + lc / 2), (-h, -hb), (-wc / 2, wc / 2)),
         ]
+        for xw in (WHEEL_POS * length, -WHEEL_POS * length):
+            for zw in ((w / 2 - 0.25, w / 2 - 0.03), (-w / 2 + 0.03, -w / 2 + 0.25)):
+                parts.append(((xw - wr, xw + wr), (-2 * wr, 0.0), zw))
         best_t = np.full(dxw.shape, np.inf)
         best_axis = np.zeros(dxw.shape, np.int8)
         best_part = np.zeros(dxw.shape, np.int8)
@@ -301,7 +330,7 @@ class StereoRenderer:
                 hit = (tn <= tf) & (tn > 0.05) & (tn < best_t)
                 best_t = np.where(hit, tn, best_t)
                 best_axis = np.where(hit, tmin.argmax(axis=0).astype(np.int8), best_axis)
-                best_part = np.where(hit, np.int8(k), best_part)
+                best_part = np.where(hit, np.int8(min(k, 2)), best_part)
         local = (ox + best_t * ldx, oy + best_t * ldy, oz + best_t * ldz)
         sign = np.where(
             best_axis == 0, -np.sign(ldx), np.where(best_axis == 1, -np.sign(ldy), -np.sign(ldz))
@@ -326,8 +355,8 @@ class StereoRenderer:
         # surface coordinates for texture: along-face horizontal and vertical
         su = np.where(ax == 0, lz, lx)
         sv = np.where(ax == 1, lz, up)
-        fp = (tt / fx) / 0.02
-        n = self.tex_pink.sample(su / 0.02 + 37 * vehicle.track_id, sv / 0.02, fp, fp)
+        lfp = np.log2(tt / fx)
+        n = self.tex_pink.sample(su + 0.7 * vehicle.track_id, sv, lfp, lfp, 0.02)
         body = base[None, :] * (1.0 + 0.04 * n)[:, None]
         hb = sh.body_height * h
         side = ax == 2
@@ -346,16 +375,17 @@ class StereoRenderer:
         refl = 0.05 * (up - hb) / max(h - hb, 1e-3)
         colour = body
         colour = np.where(window[:, None], glass + refl[:, None] + 0.02 * n[:, None], colour)
-        # lower band (sills, bumpers, tyres) darker
+        # lower band (sills, bumpers) darker
         lower = (up < 0.28) & ~cabin
         colour = np.where(lower[:, None], colour * 0.35 + 0.03, colour)
-        # wheels on the sides
-        wr = min(0.34, 0.45 * hb)
-        for xw in (0.33 * length, -0.33 * length):
+        # wheels: tyre arcs on the body sides, tyres (part 2) below the body, grey rims
+        wr = wheel_radius(vehicle)
+        wheel = pt == 2
+        for xw in (WHEEL_POS * length, -WHEEL_POS * length):
             d2 = (lx - xw) ** 2 + (up - wr) ** 2
             tyre = side & (d2 < wr * wr)
             rim = side & (d2 < (0.55 * wr) ** 2)
-            colour = np.where(tyre[:, None], dark, colour)
+            colour = np.where((tyre | wheel)[:, None], dark + 0.02 * n[:, None], colour)
             colour = np.where(rim[:, None], np.float32(0.45) + 0.05 * n[:, None], colour)
         # lights and grille
         lamp_y = (up > hb - 0.25) & (up < hb - 0.08) & ~cabin
@@ -389,14 +419,11 @@ class StereoRenderer:
         H, W = cam.shape
         ez = self.scene.ego_z(frame)
         img = self._sky[camera].copy()
-        depth = np.full((H, W), np.inf)
-        ids = np.full((H, W), SKY_ID, np.int32)
-        ground = np.isfinite(cam.ground_t)
-        depth[ground] = cam.ground_t[ground]
-        ids[ground] = GROUND_ID
+        depth = cam.ground_t.copy()  # inf above the horizon
+        ids = cam.ground_ids.copy()
         dflat, iflat = depth.reshape(-1), ids.reshape(-1)
         wall_hits = []
-        for k, (wall, idx, t, y, fz, fy) in enumerate(cam.walls):
+        for k, (wall, idx, t, y, fz, fy, lfz, lfy) in enumerate(cam.walls):
             Z = t + ez
             seg = wall.index(Z)
             ok = (wall.kinds[seg] != GAP) & (y >= CAMERA_HEIGHT - wall.heights[seg])
@@ -404,20 +431,23 @@ class StereoRenderer:
             sel = idx[ok]
             dflat[sel] = t[ok]
             iflat[sel] = WALL_ID0 - k
-            wall_hits.append((wall, ok, seg, Z, y, fz, fy, idx))
+            wall_hits.append((wall, ok, seg, Z, y, fz, fy, lfz, lfy, idx))
         # shade the visible background
         flat = img.reshape(-1, 3)
         gsel = np.flatnonzero(iflat == GROUND_ID)
-        flat[gsel] = self._shade_ground(
-            cam.ground_x.reshape(-1)[gsel],
-            cam.ground_t.reshape(-1)[gsel] + ez,
-            cam.ground_fx.reshape(-1)[gsel],
-            cam.ground_fz.reshape(-1)[gsel],
-        )
-        for k, (wall, ok, seg, Z, y, fz, fy, idx) in enumerate(wall_hits):
-            keep = ok & (iflat[idx] == WALL_ID0 - k)
+        gx, gt, gfx, gfz, glx, glz = (a[gsel] for a in cam.flat_ground)
+        flat[gsel] = self._shade_ground(gx, gt + np.float32(ez), gfx, gfz, glx, glz)
+        for k, (wall, ok, seg, Z, y, fz, fy, lfz, lfy, idx) in enumerate(wall_hits):
+            keep = np.flatnonzero(ok & (iflat[idx] == WALL_ID0 - k))
             flat[idx[keep]] = self._shade_wall(
-                wall, seg[keep], Z[keep], y[keep], fz[keep], fy[keep]
+                wall,
+                seg[keep],
+                Z[keep].astype(np.float32),
+                y[keep],
+                fz[keep],
+                fy[keep],
+                lfz[keep],
+                lfy[keep],
             )
         # vehicles: shadows on the ground, then z-buffered boxes
         poses = [self.vehicle_pose(v, frame) for v in self.scene.vehicles]

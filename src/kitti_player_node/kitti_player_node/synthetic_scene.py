@@ -352,6 +352,18 @@ def _random_walls(rng: np.random.Generator, junction_z: float, ego_end: float):
     return walls
 
 
+_FACADE_TINTS = np.array(
+    [
+        (0.78, 0.76, 0.72),  # light grey plaster
+        (0.62, 0.60, 0.58),  # concrete
+        (0.80, 0.72, 0.58),  # sandstone
+        (0.58, 0.33, 0.26),  # brick
+        (0.86, 0.82, 0.70),  # cream
+        (0.70, 0.66, 0.60),  # stone
+    ]
+)
+
+
 def _random_segment(rng: np.random.Generator, near: bool):
     r = rng.random()
     period = float(rng.uniform(2.2, 3.2))
@@ -362,5 +374,6 @@ def _random_segment(rng: np.random.Generator, near: bool):
         colour = rng.uniform([0.12, 0.25, 0.08], [0.25, 0.42, 0.18])
         return VEGETATION, float(height), tuple(float(c) for c in colour), period
     height = rng.uniform(6.0, 18.0) if near else rng.uniform(8.0, 30.0)
-    colour = rng.uniform([0.45, 0.40, 0.35], [0.85, 0.80, 0.72])
+    tint = _FACADE_TINTS[rng.integers(len(_FACADE_TINTS))]
+    colour = np.clip(tint * rng.uniform(0.75, 1.1) + rng.uniform(-0.03, 0.03, 3), 0.0, 1.0)
     return BUILDING, float(height), tuple(float(c) for c in colour), period
