@@ -60,6 +60,9 @@ VARIANTS = {
         FULL, downscale=2, num_disparities=96, wls_lambda=2000.0
     ),
     "L+R+WLS, quarter res, 96 disp": replace(FULL, downscale=4, num_disparities=96),
+    "L+R+WLS, half res, 96 disp, block 3, WLS at half res": replace(
+        FULL, downscale=2, num_disparities=96, block_size=3, wls_full_res_guide=False
+    ),
 }
 
 
@@ -261,24 +264,30 @@ def bench_timing(variants: dict[str, DisparityParams], repeats: int) -> None:
         f"\n## Time per frame, disparity + ranging, 1242x375, cv2.setNumThreads(2), "
         f"median of {repeats}x{len(frames)} frames"
     )
+    print("variants interleaved round-robin so that load changes hit all alike")
     print("| variant | median ms | p90 ms | ratio to L+R+WLS full res 128 |")
     print("|---|---|---|---|")
-    ref = None
-    for name, p in variants.items():
-        ts = []
-        for _ in range(repeats):
+    times: dict[str, list[float]] = {name: [] for name in variants}
+    rtimes = []
+    for _ in range(repeats):
+        for name, p in variants.items():
             for left, right, boxes in frames:
                 t0 = time.perf_counter()
                 d = compute_disparity(left, right, p)
+                t1 = time.perf_counter()
                 range_boxes(d, np.array(boxes).reshape(-1, 4), geo)
-                ts.append(time.perf_counter() - t0)
+                t2 = time.perf_counter()
+                times[name].append(t2 - t0)
+                rtimes.append(t2 - t1)
+    ref = 1000 * np.median(times[next(iter(variants))])
+    for name, ts in times.items():
         med = 1000 * np.median(ts)
-        if p == FULL:
-            ref = med
-        print(
-            f"| {name} | {med:.0f} | {1000 * np.percentile(ts, 90):.0f} | "
-            f"{med / ref if ref else float('nan'):.2f} |"
-        )
+        print(f"| {name} | {med:.0f} | {1000 * np.percentile(ts, 90):.0f} | {med / ref:.2f} |")
+    n_boxes = np.mean([len(b) for _, _, b in frames])
+    print(
+        f"ranging step alone (range_boxes, {n_boxes:.1f} boxes/frame): median "
+        f"{1000 * np.median(rtimes):.2f} ms"
+    )
 
 
 def main() -> int:

@@ -56,6 +56,8 @@ class DisparityParams:
     wls_lrc_thresh: int = 24  # left-right consistency threshold of the filter (1/16 px units)
     wls_min_confidence: float = 0.0  # filtered pixels with a lower confidence (0..255) -> invalid
     downscale: int = 2  # 1 = full resolution, 2 = match at half resolution
+    wls_full_res_guide: bool = True  # with downscale: filter at full resolution (else filter at
+    # the matching resolution and upsample the result)
     row_band: tuple[int, int] | None = None  # (top, bottom) rows to match; None = all rows
     pad_left: bool = True  # pad images on the left so the leftmost num_disparities columns
     # (which SGBM cannot match) still get disparities where their match lies inside the right view
@@ -174,19 +176,20 @@ def _match(
     wls.setSigmaColor(params.wls_sigma)
     wls.setLRCthresh(params.wls_lrc_thresh)
     guide = cv2.cvtColor(left_guide_rgb, cv2.COLOR_RGB2BGR) if left_guide_rgb.ndim == 3 else left
+    if not params.wls_full_res_guide:
+        guide = _shrink(guide, scale)
     # With a full-resolution guide and low-resolution disparities the filter upsamples the
     # disparities (and multiplies them by the scale) itself.
     filtered = wls.filter(disp_left, guide, disparity_map_right=disp_right)
     disp = filtered.astype(np.float32) / 16.0
-    if disp.shape != (full_h, full_w):  # defensive: OpenCV versions differ in the upsampling
+    if disp.shape != (full_h, full_w):  # filtered at the matching resolution: upsample
         factor = full_w / disp.shape[1]
         disp = cv2.resize(disp, (full_w, full_h), interpolation=cv2.INTER_LINEAR) * factor
     valid = disp > max(0.0, float(min_d))
     roi = wls.getROI()  # (x, y, w, h) of the area where the filter had both views
     if roi is not None and len(roi) == 4 and roi[2] > 0:
         x, y, w, h = (int(v) for v in roi)
-        if scale != 1 and x + w <= full_w // scale + 1 and w < full_w:
-            # ROI reported at the matching scale
+        if scale != 1:  # the ROI is reported at the matching scale
             x, y, w, h = x * scale, y * scale, w * scale, h * scale
         mask = np.zeros_like(valid)
         mask[y : y + h, x : x + w] = True
