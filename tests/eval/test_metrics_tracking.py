@@ -13,7 +13,14 @@ from eval_node.tracking_metrics import (
     iou_3d,
     match_tracks,
 )
-from kitti_player_node.kitti import KittiFormatError, KittiObject, write_tracking_labels
+from kitti_player_node.box3d import projected_bbox
+from kitti_player_node.kitti import (
+    KittiFormatError,
+    KittiObject,
+    stereo_calibration,
+    write_calib,
+    write_tracking_labels,
+)
 
 
 def box(
@@ -277,3 +284,28 @@ def test_labels_against_themselves(kitti_tracking_root):
         assert m["hota"] == pytest.approx(1.0) and m["samota"] == pytest.approx(1.0)
     r3 = evaluate_tracking_dirs(labels, labels, seqs=[12], similarity="iou3d", hota=False)
     assert r3["total"]["mota"] == 1.0 and r3["total"]["motp"] == pytest.approx(1.0)
+
+
+def test_calib_dir_fills_missing_2d_boxes(tmp_path):
+    """Result rows without a 2D box get their 3D box's projection (P2) when calib_dir is given;
+    without it they are unmatched and, 0 px high, ignored (the devkit's behaviour)."""
+    calib = stereo_calibration(700.0, 700.0, 620.0, 187.0, 0.54)
+    write_calib(tmp_path / "calib" / "0000.txt", calib)
+    dims, loc, ry = (1.5, 1.6, 4.0), (1.0, 1.6, 15.0), 0.2
+    bbox = projected_bbox(calib.P2, dims, loc, ry, (1242, 375))
+    gt = [
+        KittiObject(
+            "Car", bbox=bbox, dimensions=dims, location=loc, rotation_y=ry, frame=f, track_id=0
+        )
+        for f in range(3)
+    ]
+    res = [o.with_(bbox=(0.0, 0.0, 0.0, 0.0), track_id=4, score=0.8) for o in gt]
+    write_tracking_labels(tmp_path / "labels" / "0000.txt", gt)
+    write_tracking_labels(tmp_path / "results" / "0000.txt", res)
+    bare = evaluate_tracking_dirs(tmp_path / "results", tmp_path / "labels")["total"]
+    assert (bare["tp"], bare["fp"], bare["fn"]) == (0, 0, 3)
+    filled = evaluate_tracking_dirs(
+        tmp_path / "results", tmp_path / "labels", calib_dir=tmp_path / "calib"
+    )["total"]
+    assert (filled["tp"], filled["fp"], filled["fn"], filled["mota"]) == (3, 0, 0, 1.0)
+    assert filled["motp"] == pytest.approx(1.0, abs=1e-5)  # rows are written with 6 decimals
