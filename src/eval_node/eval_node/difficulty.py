@@ -10,7 +10,9 @@ moderate    25 px                  1               0.30
 hard        25 px                  2               0.50
 ==========  =====================  ==============  ===============
 
-Ground truth of the evaluated class outside the level, and ground truth of the neighbouring class
+A ground truth exactly at the minimum height is inside the level (the C++ devkit's
+``height < MIN_HEIGHT`` rule; kitti-object-eval-python uses ``<=``). Ground truth of the evaluated
+class outside the level, and ground truth of the neighbouring class
 (``Van`` for ``Car``, ``Person_sitting`` for ``Pedestrian``), is *ignored*: matching it is neither a
 true nor a false positive, missing it is not a false negative. Predictions lower than the level's
 minimum height are ignored too.
