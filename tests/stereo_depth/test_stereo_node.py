@@ -167,3 +167,25 @@ def test_detections_whose_frame_never_arrives_are_dropped_and_counted(harness):
     harness.send_detections(53, [(150, 30, 250, 90)])
     assert harness.spin_until(lambda: len(harness.det3d) == 1)
     assert harness.det3d[0].header.stamp.sec == 53
+
+
+def test_parameters_accept_yaml_integers_and_reach_the_core(rclpy_context):
+    from stereo_depth_node.node import create_node
+
+    node = create_node(
+        context=rclpy_context,
+        parameter_overrides=[
+            Parameter("p1_factor", value=6),
+            Parameter("depth_offset", value=[0, 0, 1, 0]),
+            Parameter("ranging_method", value="median"),
+            Parameter("downscale", value=1),
+        ],
+    )
+    try:
+        assert node.disparity_params.p1_factor == 6.0 and node.disparity_params.downscale == 1
+        assert node.ranging_params.depth_offset == (0.0, 0.0, 1.0, 0.0)
+        assert node.ranging_params.method == "median"
+    finally:
+        node.destroy_node()
+    with pytest.raises(ValueError):
+        create_node(context=rclpy_context, parameter_overrides=[Parameter("mode", value="x")])

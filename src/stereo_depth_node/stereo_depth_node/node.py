@@ -102,6 +102,7 @@ def build_point_cloud(points: np.ndarray, colours: np.ndarray | None, header):
 
 
 def _make_node_class():
+    from rcl_interfaces.msg import ParameterDescriptor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile
     from sensor_msgs.msg import CameraInfo, Image
@@ -119,12 +120,15 @@ def _make_node_class():
             super().__init__(NODE_NAME, **kwargs)
             self.disparity_params = self._read_disparity_params()
             self.ranging_params = self._read_ranging_params()
-            p = {k: self.declare_parameter(k, v).value for k, v in _NODE_PARAMS.items()}
+            p = {k: self._declare(k, v) for k, v in _NODE_PARAMS.items()}
             self.publish_disparity = bool(p["publish_disparity"])
             self.publish_points = bool(p["publish_points"])
             self.points_decimation = int(p["points_decimation"])
             self.points_max_depth = float(p["points_max_depth"])
             self.points_rgb = bool(p["points_rgb"])
+            if len(p["match_rows"]) != 2:
+                raise ValueError(f"parameter match_rows: {p['match_rows']} needs [top, bottom]")
+            self.match_rows = (int(p["match_rows"][0]), int(p["match_rows"][1]))
             cache = max(1, int(p["sync_cache_size"]))
             self.pair_sync = ExactStampSync(("left", "right"), cache)
             self.frame_sync = ExactStampSync(("frame", "detections"), cache)
@@ -155,14 +159,28 @@ def _make_node_class():
             )
 
         # ------------------------------------------------------------------ parameters
+        def _declare(self, name: str, default):
+            """Declare with dynamic typing (a YAML ``8`` for a double is accepted) and coerce the
+            value to the default's type; raises ValueError when it cannot be."""
+            desc = ParameterDescriptor(dynamic_typing=True)
+            value = self.declare_parameter(name, _param_default(default), desc).value
+            try:
+                if isinstance(default, bool):
+                    if not isinstance(value, bool):
+                        raise TypeError
+                    return value
+                if isinstance(default, tuple | list):
+                    kind = float if isinstance(default, tuple) else type(default[0])
+                    out = [kind(v) for v in value]
+                    return tuple(out) if isinstance(default, tuple) else out
+                return type(default)(value)
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"parameter {name}: {value!r} is not a {type(default).__name__}"
+                ) from None
+
         def _declare_fields(self, cls) -> dict:
-            values = {}
-            for field, name, default in _core_fields(cls):
-                value = self.declare_parameter(name, _param_default(default)).value
-                if isinstance(default, tuple):
-                    value = tuple(float(v) for v in value)
-                values[field] = value
-            return values
+            return {field: self._declare(name, d) for field, name, d in _core_fields(cls)}
 
         def _read_disparity_params(self) -> DisparityParams:
             params = DisparityParams(**self._declare_fields(DisparityParams))
@@ -175,7 +193,7 @@ def _make_node_class():
             return params
 
         def _match_band(self, height: int):
-            top, bottom = (int(v) for v in self.get_parameter("match_rows").value)
+            top, bottom = self.match_rows
             if bottom <= top:
                 return None
             return (max(0, top), min(height, bottom))
