@@ -36,7 +36,7 @@ from .kitti import (
 from .synthetic_render import StereoRenderer
 from .synthetic_scene import Scene, random_scene
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # bump whenever the output changes (invalidates manifests)
 KITTI_WIDTH, KITTI_HEIGHT = 1242, 375
 KITTI_FX, KITTI_FY, KITTI_CX, KITTI_CY = 721.5377, 721.5377, 609.5593, 172.854
 KITTI_BASELINE = 0.5327

@@ -48,7 +48,6 @@ MIN_VISIBLE_PX = 12  # vehicles showing fewer pixels are not labelled at all
 GROUND_CLEARANCE = 0.17  # m between the road and the underbody
 WHEEL_POS = 0.33  # wheel centres at +-WHEEL_POS * l from the box centre
 SKY_ID, GROUND_ID, WALL_ID0, VEHICLE_ID0 = -1, -2, -10, 0  # values of the id buffer
-_SUN = np.array([0.35, -0.85, -0.40]) / np.linalg.norm([0.35, -0.85, -0.40])  # towards the sun
 
 
 def wheel_radius(vehicle: Vehicle) -> float:
@@ -197,6 +196,7 @@ class StereoRenderer:
 
     def __init__(self, scene: Scene, calib: Calibration, width: int, height: int) -> None:
         self.scene, self.calib = scene, calib
+        self.sun = np.asarray(scene.sun, float) / np.linalg.norm(scene.sun)
         self.width, self.height = width, height
         rng = np.random.default_rng([scene.seed, 0x7E57])
         self.tex_fine = Ripmap(noise_texture(rng, 256, 0.6))
@@ -264,22 +264,29 @@ class StereoRenderer:
         return rgb
 
     def _shade_wall(self, wall, seg, Z, Y, fz, fy, lfz, lfy) -> np.ndarray:
-        kinds = wall.kinds[seg]
-        base = wall.colours[seg]
         up = CAMERA_HEIGHT - Y  # height above ground
-        n = self.tex_pink.sample(Z, up, lfz, lfy, 0.05)
-        nf = self.tex_fine.sample(Z, up, lfz, lfy, 0.02)
-        period = wall.window_period[seg]
-        # windows: one per period along z, one row per 3 m floor
-        wz = pulses(Z / period, fz / period, 1.0, 0.3, 0.45)
-        wy = pulses(up, fy, 3.0, 0.9, 1.4)
-        win = (wz * wy * (up > 0.5))[:, None]
-        facade = base * (1.0 + 0.10 * n + 0.05 * nf)[:, None]
-        glass = (0.18 + 0.06 * n)[:, None] * np.array([0.8, 0.9, 1.1], np.float32)
-        building = facade * (1 - win) + glass * win
-        leaf = self.tex_leaf.sample(Z, up, lfz, lfy, 0.04)
-        vegetation = base * (1.0 + 0.35 * leaf + 0.1 * n)[:, None]
-        return np.where((kinds == BUILDING)[:, None], building, vegetation)
+        out = np.empty((len(Z), 3), np.float32)
+        b = wall.kinds[seg] == BUILDING
+        for is_building, sel in ((True, np.flatnonzero(b)), (False, np.flatnonzero(~b))):
+            if not len(sel):
+                continue
+            zs, us, lz, ly, sg = Z[sel], up[sel], lfz[sel], lfy[sel], seg[sel]
+            base = wall.colours[sg]
+            n = self.tex_pink.sample(zs, us, lz, ly, 0.05)
+            if is_building:
+                nf = self.tex_fine.sample(zs, us, lz, ly, 0.02)
+                period = wall.window_period[sg]
+                # windows: one per period along z, one row per 3 m floor
+                wz = pulses(zs / period, fz[sel] / period, 1.0, 0.3, 0.45)
+                wy = pulses(us, fy[sel], 3.0, 0.9, 1.4)
+                win = (wz * wy * (us > 0.5))[:, None]
+                facade = base * (1.0 + 0.10 * n + 0.05 * nf)[:, None]
+                glass = (0.18 + 0.06 * n)[:, None] * np.array([0.8, 0.9, 1.1], np.float32)
+                out[sel] = facade * (1 - win) + glass * win
+            else:
+                leaf = self.tex_leaf.sample(zs, us, lz, ly, 0.04)
+                out[sel] = base * (1.0 + 0.35 * leaf + 0.1 * n)[:, None]
+        return out
 
     # -- vehicles ---------------------------------------------------------------------------
 
@@ -316,21 +323,43 @@ class StereoRenderer:
         best_t = np.full(dxw.shape, np.inf)
         best_axis = np.zeros(dxw.shape, np.int8)
         best_part = np.zeros(dxw.shape, np.int8)
+        P, H, W = cam.P, v1 - v0, u1 - u0
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = [1.0 / np.where(np.abs(d) < 1e-12, 1e-12, d) for d in (ldx, ldy, ldz)]
             for k, bounds in enumerate(parts):
+                # the part's own pixel window inside the vehicle's window
+                (x0, x1), (y0, y1), (z0, z1) = bounds
+                cx_ = np.array([x0, x1, x0, x1, x0, x1, x0, x1])
+                cy_ = np.array([y0, y0, y1, y1, y0, y0, y1, y1])
+                cz_ = np.array([z0, z0, z0, z0, z1, z1, z1, z1])
+                corners = np.stack(
+                    [loc[0] + c * cx_ + s * cz_, loc[1] + cy_, loc[2] - s * cx_ + c * cz_], axis=1
+                )
+                a0, a1, b0, b1 = 0, H, 0, W
+                if corners[:, 2].min() > 0.1:
+                    uv = project_points(P, corners)
+                    b0 = max(int(math.floor(uv[:, 0].min())) - 1 - u0, 0)
+                    b1 = min(int(math.ceil(uv[:, 0].max())) + 2 - u0, W)
+                    a0 = max(int(math.floor(uv[:, 1].min())) - 1 - v0, 0)
+                    a1 = min(int(math.ceil(uv[:, 1].max())) + 2 - v0, H)
+                    if a1 <= a0 or b1 <= b0:
+                        continue
+                sl = (slice(a0, a1), slice(b0, b1))
                 tmins, tmaxs = [], []
                 for (lo, hi), oo, iv in zip(bounds, (ox, oy, oz), inv, strict=True):
-                    t1, t2 = (lo - oo) * iv, (hi - oo) * iv
+                    t1, t2 = (lo - oo) * iv[sl], (hi - oo) * iv[sl]
                     tmins.append(np.minimum(t1, t2))
                     tmaxs.append(np.maximum(t1, t2))
-                tmin = np.stack(tmins)
-                tn = tmin.max(axis=0)
+                tn = np.maximum(np.maximum(tmins[0], tmins[1]), tmins[2])
                 tf = np.minimum(np.minimum(tmaxs[0], tmaxs[1]), tmaxs[2])
-                hit = (tn <= tf) & (tn > 0.05) & (tn < best_t)
-                best_t = np.where(hit, tn, best_t)
-                best_axis = np.where(hit, tmin.argmax(axis=0).astype(np.int8), best_axis)
-                best_part = np.where(hit, np.int8(min(k, 2)), best_part)
+                bt = best_t[sl]
+                hit = (tn <= tf) & (tn > 0.05) & (tn < bt)
+                if not hit.any():
+                    continue
+                axis = np.where(tmins[0] >= tn, 0, np.where(tmins[1] >= tn, 1, 2))
+                bt[hit] = tn[hit]
+                best_axis[sl][hit] = axis[hit]
+                best_part[sl][hit] = min(k, 2)
         local = (ox + best_t * ldx, oy + best_t * ldy, oz + best_t * ldz)
         sign = np.where(
             best_axis == 0, -np.sign(ldx), np.where(best_axis == 1, -np.sign(ldy), -np.sign(ldz))
@@ -348,7 +377,8 @@ class StereoRenderer:
         nly = np.where(ax == 1, sg, 0.0)
         nlz = np.where(ax == 2, sg, 0.0)
         ncx, ncz = c * nlx + s * nlz, -s * nlx + c * nlz
-        lam = np.maximum(0.0, ncx * _SUN[0] + nly * _SUN[1] + ncz * _SUN[2])
+        sun = self.sun
+        lam = np.maximum(0.0, ncx * sun[0] + nly * sun[1] + ncz * sun[2])
         light = (0.45 + 0.6 * lam).astype(np.float32)
         base = np.asarray(vehicle.colour, np.float32)
         up = -ly  # height above ground
@@ -439,7 +469,9 @@ class StereoRenderer:
         flat[gsel] = self._shade_ground(gx, gt + np.float32(ez), gfx, gfz, glx, glz)
         for k, (wall, ok, seg, Z, y, fz, fy, lfz, lfy, idx) in enumerate(wall_hits):
             keep = np.flatnonzero(ok & (iflat[idx] == WALL_ID0 - k))
-            flat[idx[keep]] = self._shade_wall(
+            normal_x = 1.0 if wall.x < 0 else -1.0  # walls face the road
+            light = np.float32(0.6 + 0.5 * max(0.0, normal_x * self.sun[0]))
+            flat[idx[keep]] = light * self._shade_wall(
                 wall,
                 seg[keep],
                 Z[keep].astype(np.float32),
@@ -471,6 +503,7 @@ class StereoRenderer:
             img[v0:v1, u0:u1][front] = self._shade_vehicle(
                 v, front, t, axis, part, sign, local, rot, cam.fx
             )
+        img *= np.float32(self.scene.exposure)
         return RenderResult(image=img, depth=depth, ids=ids, silhouette=silhouette)
 
     def _shadow(self, cam: CameraRays, v: Vehicle, loc, ry, img, ids, ez) -> None:

@@ -114,6 +114,8 @@ class Scene:
     junction_z: float
     vehicles: list[Vehicle]
     walls: list[WallSegments] = field(default_factory=list)
+    exposure: float = 1.0  # global brightness factor
+    sun: tuple[float, float, float] = (0.35, -0.85, -0.40)  # direction towards the sun (y down)
 
     def ego_z(self, frame: int) -> float:
         return self.ego_speed * frame * FRAME_DT
@@ -234,7 +236,7 @@ def random_scene(seed: int, frames: int, n_vehicles: int = 12, sequence_index: i
         if attempts <= len(base_roles):
             role = base_roles[attempts - 1]
         else:
-            role = str(rng.choice(ROLES, p=[0.26, 0.1, 0.24, 0.1, 0.1, 0.2]))
+            role = str(rng.choice(ROLES, p=[0.22, 0.1, 0.2, 0.14, 0.14, 0.2]))
         van = rng.random() < 0.2
         track_id = len(vehicles)
         dims, colour, shape = _random_vehicle_body(rng, track_id, van)
@@ -310,6 +312,12 @@ def random_scene(seed: int, frames: int, n_vehicles: int = 12, sequence_index: i
         accepted.append((v, circles, radius))
         vehicles.append(v)
     walls = _random_walls(rng, junction_z, ego_end)
+    azimuth, elevation = rng.uniform(-math.pi, math.pi), rng.uniform(0.5, 1.2)
+    sun = (
+        math.cos(elevation) * math.sin(azimuth),
+        -math.sin(elevation),
+        math.cos(elevation) * math.cos(azimuth),
+    )
     return Scene(
         frames=frames,
         seed=seed,
@@ -317,6 +325,8 @@ def random_scene(seed: int, frames: int, n_vehicles: int = 12, sequence_index: i
         junction_z=junction_z,
         vehicles=vehicles,
         walls=walls,
+        exposure=float(rng.uniform(0.8, 1.15)),
+        sun=sun,
     )
 
 
