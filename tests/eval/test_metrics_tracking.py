@@ -187,6 +187,16 @@ def test_ignore_rules():
     assert m["hota"] == pytest.approx(math.sqrt(0.5))  # DetA 1/2 (TP 1, FP 1), AssA 1
 
 
+def test_motp_includes_ignored_pairs_as_devkit():
+    # devkit: MOTP = total_cost / tp, both over every matched pair (ignored ground truth too)
+    gt = {0: [box(0, 0), box(0, 1, x1=300.0, type="Van")]}
+    pred = {0: [box(0, 10, x1=120.0), box(0, 11, x1=300.0)]}  # IoU 4000/6000 and 1
+    m = evaluate_tracking(gt, pred, hota=False)
+    assert (m["tp"], m["itp"], m["fp"], m["fn"], m["n_gt"]) == (1, 1, 0, 0, 1)
+    assert m["motp"] == pytest.approx((2 / 3 + 1.0) / 2)
+    assert m["mota"] == 1.0
+
+
 def test_3d_similarity_and_match_tracks():
     gt = {0: [box(0, 0)], 1: [box(1, 0)]}
     # same 2D box, 1 m along the box's length (x at yaw 0)

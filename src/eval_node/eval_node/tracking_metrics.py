@@ -9,8 +9,12 @@ missing score counts as 1.0). Rules (KITTI tracking devkit; shared/notes/kitti-t
 - Class ``cls`` (default Car) is evaluated; ground truth of the neighbouring class (Van) takes part
   in the matching but is ignored; tracker rows of other classes than ``cls``/neighbour are dropped.
 - Ground truth counts only when occlusion <= 2 and truncation <= 0 (and 2D height >
-  ``gt_min_height`` when given: the devkit's code has no such rule, shared/notes says 25 px);
-  matching an ignored ground truth is neither TP nor FP, missing it is not a FN.
+  ``gt_min_height`` when given). Default: no height limit on ground truth, as AB3DMOT's
+  scripts/KITTI/evaluate.py (compute3rdPartyMetrics ignores ground truth on occlusion, truncation
+  and class only; ``min_height`` is tested on tracker boxes). Its reference figures agree: on the
+  6 validation sequences 4528 ground-truth boxes count without a height limit (MOTA 83.28 = 1 -
+  757 / 4528), 3609 with the 25 px limit shared/notes states. Matching an ignored ground truth is
+  neither TP nor FP, missing it is not a FN.
 - Unmatched tracker boxes are ignored when they are of the neighbouring class, 2D height <= 25 px,
   or cover a DontCare box (intersection over the tracker box's area > 0.5).
 - Per frame, Hungarian matching on ``1 - similarity`` with pairs below ``iou_threshold``
@@ -19,13 +23,17 @@ missing score counts as 1.0). Rules (KITTI tracking devkit; shared/notes/kitti-t
   exactly as the devkit's loop does (an ID switch also counts as a fragmentation there; a change
   of id across a gap is a fragmentation only).
 - Tracker rows without an id (-1) are dropped, as the devkit does.
-- Scores (AB3DMOT's evaluation): every row takes its track's mean score in the sequence
-  (``score_mode="track_mean"``; ``"row"`` keeps row scores), score thresholds are sampled at 40
-  recall points from the matched rows' scores, a threshold drops whole tracks below it; the
-  headline figures (``mota``, ``motp``, ``fp``...) are those of the threshold with the best MOTA,
-  and ``samota``/``amota``/``amotp`` average over the recall points.
-- MOTP is the mean similarity over counted TPs (the devkit also adds ignored pairs' overlaps to
-  its numerator; this one does not).
+- Scores (AB3DMOT's evaluate.py, compute3rdPartyMetrics: ``id_average_score``): every row takes
+  its track's mean score in the sequence (``score_mode="track_mean"``; ``"row"`` keeps row
+  scores); ``getThresholds`` samples score thresholds at 40 recall points from the scores of all
+  matched pairs (ignored ground truth included) over ``num_gt = tp + fn`` with its ignored TPs; a
+  threshold drops whole tracks whose mean is below it. The headline figures (``mota``, ``motp``,
+  ``fp``...) are those of the threshold with the best MOTA (all rows when no threshold gives
+  MOTA > 0, as the devkit's ``best_mota = 0`` start), ``samota``/``amota``/``amotp`` average over
+  the recall points.
+- MOTP is the devkit's ``total_cost / tp``: the mean similarity over all matched pairs, pairs
+  with ignored ground truth included (``tp`` itself counts only non-ignored ground truth here;
+  ``itp`` holds the ignored matched pairs).
 
 HOTA follows TrackEval (Luiten et al., IJCV 2021) on the same filtered data: HOTA, DetA, AssA,
 LocA averaged over alpha = 0.05 .. 0.95, 2D IoU similarity by default. All figures are fractions.
@@ -173,7 +181,8 @@ class _FrameResult:
     tp: int
     fp: int
     fn: int
-    sim_sum: float
+    itp: int  # matched pairs with ignored ground truth
+    sim_sum: float  # similarity over all matched pairs (ignored ground truth included)
     tp_scores: list[float]
     g_tracker: list[int]  # matched tracker id per ground truth, -1 if none
     t_kept: np.ndarray  # bool (n_kept,): tracker counted (not ignored) -- for HOTA
@@ -230,7 +239,7 @@ def _match_frame(fr: _Frame, k: int, threshold: float) -> _FrameResult:
     g_tracker = [-1] * n_g
     t_matched = np.zeros(k, dtype=bool)
     t_to_ign_gt = np.zeros(k, dtype=bool)
-    tp = fn = 0
+    tp = fn = itp = 0
     sim_sum = 0.0
     tp_scores = []
     pairs = []
@@ -243,18 +252,19 @@ def _match_frame(fr: _Frame, k: int, threshold: float) -> _FrameResult:
             g_tracker[r] = fr.t_ids[c]
             t_matched[c] = True
             tp_scores.append(float(fr.t_scores[c]))  # the devkit keeps ignored pairs' too
+            sim_sum += float(sim[r, c])  # the devkit's total_cost includes ignored pairs
             if fr.g_ign[r]:
                 t_to_ign_gt[c] = True
+                itp += 1
             else:
                 tp += 1
-                sim_sum += float(sim[r, c])
                 pairs.append((r, c))
     for r in range(n_g):
         if g_tracker[r] < 0 and not fr.g_ign[r]:
             fn += 1
     t_kept = ~t_to_ign_gt & (t_matched | ~fr.t_ign[:k])
     fp = int((~t_matched & ~fr.t_ign[:k]).sum())
-    return _FrameResult(tp, fp, fn, sim_sum, tp_scores, g_tracker, t_kept, pairs)
+    return _FrameResult(tp, fp, fn, itp, sim_sum, tp_scores, g_tracker, t_kept, pairs)
 
 
 def _frame_result(fr: _Frame, threshold_score: float | None, iou_threshold: float):
@@ -314,7 +324,7 @@ def _trajectory_counts(traj: dict[int, list[int]], ign: dict[int, list[bool]]) -
 
 
 def _clear_mot(seqs: list[list[_Frame]], score: float | None, iou_threshold: float) -> dict:
-    tot = {"tp": 0, "fp": 0, "fn": 0, "idsw": 0, "frag": 0, "mt": 0, "pt": 0, "ml": 0}
+    tot = {"tp": 0, "fp": 0, "fn": 0, "itp": 0, "idsw": 0, "frag": 0, "mt": 0, "pt": 0, "ml": 0}
     sim_sum = 0.0
     tp_scores: list[float] = []
     for frames in seqs:
@@ -325,6 +335,7 @@ def _clear_mot(seqs: list[list[_Frame]], score: float | None, iou_threshold: flo
             tot["tp"] += res.tp
             tot["fp"] += res.fp
             tot["fn"] += res.fn
+            tot["itp"] += res.itp
             sim_sum += res.sim_sum
             tp_scores += res.tp_scores
             for gid, tid, gi in zip(fr.g_ids, res.g_tracker, fr.g_ign.tolist(), strict=False):
@@ -342,7 +353,8 @@ def _finish(tot: dict, sim_sum: float, tp_scores: list[float]) -> dict:
     out["n_gt"] = n_gt
     out["n_tr"] = tp + fp
     out["mota"] = 1.0 - (fn + fp + tot["idsw"]) / n_gt if n_gt else math.nan
-    out["motp"] = sim_sum / tp if tp else math.nan
+    n_matched = tp + tot["itp"]
+    out["motp"] = sim_sum / n_matched if n_matched else math.nan
     out["recall"] = tp / n_gt if n_gt else math.nan
     out["precision"] = tp / (tp + fp) if tp + fp else math.nan
     n_traj = tot["mt"] + tot["pt"] + tot["ml"]
@@ -490,10 +502,10 @@ def _evaluate(
 ) -> dict:
     base = _clear_mot(seqs, None, iou_threshold)
     n_gt = base["n_gt"]
-    thresholds = sample_thresholds(base["_tp_scores"], n_gt, n_sample_pts) if n_gt else []
-    # drop the recall-0 sample; at most n_sample_pts - 1 points (ignored pairs' scores count
-    # among the TP scores, as in the devkit, so recall could otherwise pass 1)
-    thresholds = thresholds[1:n_sample_pts]
+    # devkit getThresholds(scores, num_gt): num_gt = tp + fn with the ignored TPs
+    num_gt = n_gt + base["itp"]
+    thresholds = sample_thresholds(base["_tp_scores"], num_gt, n_sample_pts) if n_gt else []
+    thresholds = thresholds[1:n_sample_pts]  # drop the recall-0 sample
     recalls = [(i + 1) / (n_sample_pts - 1.0) for i in range(len(thresholds))]
     best = None
     samota = amota = amotp = 0.0
@@ -506,7 +518,7 @@ def _evaluate(
         samota += min(1.0, max(0.0, 1.0 - (errors - (1.0 - r) * n_gt) / (r * n_gt)))
         amota += m["mota"]
         amotp += 0.0 if math.isnan(m["motp"]) else m["motp"]
-    if best is None:
+    if best is None or not best["mota"] > 0.0:  # devkit: best_mota = 0, threshold -10000
         best = dict(base)
         best["score_threshold"] = None
     denom = n_sample_pts - 1.0
