@@ -11,7 +11,10 @@ Labels follow KITTI: 3D box (h, w, l; bottom centre in camera 0; rotation_y), al
 as the projection of the 3D box clipped to the image, truncation = fraction of the unclipped
 projected box outside the image, and an occlusion level from the rendering: the fraction of the
 vehicle's own in-image silhouette that is visible in the id buffer (>= 0.8 -> 0 fully visible,
->= 0.4 -> 1 partly occluded, else 2 largely occluded).
+>= 0.4 -> 1 partly occluded, else 2 largely occluded). A vehicle becomes a DontCare row (2D box
+only, track id -1) when its 2D box is under 15 px high, it is beyond 70 m, or the projection of
+its 3D centre falls outside its clipped 2D box (cut off by the image border); vehicles showing
+fewer than 12 pixels (hidden, behind the camera, outside the view) get no row at all.
 """
 
 from __future__ import annotations
