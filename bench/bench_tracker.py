@@ -62,9 +62,7 @@ def cmd_mot(args) -> None:
     if not args.quick:
         combos = list(
             itertools.product(
-                ("kalman", "particle", "none"),
-                ("hungarian", "nearest"),
-                ("mahalanobis", "euclidean", "iou2d", "giou3d"),
+                args.filters.split(","), args.associations.split(","), args.costs.split(",")
             )
         )
     print(f"sequences {','.join(seqs)}; defaults {base}")
@@ -214,6 +212,9 @@ def main() -> None:
     m.add_argument("--seqs", default=",".join(VAL))
     m.add_argument("--quick", action="store_true", help="only the default configuration")
     m.add_argument("--per-seq", action="store_true")
+    m.add_argument("--filters", default="none,kalman,particle")
+    m.add_argument("--associations", default="nearest,hungarian")
+    m.add_argument("--costs", default="mahalanobis", help="e.g. mahalanobis,euclidean,iou2d,giou3d")
     t = sub.add_parser("tune")
     t.add_argument("--seqs", default="1,6")
     sub.add_parser("speed")
