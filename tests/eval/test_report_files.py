@@ -17,8 +17,10 @@ def test_report_files_and_filter_comparison(tmp_path):
     table = res["filter_comparison"]
     assert set(table) == {"none", "kalman", "particle"}
     for name, row in table.items():
-        # perfect detections: everything but the first (tentative) frame is found -> 40/42 GT
-        assert row["moderate"] == pytest.approx(0.95), name
+        # perfect detections: everything but the first (tentative) frame is found -> 40/42 GT,
+        # recall 0.952: precision 1 at 39 of the 41 recall samples (0, 1/40, ..., 0.95)
+        assert row["moderate"] == pytest.approx(39 / 41), name
+        assert row["ap_r40"]["moderate"] == pytest.approx(38 / 40), name
         assert row["fps"] > 0
     files = write_report(res, tmp_path / "report")
     expected = {"md", "html", "gif", "bev", "confusion"}

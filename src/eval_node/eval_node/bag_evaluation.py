@@ -5,8 +5,10 @@ the recorded ``/kitti/ground_truth`` or from KITTI label files, and computes, in
 also the JSON output:
 
 - ``detections_3d`` / ``tracks_3d``: 3D localisation AP (centre distance 1.5/3/5/10 m) per
-  difficulty of the unfiltered 3D detections and of the tracks (AP|R40, fractions);
-- ``detections_2d``: 2D AP at IoU 0.5 and 0.7 (AP|R40) and Pascal VOC 11-point AP at 0.5;
+  difficulty of the unfiltered 3D detections and of the tracks (AP by 41-point
+  interpolation, with the 40-point AP|R40 beside it, fractions);
+- ``detections_2d``: 2D AP at IoU 0.5 and 0.7 (41-point, and AP|R40) and Pascal VOC
+  11-point AP at 0.5;
 - ``orientation``: orientation-bin accuracy and 4x4 confusion of the 2D detections;
 - ``tracking``: CLEAR-MOT and HOTA of the tracks (2D IoU 0.5; ``iou3d``: 3D IoU 0.25);
 - ``velocity``: velocity error (``rmse``, ``mae`` [m/s], per speed bucket) and stability;
@@ -62,7 +64,8 @@ def _ap_table(gt, pred, criterion: str, thresholds, curves: dict | None = None) 
         row = {}
         for level in LEVELS:
             pr = precision_recall(gt, pred, criterion=criterion, threshold=t, difficulty=level)
-            row[level] = pr.ap_r40
+            row[level] = pr.ap_r41
+            row[f"{level}_r40"] = pr.ap_r40
             row[f"{level}_r11"] = pr.ap_r11
             if curves is not None:
                 curves.setdefault(level, {})[key(t)] = {

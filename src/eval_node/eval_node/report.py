@@ -305,7 +305,7 @@ def write_report(
             write_gif(frames, files["gif"])
 
     sections = [
-        ("Detection and localisation AP (AP|R40, %)", table_rows(results)),
+        ("Detection and localisation AP (41-point interpolation, %)", table_rows(results)),
         ("Tracking and motion", (["metric", "value"], _summary_rows(results))),
     ]
     if results.get("filter_comparison"):
