@@ -17,23 +17,24 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-#: The pipeline's topics (docs/ARCHITECTURE.md) recorded by default.
+#: The pipeline's topics (docs/ARCHITECTURE.md) recorded by default. Their types are given so
+#: that the recorder subscribes at start-up (before any publisher exists) and misses nothing.
 PIPELINE_TOPICS = [
-    "/stereo/left/camera_info",
-    "/stereo/right/camera_info",
-    "/kitti/ground_truth",
-    "/clock",
-    "/vehicles/detections_2d",
-    "/vehicles/detections_3d",
-    "/vehicles/tracks",
-    "/vehicles/track_markers",
+    "/stereo/left/camera_info:sensor_msgs/msg/CameraInfo",
+    "/stereo/right/camera_info:sensor_msgs/msg/CameraInfo",
+    "/kitti/ground_truth:stereo_vehicle_msgs/msg/KittiFrameLabels",
+    "/clock:rosgraph_msgs/msg/Clock",
+    "/vehicles/detections_2d:stereo_vehicle_msgs/msg/VehicleDetection2DArray",
+    "/vehicles/detections_3d:stereo_vehicle_msgs/msg/VehicleDetection3DArray",
+    "/vehicles/tracks:stereo_vehicle_msgs/msg/TrackedVehicleArray",
+    "/vehicles/track_markers:visualization_msgs/msg/MarkerArray",
 ]
 #: Large image-like topics, recorded only with ``include_images``.
 IMAGE_TOPICS = [
-    "/stereo/left/image_rect",
-    "/stereo/right/image_rect",
-    "/stereo/disparity",
-    "/stereo/points",
+    "/stereo/left/image_rect:sensor_msgs/msg/Image",
+    "/stereo/right/image_rect:sensor_msgs/msg/Image",
+    "/stereo/disparity:stereo_msgs/msg/DisparityImage",
+    "/stereo/points:sensor_msgs/msg/PointCloud2",
 ]
 
 
@@ -52,8 +53,9 @@ def parse_topics(entries: list[str], include_images: bool) -> dict[str, str | No
         name, _, msgtype = entry.partition(":")
         topics[name] = msgtype or None
     if include_images:
-        for name in IMAGE_TOPICS:
-            topics.setdefault(name, None)
+        for entry in IMAGE_TOPICS:
+            name, _, msgtype = entry.partition(":")
+            topics.setdefault(name, msgtype or None)
     return topics
 
 

@@ -187,10 +187,20 @@ class KittiPlayerNode(Node):
         if not self._started:
             want = int(self.params["wait_for_subscribers"])
             have = self.pub_left.get_subscription_count()
-            if have < want:
+            # every subscription the ROS graph already knows of must also be matched, so that
+            # no subscriber misses the first frame
+            unmatched = [
+                p.topic_name
+                for p in self.publishers_list
+                if p.get_subscription_count() < self.count_subscribers(p.topic_name)
+            ]
+            if have < want or unmatched:
                 if now - self._last_wait_log > 2.0:
                     self._last_wait_log = now
-                    self.get_logger().info(f"waiting for subscribers on left image ({have}/{want})")
+                    self.get_logger().info(
+                        f"waiting for subscribers: left image {have}/{want}"
+                        + (f", not yet matched on {', '.join(unmatched)}" if unmatched else "")
+                    )
                 return
             self._started = True
         timeouts = self.scheduler.stats.lockstep_timeouts

@@ -40,13 +40,14 @@ DETECTIONS_3D = "/vehicles/detections_3d"
 TRACKS = "/vehicles/tracks"
 TRACK_MARKERS = "/vehicles/track_markers"
 DISPARITY = "/stereo/disparity"
+CLOCK = "/clock"
 
 PLAYER = NodeSpec(
     name="kitti_player",
     package="kitti_player_node",
     executable="kitti_player",
     subscribes=(TRACKS,),  # lockstep
-    publishes=(LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO, GROUND_TRUTH),
+    publishes=(LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO, GROUND_TRUTH, CLOCK),
     source=True,
     finishes=True,
 )
@@ -75,7 +76,16 @@ RECORDER = NodeSpec(
     name="bag_recorder",
     package="eval_node",
     executable="bag_recorder",
-    subscribes=(GROUND_TRUTH, DETECTIONS_2D, DETECTIONS_3D, TRACKS),
+    subscribes=(
+        LEFT_INFO,
+        RIGHT_INFO,
+        GROUND_TRUTH,
+        CLOCK,
+        DETECTIONS_2D,
+        DETECTIONS_3D,
+        TRACKS,
+        TRACK_MARKERS,
+    ),
     optional=True,
 )
 
