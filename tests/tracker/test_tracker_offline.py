@@ -104,3 +104,31 @@ def test_offline_missing_file_and_bad_params(tmp_path, capsys):
     assert main(["--detections", str(dets), "--output", str(tmp_path), "--params", str(p)]) == 2
     err = capsys.readouterr().err
     assert "min_hits" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    "mode, expected_frames", [("all", [0, 1, 2, 3, 4]), ("refound", [0, 1, 2])]
+)
+def test_offline_coasting_rows_after_a_track_ends(tmp_path, mode, expected_frames):
+    # a car seen in frames 0..2 only: coasting rows at 3 and 4 (confidence 0.8, 0.64 >= 0.5),
+    # deleted after max_staleness = 2 misses; "refound" writes them only if the track comes back
+    dets, out = tmp_path / "dets", tmp_path / "out"
+    dets.mkdir()
+    rows = [
+        f"{f},2,600,170,700,230,9.5,1.5,1.6,3.9,1.0,1.7,{10.0 + 0.8 * f},-1.57,-1.66"
+        for f in range(3)
+    ]
+    rows.append("5,2,300,180,380,220,7.0,1.4,1.7,4.2,-6.0,1.8,25.0,1.5,1.73")  # another car
+    (dets / "0001.txt").write_text("\n".join(rows) + "\n")
+    params = tmp_path / "p.yaml"
+    params.write_text(
+        "vehicle_tracker:\n  ros__parameters:\n    min_hits: 1\n"
+        f"    max_staleness: 2\n    output_coasting: {mode}\n"
+    )
+    rc = main(
+        ["--detections", str(dets), "--output", str(out), "--seqs", "1", "--params", str(params)]
+    )
+    assert rc == 0
+    res = read_tracking_labels(out / "0001.txt")
+    first = sorted(o.frame for objs in res.values() for o in objs if o.track_id == 1)
+    assert first == expected_frames

@@ -30,7 +30,7 @@ from kitti_player_node.kitti import (
 
 from .config import TrackerConfig, TrackerConfigError
 from .detection_files import TYPE_NAMES, DetectionRows, read_detection_file
-from .tracker import TENTATIVE, DetectionBatch, Tracker
+from .tracker import COASTING, TENTATIVE, DetectionBatch, Tracker
 
 FRAME_PERIOD = 0.1  # [s] KITTI's 10 Hz
 
@@ -57,6 +57,9 @@ def track_sequence(
     frames = rows.frame[order]
     starts = np.searchsorted(frames, np.arange(n_frames + 1))
     out: list[KittiObject] = []
+    # output_coasting="refound": coasting rows wait here until their track is matched again
+    pending: dict[int, list[KittiObject]] = {}
+    hold = config.output_coasting == "refound"
     for f in range(n_frames):
         sel = order[starts[f] : starts[f + 1]]
         hwl = rows.hwl[sel]
@@ -71,6 +74,9 @@ def track_sequence(
             class_id=[type_name] * len(sel),
         )
         ts = tracker.step(dets, f * FRAME_PERIOD)
+        if hold:  # tracks gone from the tracker (deleted) never come back: drop their rows
+            alive = set(tracker.ids.tolist())
+            pending = {k: v for k, v in pending.items() if k in alive}
         for i in range(len(ts)):
             if ts.state[i] == TENTATIVE and not config.output_tentative:
                 continue
@@ -81,19 +87,24 @@ def track_sequence(
             bbox = ts.bbox[i]
             if not np.isfinite(bbox).all():
                 continue
-            out.append(
-                KittiObject(
-                    type=type_name,
-                    alpha=alpha_from_rotation_y(yaw, x, z),
-                    bbox=tuple(float(v) for v in bbox),
-                    dimensions=(h, w, l),
-                    location=(float(x), float(y), float(z)),
-                    rotation_y=yaw,
-                    frame=f,
-                    track_id=int(ts.track_id[i]),
-                    score=float(ts.score[i]),
-                )
+            row = KittiObject(
+                type=type_name,
+                alpha=alpha_from_rotation_y(yaw, x, z),
+                bbox=tuple(float(v) for v in bbox),
+                dimensions=(h, w, l),
+                location=(float(x), float(y), float(z)),
+                rotation_y=yaw,
+                frame=f,
+                track_id=int(ts.track_id[i]),
+                score=float(ts.score[i]),
             )
+            tid = int(ts.track_id[i])
+            if hold and ts.state[i] == COASTING:
+                pending.setdefault(tid, []).append(row)
+                continue
+            out.extend(pending.pop(tid, []))
+            out.append(row)
+    out.sort(key=lambda o: o.frame)
     return out
 
 
