@@ -69,6 +69,8 @@ class BatchedKalmanFilter:
         self.P0 = np.diag([init_position_var] * 3 + [init_velocity_var] * 3).astype(float)
         self.x = np.zeros((0, 6))
         self.P = np.zeros((0, 6, 6))
+        self._model_dt: float | None = None
+        self._model_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.x)
@@ -87,21 +89,25 @@ class BatchedKalmanFilter:
         self.x = self.x[mask]
         self.P = self.P[mask]
 
+    def _model(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """F, F^T and Q for ``dt``, cached (successive frames share one dt)."""
+        if self._model_dt != dt:
+            F = transition(dt)
+            self._model_cache = (F, F.T.copy(), process_noise(dt, self.q))
+            self._model_dt = dt
+        return self._model_cache
+
     def predict(self, dt: float) -> None:
         """Advance all tracks by ``dt`` seconds."""
         if not len(self.x):
             return
+        F, FT, Q = self._model(dt)
         self.x[:, :3] += dt * self.x[:, 3:]
-        # F P F^T written out blockwise: cheaper than two batched 6x6 products.
-        P = self.P
-        Ppp, Ppv, Pvv = P[:, :3, :3], P[:, :3, 3:], P[:, 3:, 3:]
-        Pvp = P[:, 3:, :3]
-        new = np.empty_like(P)
-        new[:, :3, :3] = Ppp + dt * (Ppv + Pvp) + dt * dt * Pvv
-        new[:, :3, 3:] = Ppv + dt * Pvv
-        new[:, 3:, :3] = Pvp + dt * Pvv
-        new[:, 3:, 3:] = Pvv
-        self.P = new + process_noise(dt, self.q)
+        # two batched 6x6 products: fewer numpy calls than the blockwise form at small N
+        P = np.matmul(F, self.P)
+        np.matmul(P, FT, out=P)
+        P += Q
+        self.P = P
 
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray, dt: float) -> None:
         """Correct tracks ``rows`` (M,) with measured positions ``z`` (M, 3), covariances
@@ -109,11 +115,11 @@ class BatchedKalmanFilter:
         if not len(rows):
             return
         x, P = self.x[rows], self.P[rows]
-        S = P[:, :3, :3] + R
-        K = P[:, :, :3] @ inv3_sym(S)  # P H^T S^-1, (M, 6, 3)
-        x = x + (K @ (z - x[:, :3])[:, :, None])[:, :, 0]
+        PHt = P[:, :, :3]  # P H^T, (M, 6, 3)
+        K = PHt @ np.linalg.inv(P[:, :3, :3] + R)  # gain P H^T S^-1
+        x += (K @ (z - x[:, :3])[:, :, None])[:, :, 0]
         # P - K H P (equal to filterpy's Joseph form for this optimal gain), kept symmetric
-        P = P - K @ P[:, :3, :]
+        P -= K @ P[:, :3, :]
         P = 0.5 * (P + P.transpose(0, 2, 1))
         self.x[rows] = x
         self.P[rows] = P

@@ -17,9 +17,7 @@ BIN_WIDTH = np.pi / 4.0
 
 def wrap(a):
     """Wrap angles to (-pi, pi]."""
-    a = np.asarray(a, dtype=float)
-    out = np.mod(a + np.pi, 2.0 * np.pi) - np.pi
-    return np.where(out == -np.pi, np.pi, out)
+    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
 
 
 def yaw_from_bin(orientation_bin, x, z):

@@ -199,13 +199,13 @@ class Tracker:
             self.last_stamp = float(stamp)
         self.frame_count += 1
 
-        R = self._det_covariances(dets)
+        R, shared_R = self._det_covariances(dets)
         det_yaw = self._det_yaw(dets)
         self.filter.predict(dt)
         self.age += 1
         self.det_index[:] = -1
 
-        rows, cols = solve(self._cost(dets, R, det_yaw), cfg.association)
+        rows, cols = solve(self._cost(dets, R, det_yaw, shared_R), cfg.association)
 
         # matched tracks
         self.filter.update(rows, dets.position[cols], R[cols], dt)
@@ -227,8 +227,8 @@ class Tracker:
         dbin = dets.orientation_bin[cols]
         self.bin[rows[dbin >= 0]] = dbin[dbin >= 0]
         self.bbox[rows] = dets.bbox[cols]
-        for r, c in zip(rows, cols, strict=True):
-            self.cls[r] = dets.class_id[c]
+        if len(rows):
+            self.cls[rows] = np.array(dets.class_id, dtype=object)[cols]
         self.confirmed |= self.hits >= cfg.min_hits
 
         # unmatched tracks
@@ -255,16 +255,21 @@ class Tracker:
 
     # ------------------------------------------------------------------ helpers
 
-    def _det_covariances(self, dets: DetectionBatch) -> np.ndarray:
+    def _det_covariances(self, dets: DetectionBatch) -> tuple[np.ndarray, bool]:
+        """Per-detection covariances (M, 3, 3) and whether they all are the configured one."""
+        if not len(dets) or np.isnan(dets.covariance[:, 0, 0]).all():
+            return np.broadcast_to(self._R0, (len(dets), 3, 3)), True
         R = dets.covariance.copy()
         # a usable covariance is finite with a positive diagonal; fall back otherwise
         diag = R[:, [0, 1, 2], [0, 1, 2]]
         bad = ~np.isfinite(R).all(axis=(1, 2)) | ~(diag > 0).all(axis=1)
         R[bad] = self._R0
-        return R
+        return R, False
 
     def _det_yaw(self, dets: DetectionBatch) -> np.ndarray:
         yaw = dets.yaw.copy()
+        if not (dets.orientation_bin >= 0).any():
+            return yaw
         from_bin = ~np.isfinite(yaw) & (dets.orientation_bin >= 0)
         if from_bin.any():
             p = dets.position[from_bin]
@@ -274,12 +279,27 @@ class Tracker:
     def _boxes3d(self, pos, size, yaw) -> np.ndarray:
         return np.column_stack([pos, size, yaw])
 
-    def _cost(self, dets: DetectionBatch, R: np.ndarray, det_yaw: np.ndarray) -> np.ndarray:
+    def _cost(
+        self, dets: DetectionBatch, R: np.ndarray, det_yaw: np.ndarray, shared_R: bool = False
+    ) -> np.ndarray:
         cfg = self.cfg
         n, m = len(self.ids), len(dets)
         if n == 0 or m == 0:
             return np.zeros((n, m))
         tpos = self.filter.position
+        if cfg.cost == "mahalanobis" and shared_R:
+            # one R for all detections: S_i = P_i + R, N inversions instead of one per pair;
+            # the squared distance only for pairs within dist_cap
+            d = dets.position[None, :, :] - tpos[:, None, :]  # (N, M, 3)
+            near = np.einsum("nmi,nmi->nm", d, d) <= cfg.dist_cap**2
+            r, c = np.nonzero(near)
+            cost = np.full((n, m), np.inf)
+            if len(r):
+                Si = np.linalg.inv(self.filter.position_cov + R[0])
+                dd = d[r, c]
+                q = np.einsum("ki,kij,kj->k", dd, Si[r], dd)
+                cost[r, c] = np.where(q <= cfg.mahalanobis_gate, q, np.inf)
+            return cost
         dist = euclidean_cost(tpos, dets.position)
         near = dist <= cfg.dist_cap
         if cfg.cost == "euclidean":
