@@ -1,8 +1,13 @@
 """Stereo depth benchmarks: disparity accuracy, ranging accuracy, time per frame.
 
-Usage: python bench/bench_stereo.py [disparity|ranging|timing|all] [--repeats N]
+Usage: python bench/bench_stereo.py [disparity|ranging|centre|timing|all] [--repeats N]
+       [--synth ROOT:SEQ ...]
 Reads ../shared/kitti (KITTI Stereo 2015 training pairs 0..4 and tracking sequence 0005); prints
 tables. Uses the same core functions as the stereo_depth node (compute_disparity, range_boxes).
+``centre``: centre-of-mass error of the ranged labelled Car/Van boxes (orientation bin from the
+label's alpha, as the oracle detector gives it) on KITTI 0005 and on synthetic sequences written
+by ``kitti_synth`` (e.g. ``--synth /tmp/synth_rng:0001 --synth /tmp/synth_rng:0002``), before and
+after the geometric centre correction, plus predicted vs measured error spread (covariance).
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from detector_node.orientation import alpha_to_bin
 from kitti_player_node.kitti import TrackingSequence, read_png
 from stereo_depth_node.disparity import (
     DisparityParams,
@@ -180,7 +186,7 @@ def summarise(rows, level: str) -> str:
 
 def bench_ranging(dparams: DisparityParams) -> None:
     seq, geo, frames = tracking_frames(dparams)
-    base = RangingParams()
+    base = replace(RangingParams(), centre_correction=False)  # the estimators alone
     geo_off = (0.8, 1.4, 2.0, 1.4)  # w/2, corner, l/2 of a 1.6 x 4 m car per orientation bin
     half_off = tuple(0.5 * v for v in geo_off)
     none = (0.0,) * 4
@@ -202,7 +208,7 @@ def bench_ranging(dparams: DisparityParams) -> None:
         "robust + car offset (0.8,1.4,2.0,1.4)": replace(base, depth_offset=geo_off),
         "robust + half car offset": replace(base, depth_offset=half_off),
         "robust without far weighting, no offset": replace(base, far_weight=0.0, depth_offset=none),
-        "default RangingParams()": base,
+        "default RangingParams()": RangingParams(),
     }
     print("\n## Ranging, KITTI tracking 0005 (16 frames), labelled Car boxes as input")
     print(f"disparity: downscale={dparams.downscale} use_wls={dparams.use_wls}; error = |z - z_gt|")
@@ -253,6 +259,145 @@ def bench_ranging(dparams: DisparityParams) -> None:
             print(f"  bin {b}: n={len(res)} median {np.median(res):+.2f} m")
 
 
+CLASSES = ("Car", "Van")
+DIST_BUCKETS = ((0.0, 10.0), (10.0, 20.0), (20.0, 30.0), (30.0, 45.0), (45.0, 1e9))
+
+
+def centre_records(root: Path, sequence: str, dparams: DisparityParams, variants: dict):
+    """Per labelled Car/Van box: dict with the label, its centre of mass (left frame), and per
+    variant the RangeResult (or None). Disparity computed once per frame (default params)."""
+    seq = TrackingSequence.open(root, sequence)
+    geo = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
+    out = []
+    for f in seq.frame_ids:
+        objs = [o for o in seq.objects(f) if o.type in CLASSES]
+        if not objs:
+            continue
+        left, right = seq.read_stereo(f)
+        disp = compute_disparity(left, right, dparams)
+        boxes = np.array([o.bbox for o in objs])
+        bins = [alpha_to_bin(o.alpha) for o in objs]
+        res = {name: range_boxes(disp, boxes, geo, rp, bins) for name, rp in variants.items()}
+        for i, o in enumerate(objs):
+            com = seq.calib.cam0_to_left(np.asarray(o.centre_of_mass, float)[None])[0]
+            out.append({"obj": o, "bin": bins[i], "com": com, **{k: v[i] for k, v in res.items()}})
+    return out
+
+
+def _errors(recs, variant: str):
+    """Arrays over ranged records: signed error along the ray [m] (+ = estimate farther than
+    the centre of mass), signed z error, 3D distance, lateral error, predicted ray/lateral std."""
+    rows = []
+    for r in recs:
+        res = r[variant]
+        if res is None:
+            continue
+        p, c = res.position, r["com"]
+        ray = p / np.linalg.norm(p)
+        lat = np.cross(ray, [0.0, 1.0, 0.0])
+        lat /= np.linalg.norm(lat)
+        rows.append(
+            (
+                float((p - c) @ ray),
+                float(p[2] - c[2]),
+                float(np.linalg.norm(p - c)),
+                float((p - c) @ lat),
+                float(np.sqrt(ray @ res.covariance @ ray)),
+                float(np.sqrt(lat @ res.covariance @ lat)),
+            )
+        )
+    return np.array(rows).reshape(-1, 6)
+
+
+def _robust_std(x: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(x - np.median(x)))) if x.size else float("nan")
+
+
+def _centre_line(label: str, recs, variant: str) -> str:
+    n = len(recs)
+    e = _errors(recs, variant)
+    if n == 0 or e.size == 0:
+        return f"| {label} | {n} | - | - | - | - | - | - | - |"
+    ray, dz, d3 = e[:, 0], e[:, 1], e[:, 2]
+    return (
+        f"| {label} | {n} | {len(e) / n:.2f} | {np.median(ray):+.2f} | {_robust_std(ray):.2f} | "
+        f"{np.median(dz):+.2f} | {np.median(d3):.2f} | {np.sum(d3 <= 1.5) / n:.2f} | "
+        f"{np.sum(d3 <= 3.0) / n:.2f} |"
+    )
+
+
+def _groups(recs):
+    yield from ((lvl, [r for r in recs if difficulty_ok(r["obj"], lvl)]) for lvl in LEVELS)
+    for b in range(4):
+        yield f"bin {b} ({45 * b} deg)", [r for r in recs if r["bin"] == b]
+    for lo, hi in DIST_BUCKETS:
+        name = f"{lo:.0f}-{hi:.0f} m" if hi < 1e8 else f">= {lo:.0f} m"
+        yield name, [r for r in recs if lo <= np.linalg.norm(r["com"]) < hi]
+
+
+LEVELS = ("easy", "moderate", "hard", "all")
+
+
+def centre_report(title: str, recs, variants: dict, detail: tuple[str, ...]) -> None:
+    """Print the centre-of-mass error tables of one data set."""
+    print(f"\n## {title}: {len(recs)} labelled Car/Van boxes")
+    print("ray / dz: signed error along the viewing ray / in z (+ = estimate farther than the")
+    print("centre of mass); d3: 3D distance to the centre of mass; shares over all boxes of the")
+    print("group (unranged = miss); spread = 1.4826 MAD of the ray error")
+    hdr = (
+        "| group | boxes | ranged | med ray m | spread m | med dz m | med d3 m | d3<=1.5 | d3<=3 |"
+    )
+    for name in variants:
+        print(f"\n### {name}")
+        print(hdr)
+        print("|---|---|---|---|---|---|---|---|---|")
+        for label, sel in _groups(recs):
+            if label in LEVELS or name in detail:
+                print(_centre_line(label, sel, name))
+    for name in detail:
+        print(f"\n### covariance check, {name}: predicted std vs measured error spread")
+        print("(measured: 1.4826 median|e| incl. bias, and 1.4826 MAD around the median)")
+        print(
+            "| distance | n | ray pred std m | ray meas m | ray MAD m | lat pred m | lat meas m |"
+        )
+        print("|---|---|---|---|---|---|---|")
+        for label, sel in list(_groups(recs))[-len(DIST_BUCKETS) :]:
+            e = _errors(sel, name)
+            if e.size == 0:
+                continue
+            print(
+                f"| {label} | {len(e)} | {np.median(e[:, 4]):.2f} | "
+                f"{1.4826 * np.median(np.abs(e[:, 0])):.2f} | {_robust_std(e[:, 0]):.2f} | "
+                f"{np.median(e[:, 5]):.2f} | {1.4826 * np.median(np.abs(e[:, 3])):.2f} |"
+            )
+
+
+def bench_centre(dparams: DisparityParams, synth: list[str]) -> None:
+    base = RangingParams()
+    variants = {
+        "robust, no correction (before)": replace(base, centre_correction=False),
+        "robust + centre correction, nearest-point model": replace(
+            base, centre_correction=True, surface_model="nearest"
+        ),
+        "robust + centre correction, visible-surface model": replace(
+            base, centre_correction=True, surface_model="visible"
+        ),
+        "median, no correction": replace(base, method="median", centre_correction=False),
+        "median + centre correction, visible-surface model": replace(
+            base, method="median", centre_correction=True, surface_model="visible"
+        ),
+        "default RangingParams()": base,
+    }
+    detail = ("robust, no correction (before)", "default RangingParams()")
+    sets = [("KITTI tracking 0005 (16 frames, real)", TRACKING, "0005")]
+    for spec in synth:
+        root, _, name = spec.rpartition(":")
+        sets.append((f"synthetic {root} sequence {name}", Path(root), name))
+    for title, root, name in sets:
+        recs = centre_records(root, name, dparams, variants)
+        centre_report(title, recs, variants, detail)
+
+
 def bench_timing(variants: dict[str, DisparityParams], repeats: int) -> None:
     seq = TrackingSequence.open(TRACKING, "0005")
     geo = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
@@ -293,8 +438,12 @@ def bench_timing(variants: dict[str, DisparityParams], repeats: int) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument(
-        "section", nargs="?", default="all", choices=["disparity", "ranging", "timing", "all"]
+        "section",
+        nargs="?",
+        default="all",
+        choices=["disparity", "ranging", "centre", "timing", "all"],
     )
+    ap.add_argument("--synth", action="append", default=[], help="ROOT:SEQ of kitti_synth data")
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     if not (SHARED / "README.md").is_file():
@@ -308,6 +457,8 @@ def main() -> int:
         bench_disparity({**VARIANTS, "default (DisparityParams())": DEFAULT})
     if args.section in ("ranging", "all"):
         bench_ranging(DEFAULT)
+    if args.section in ("centre", "all"):
+        bench_centre(DEFAULT, args.synth)
     if args.section in ("timing", "all"):
         bench_timing(variants, args.repeats)
     return 0

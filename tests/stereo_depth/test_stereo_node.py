@@ -16,6 +16,7 @@ from kitti_player_node.image_conversion import (  # noqa: E402
 )
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from stereo_depth_node.ranging import RangingParams, bin_centre_offsets  # noqa: E402
 
 FX, B, DISP = 700.0, 0.5, 20
 H, W = 120, 320
@@ -127,8 +128,13 @@ def test_publishes_one_3d_detection_per_rangeable_2d_detection(harness):
     assert harness.node.frames_failed == 0
     assert [d.id for d in arr.detections] == ["0"]
     det = arr.detections[0]
-    z = FX * B / DISP  # 17.5 m
-    assert det.position.z == pytest.approx(z, rel=0.03)
+    z = FX * B / DISP  # 17.5 m to the visible surface
+    # centre correction (default): bin 2 (rear view) moves the point l/2 = 1.95 m along the ray
+    p = np.array([det.position.x, det.position.y, det.position.z])
+    ray = p / p[2]
+    offset = bin_centre_offsets(RangingParams().car_length, RangingParams().car_width)[2]
+    assert offset == pytest.approx(1.95)
+    assert np.linalg.norm(p) == pytest.approx(z * np.linalg.norm(ray) + offset, rel=0.03)
     assert det.position.x == pytest.approx((200 - W / 2) * det.position.z / FX, rel=1e-6)
     assert det.disparity == pytest.approx(DISP, abs=0.5)
     assert det.valid_pixel_fraction > 0.9

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from stereo_depth_node.disparity import INVALID_DISPARITY
@@ -10,6 +12,7 @@ from stereo_depth_node.reprojection import StereoGeometry
 
 GEO = StereoGeometry(721.5377, 721.5377, 609.5593, 172.854, 0.5371)
 FB = GEO.fx * GEO.baseline
+SURFACE = RangingParams(centre_correction=False)  # the visible-surface estimate alone
 
 
 def scene_with_occluded_car():
@@ -30,8 +33,8 @@ def scene_with_occluded_car():
 
 def test_robust_ranging_returns_the_occluded_car_not_the_occluder():
     disp, car = scene_with_occluded_car()
-    robust = range_boxes(disp, [car], GEO, RangingParams())[0]
-    median = range_boxes(disp, [car], GEO, RangingParams(method="median"))[0]
+    robust = range_boxes(disp, [car], GEO, SURFACE)[0]
+    median = range_boxes(disp, [car], GEO, replace(SURFACE, method="median"))[0]
     assert robust is not None and median is not None
     assert robust.position[2] == pytest.approx(20.0, abs=1.0)
     assert median.position[2] < 12.0  # the baseline's known weakness: the occluder wins
@@ -42,7 +45,7 @@ def test_robust_ranging_returns_the_occluded_car_not_the_occluder():
 def test_unoccluded_box_range_and_lateral_position():
     disp = np.full((375, 1242), FB / 15.0, np.float32)
     box = (800.0, 150.0, 900.0, 222.0)
-    r = range_boxes(disp, [box], GEO, RangingParams())[0]
+    r = range_boxes(disp, [box], GEO, SURFACE)[0]
     u, v = 850.0, 186.0
     np.testing.assert_allclose(r.position, GEO.backproject(u, v, 15.0), rtol=1e-4)
 
@@ -50,7 +53,7 @@ def test_unoccluded_box_range_and_lateral_position():
 def test_depth_offset_moves_along_the_ray_per_orientation_bin():
     disp = np.full((375, 1242), FB / 15.0, np.float32)
     box = (900.0, 150.0, 1000.0, 222.0)
-    p = RangingParams(depth_offset=(0.0, 0.0, 2.0, 0.0))
+    p = replace(SURFACE, depth_offset=(0.0, 0.0, 2.0, 0.0))
     r0, r2 = range_boxes(disp, [box, box], GEO, p, orientation_bins=[0, 2])
     step = r2.position - r0.position
     assert np.linalg.norm(step) == pytest.approx(2.0, rel=1e-6)

@@ -14,8 +14,11 @@ Pure core. Two estimators of the box's disparity:
   covers most of the core; the core restriction and the minimum support keep the background
   around the car from winning.
 
-The visible surface of a car is nearer than its centre of mass; ``depth_offset`` (per
-orientation bin, metres) moves the estimate away from the camera along the viewing ray.
+The visible surface of a car is nearer than its centre of mass. With ``centre_correction`` the
+estimate is moved away from the camera along the viewing ray by the geometric depth of the centre
+behind the visible surface of a ``car_length`` x ``car_width`` box seen at the observation angles
+of the detection's orientation bin (:func:`centre_depth_behind_surface`, averaged over the bin);
+``depth_offset`` (per bin, metres) is added on top.
 Covariance: depth std ``z^2 * sigma_d / (f * B)``, x/y from the pixel uncertainty of the box
 centre propagated with depth, plus the correlation that a depth error induces along the ray.
 """
@@ -29,6 +32,48 @@ import numpy as np
 from .reprojection import StereoGeometry
 
 METHODS = ("robust", "median")
+SURFACE_MODELS = ("visible", "nearest")
+NUM_BINS = 4
+BIN_WIDTH = np.pi / NUM_BINS  # orientation bins centred on 0, 45, 90, 135 deg (alpha mod 180)
+
+
+def centre_depth_behind_surface(
+    alpha, length: float, width: float, model: str = "visible"
+) -> np.ndarray:
+    """Depth [m] of a box's centre behind its visible surface, along the viewing ray.
+
+    The box (``length`` x ``width``, KITTI convention: at yaw 0 the length runs along +x) is seen
+    at observation angle ``alpha`` [rad] (KITTI alpha = rotation_y - atan2(x, z)); the length
+    axis makes |cos| = |sin alpha| with the ray, the width axis |cos alpha|. With half-extents
+    a = length/2, b = width/2:
+
+    - ``nearest``: the nearest point (a corner), a |sin alpha| + b |cos alpha|;
+    - ``visible``: the mean depth of the visible faces weighted by their image width (what a
+      disparity average over the box sees): the side face (image width 2a|cos alpha|, centre
+      depth b|cos alpha|) and the front/back face (2b|sin alpha|, a|sin alpha|) give
+      a b / (a |cos alpha| + b |sin alpha|).
+    """
+    if model not in SURFACE_MODELS:
+        raise ValueError(f"surface model {model!r} not one of {SURFACE_MODELS}")
+    a, b = 0.5 * float(length), 0.5 * float(width)
+    s, c = np.abs(np.sin(alpha)), np.abs(np.cos(alpha))
+    if model == "nearest":
+        return a * s + b * c
+    return a * b / (a * c + b * s)
+
+
+def bin_centre_offsets(
+    length: float, width: float, model: str = "visible", spread: float = 0.0, samples: int = 46
+) -> np.ndarray:
+    """Mean of :func:`centre_depth_behind_surface` over each orientation bin's alpha range
+    (bin k: alpha uniform in k*45 +- spread*22.5 deg; spread 0 = the bin's centre angle), shape
+    (5,); index 4 holds the mean of the 4 bins (used when a detection has no bin)."""
+    t = spread * ((np.arange(samples) + 0.5) / samples - 0.5)  # uniform in +-spread/2
+    out = [
+        float(np.mean(centre_depth_behind_surface((k + t) * BIN_WIDTH, length, width, model)))
+        for k in range(NUM_BINS)
+    ]
+    return np.array(out + [float(np.mean(out))])
 
 
 @dataclass(frozen=True)
@@ -50,9 +95,14 @@ class RangingParams:
     far_weight: float = 4.0  # robust: mode score x (d_nearest_mode / d_mode)^far_weight
     prior_height: float = 1.5  # [m] typical car height for the depth prior from box height
     prior_log_sigma: float = 0.5  # log-depth std of that prior (0 disables the prior)
+    centre_correction: bool = True  # move the surface estimate to the car's centre (geometry)
+    surface_model: str = "visible"  # centre_depth_behind_surface model: visible | nearest
+    car_length: float = 3.9  # [m] mean car length of the centre correction
+    car_width: float = 1.6  # [m] mean car width of the centre correction
+    correction_bin_spread: float = 0.0  # share of the bin's +-22.5 deg averaged (0: centre)
     depth_offset: tuple[float, float, float, float] = field(
         default_factory=lambda: (0.0, 0.0, 0.0, 0.0)
-    )  # [m] per orientation bin (0, 45, 90, 135 deg) visible surface -> centre of mass
+    )  # [m] per orientation bin (0, 45, 90, 135 deg), added after the centre correction
 
     def validate(self) -> None:
         """Raise ValueError for unusable settings."""
@@ -64,6 +114,12 @@ class RangingParams:
             raise ValueError("depth_offset: needs 4 values (one per orientation bin)")
         if self.sigma_d <= 0:
             raise ValueError(f"sigma_d: {self.sigma_d} must be > 0")
+        if self.surface_model not in SURFACE_MODELS:
+            raise ValueError(f"surface_model: {self.surface_model!r} not one of {SURFACE_MODELS}")
+        if self.car_length < 0 or self.car_width < 0:
+            raise ValueError("car_length, car_width: must be >= 0")
+        if not 0.0 <= self.correction_bin_spread <= 1.0:
+            raise ValueError(f"correction_bin_spread: {self.correction_bin_spread} not in [0, 1]")
 
 
 @dataclass(frozen=True)
@@ -184,10 +240,16 @@ def range_boxes(
     """Range each box (x1, y1, x2, y2) [px] of the left image in a disparity map [px].
 
     Returns one entry per box: a :class:`RangeResult`, or None when the box has too few valid
-    disparities. ``orientation_bins`` (0..3 per box) selects the per-bin ``depth_offset``.
+    disparities. ``orientation_bins`` (0..3 per box) selects the per-bin centre correction and
+    ``depth_offset``; without bins the correction's mean over all angles and bin 0's offset.
     """
     params = params or RangingParams()
     params.validate()
+    centre = np.zeros(NUM_BINS + 1)
+    if params.centre_correction:
+        centre = bin_centre_offsets(
+            params.car_length, params.car_width, params.surface_model, params.correction_bin_spread
+        )
     disparity = np.asarray(disparity, np.float32)
     boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
     results: list[RangeResult | None] = []
@@ -211,8 +273,11 @@ def range_boxes(
             continue
         u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
         z_surface = float(geometry.fx * geometry.baseline / d)
-        b = int(orientation_bins[i]) if orientation_bins is not None else 0
-        offset = float(params.depth_offset[b % 4])
+        if orientation_bins is not None:
+            b = int(orientation_bins[i]) % NUM_BINS
+            offset = float(centre[b] + params.depth_offset[b])
+        else:
+            offset = float(centre[NUM_BINS] + params.depth_offset[0])
         ray = geometry.backproject(u, v, 1.0)
         point = ray * z_surface + offset * ray / np.linalg.norm(ray)
         cov = position_covariance(u, v, float(point[2]), geometry, params)
