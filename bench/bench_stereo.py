@@ -328,6 +328,11 @@ def _centre_line(label: str, recs, variant: str) -> str:
 
 def _groups(recs):
     yield from ((lvl, [r for r in recs if difficulty_ok(r["obj"], lvl)]) for lvl in LEVELS)
+    for cls in CLASSES:
+        yield (
+            f"moderate {cls}",
+            [r for r in recs if r["obj"].type == cls and difficulty_ok(r["obj"], "moderate")],
+        )
     for b in range(4):
         yield f"bin {b} ({45 * b} deg)", [r for r in recs if r["bin"] == b]
     for lo, hi in DIST_BUCKETS:
@@ -352,7 +357,7 @@ def centre_report(title: str, recs, variants: dict, detail: tuple[str, ...]) -> 
         print(hdr)
         print("|---|---|---|---|---|---|---|---|---|")
         for label, sel in _groups(recs):
-            if label in LEVELS or name in detail:
+            if label in LEVELS or label.startswith("moderate ") or name in detail:
                 print(_centre_line(label, sel, name))
     for name in detail:
         print(f"\n### covariance check, {name}: predicted std vs measured error spread")
@@ -376,19 +381,20 @@ def bench_centre(dparams: DisparityParams, synth: list[str]) -> None:
     base = RangingParams()
     variants = {
         "robust, no correction (before)": replace(base, centre_correction=False),
-        "robust + centre correction, nearest-point model": replace(
-            base, centre_correction=True, surface_model="nearest"
-        ),
-        "robust + centre correction, visible-surface model": replace(
-            base, centre_correction=True, surface_model="visible"
+        "robust + correction, nearest-point model": replace(base, surface_model="nearest"),
+        "robust + correction, visible model, bin-mean angle": replace(
+            base, correction_bin_spread=1.0
         ),
         "median, no correction": replace(base, method="median", centre_correction=False),
-        "median + centre correction, visible-surface model": replace(
-            base, method="median", centre_correction=True, surface_model="visible"
-        ),
-        "default RangingParams()": base,
+        "median + correction, visible model": replace(base, method="median"),
+        "default RangingParams() (robust + visible model at the bin's centre angle)": base,
+        "default with sigma_d 0.8 (previous covariance)": replace(base, sigma_d=0.8),
     }
-    detail = ("robust, no correction (before)", "default RangingParams()")
+    detail = (
+        "robust, no correction (before)",
+        "default RangingParams() (robust + visible model at the bin's centre angle)",
+        "default with sigma_d 0.8 (previous covariance)",
+    )
     sets = [("KITTI tracking 0005 (16 frames, real)", TRACKING, "0005")]
     for spec in synth:
         root, _, name = spec.rpartition(":")
