@@ -135,3 +135,54 @@ def test_oracle_backend_republishes_ground_truth(rclpy_context):
     assert list(d0.orientation_probs) == pytest.approx([0, 1, 0, 0])
     assert first.detections[1].orientation_bin == 2
     assert len(second.detections) == 1
+
+
+def test_cnn_backend_shipped_checkpoint_finds_synthetic_car(rclpy_context, tmp_path):
+    from detector_node.boxes import iou_matrix
+    from kitti_player_node.frame_messages import header
+    from kitti_player_node.image_conversion import numpy_to_image
+    from kitti_player_node.kitti import TrackingSequence
+    from kitti_player_node.synthetic import generate_sequence
+
+    generate_sequence(tmp_path, "0007", 3, seed=4242)
+    seq = TrackingSequence.open(tmp_path, "0007")
+    frame = seq.frame_ids[-1]
+    rgb = seq.read_stereo(frame)[0]
+    cars = [o for o in seq.objects(frame) if o.type == "Car" and o.height_px >= 25]
+    assert cars, "the synthetic frame has a labelled car"
+    stamp = 7_300_000_000
+
+    def publish(pubs):
+        bad = numpy_to_image(rgb[:10, :10], "rgb8", header(stamp - 1, "left_camera_optical_frame"))
+        bad.encoding = "weird"  # malformed: warning + empty array, node keeps running
+        pubs["image"].publish(bad)
+        pubs["image"].publish(
+            numpy_to_image(rgb, "rgb8", header(stamp, "left_camera_optical_frame"))
+        )
+        return 2
+
+    got = _run_node(rclpy_context, {"backend": "cnn", "num_threads": 2}, publish)
+    assert len(got) == 2
+    by_stamp = {_stamp_ns(m.header): m for m in got}
+    assert by_stamp[stamp - 1].detections == []
+    msg = by_stamp[stamp]
+    assert msg.header.frame_id == "left_camera_optical_frame"
+    assert msg.detections, "the shipped checkpoint detects something"
+    boxes = np.array(
+        [
+            [
+                d.bbox.center_x - d.bbox.size_x / 2,
+                d.bbox.center_y - d.bbox.size_y / 2,
+                d.bbox.center_x + d.bbox.size_x / 2,
+                d.bbox.center_y + d.bbox.size_y / 2,
+            ]
+            for d in msg.detections
+        ]
+    )
+    ious = iou_matrix(boxes, np.array([c.bbox for c in cars]))
+    assert ious.max() >= 0.5, f"no detection near a labelled car (best IoU {ious.max():.2f})"
+    for d in msg.detections:
+        assert 0.0 <= d.score <= 1.0 and d.class_id == "car"
+        assert sum(d.orientation_probs) == pytest.approx(1.0, abs=1e-4)
+        assert d.orientation_bin == int(np.argmax(d.orientation_probs))
+    assert [d.id for d in msg.detections] == [str(i) for i in range(len(msg.detections))]

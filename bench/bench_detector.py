@@ -1,0 +1,163 @@
+"""Benchmark of the 2D vehicle detector: accuracy and CPU inference time.
+
+Prints, for the shipped (or a given) checkpoint:
+- on a held-out synthetic sequence (generated here with a seed not used for training, or given
+  with --synthetic ROOT:SEQ) and on the 16 real frames of ../shared/kitti sequence 0005:
+  2D AP at IoU 0.5 and 0.7 (eval_node.detection_metrics: KITTI devkit AP_R40 per difficulty, and
+  the detector's own all-boxes VOC AP), orientation accuracy over matched detections (IoU >= 0.5)
+  and its 4x4 confusion matrix (rows: true bin, columns: predicted bin; bins 0/45/90/135 deg);
+- the median inference time (preprocessing + network + decoding) on a 1242x375 frame for the
+  tiny and the full configuration, torch threads = 2, 20 runs after 3 warm-up runs, and the ratio.
+
+Usage: python bench/bench_detector.py [--checkpoint PT] [--synthetic ROOT:SEQ] [--threads 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from detector_node.dataset import frames_from_source
+from detector_node.inference import CnnDetector
+from detector_node.model import YoloV2Passthrough, preset
+from detector_node.orientation import BIN_CENTRES_DEG, alpha_to_bin
+from detector_node.validation import FrameResult, evaluate_frames
+from kitti_player_node.kitti import KittiObject, read_png
+
+REPO = Path(__file__).resolve().parent.parent
+SHARED_0005 = REPO.parent / "shared" / "kitti" / "tracking" / "training"
+HELDOUT_SEED = 1000
+
+
+def evaluate(detector: CnnDetector, spec: str, label: str) -> dict:
+    """Run the detector over every frame of a data source and score it."""
+    from eval_node.detection_metrics import detection_ap_2d, orientation_accuracy
+
+    refs = frames_from_source(spec)
+    gt, pred, simple = {}, {}, []
+    types = detector.config.positive_types
+    for i, ref in enumerate(refs):
+        dets = detector.detect(read_png(ref.image_path))
+        gt[i] = ref.objects
+        pred[i] = [
+            KittiObject(
+                "Car",
+                alpha=math.radians(BIN_CENTRES_DEG[d.orientation_bin]),
+                bbox=d.box,
+                score=d.score,
+            )
+            for d in dets
+        ]
+        pos = [o for o in ref.objects if o.type in types]
+        simple.append(
+            FrameResult(
+                det_boxes=np.array([d.box for d in dets]).reshape(-1, 4),
+                det_scores=np.array([d.score for d in dets]),
+                det_bins=np.array([d.orientation_bin for d in dets], dtype=np.int64),
+                gt_boxes=np.array([o.bbox for o in pos]).reshape(-1, 4),
+                gt_bins=np.array([alpha_to_bin(o.alpha) for o in pos], dtype=np.int64),
+                dontcare=np.array([o.bbox for o in ref.objects if o.is_dontcare]).reshape(-1, 4),
+            )
+        )
+    kitti = detection_ap_2d(gt, pred)
+    ori = orientation_accuracy(gt, pred, iou=0.5)
+    own = {t: evaluate_frames(simple, t) for t in (0.5, 0.7)}
+    n_car = sum(1 for objs in gt.values() for o in objs if o.type == "Car")
+    print(f"\n== {label}: {len(refs)} frames, {n_car} Car labels ({spec})")
+    for diff in ("easy", "moderate", "hard"):
+        row = kitti[diff]
+        print(
+            f"  KITTI 2D AP_R40 {diff:8s} IoU0.5 {100 * row[0.5]['ap_r40']:5.1f} %   "
+            f"IoU0.7 {100 * row[0.7]['ap_r40']:5.1f} %   (counted GT {row[0.5]['num_gt']})"
+        )
+    print(
+        f"  all-boxes VOC AP (Car+Van positives): IoU0.5 {100 * own[0.5].ap:5.1f} %   "
+        f"IoU0.7 {100 * own[0.7].ap:5.1f} %"
+    )
+    print(
+        f"  orientation accuracy (Car, matched IoU>=0.5): {100 * ori.accuracy:5.1f} % "
+        f"over {ori.n_pairs} pairs (paper: 76.8 %)"
+    )
+    print("  confusion (rows true 0/45/90/135, cols predicted):")
+    for r in ori.confusion:
+        print("    " + " ".join(f"{v:5d}" for v in r))
+    return {
+        "frames": len(refs),
+        "kitti_ap_r40": {d: {str(t): kitti[d][t]["ap_r40"] for t in (0.5, 0.7)} for d in kitti},
+        "voc_ap_all": {str(t): own[t].ap for t in own},
+        "orientation_accuracy": ori.accuracy,
+        "orientation_pairs": ori.n_pairs,
+        "confusion": ori.confusion.tolist(),
+    }
+
+
+def time_model(model: YoloV2Passthrough, runs: int = 20, warmup: int = 3) -> float:
+    """Median seconds per 1242x375 frame, preprocessing + network + decoding."""
+    det = CnnDetector(model, "cpu", score_threshold=0.3)
+    rgb = np.random.default_rng(0).integers(0, 255, (375, 1242, 3), dtype=np.uint8)
+    for _ in range(warmup):
+        det.detect(rgb)
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        det.detect(rgb)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--checkpoint", default="", help="detector checkpoint ('' = shipped)")
+    p.add_argument("--synthetic", help="held-out synthetic data ROOT:SEQ (default: generate)")
+    p.add_argument("--frames", type=int, default=100, help="frames of the generated sequence")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--score-threshold", type=float, default=0.05)
+    p.add_argument("--skip-timing", action="store_true")
+    p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+    det = CnnDetector.from_checkpoint(args.checkpoint, "cpu", score_threshold=args.score_threshold)
+    c = det.config
+    print(
+        f"checkpoint: {args.checkpoint or 'shipped'}: {c.size} (width {c.width}, depth "
+        f"{c.depth}), input {c.input_width}x{c.input_height}, torch threads {args.threads}"
+    )
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        spec = args.synthetic
+        if not spec:
+            from kitti_player_node.synthetic import generate_sequence
+
+            generate_sequence(Path(tmp), "0100", args.frames, HELDOUT_SEED)
+            spec = f"{tmp}:0100"
+        results["synthetic"] = evaluate(det, spec, f"held-out synthetic (seed {HELDOUT_SEED})")
+    if (SHARED_0005 / "image_02" / "0005").is_dir():
+        results["kitti_0005"] = evaluate(det, f"{SHARED_0005}:0005", "real KITTI 0005")
+    else:
+        print(f"\n(real KITTI frames not found at {SHARED_0005}; skipped)")
+    if not args.skip_timing:
+        print("\n== inference time per 1242x375 frame (median of 20 after warm-up)")
+        tiny = time_model(det.model)
+        full = time_model(YoloV2Passthrough(preset("full")).eval())
+        print(
+            f"  tiny ({c.input_width}x{c.input_height}): {1000 * tiny:7.1f} ms  "
+            f"{1 / tiny:5.1f} fps (target >= 10 fps)"
+        )
+        print(f"  full (1152x352):  {1000 * full:7.1f} ms  {1 / full:5.1f} fps")
+        print(f"  full / tiny time ratio: {full / tiny:.1f}")
+        results["timing_s"] = {"tiny": tiny, "full": full}
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+
+
+if __name__ == "__main__":
+    main()
