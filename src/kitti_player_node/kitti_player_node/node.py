@@ -55,8 +55,22 @@ PARAMETERS = {
     "seed": 0,
     "start_time": 1.0,
     "wait_for_subscribers": 0,
+    # "topic:N,topic:N": before the first frame, wait until each published topic has N matched
+    # subscriptions (the process launcher sets it from the graph description)
+    "wait_for_topics": "",
     "exit_when_done": True,
 }
+
+
+def parse_topic_counts(spec: str) -> dict[str, int]:
+    """``"/a:2,/b:1"`` -> ``{"/a": 2, "/b": 1}``; raises PlayerError for a malformed entry."""
+    counts = {}
+    for entry in filter(None, (e.strip() for e in spec.split(","))):
+        topic, sep, n = entry.rpartition(":")
+        if not sep or not topic or not n.isdigit():
+            raise PlayerError(f"wait_for_topics: expected TOPIC:COUNT, got {entry!r}")
+        counts[topic] = int(n)
+    return counts
 
 
 def _qos(depth: int) -> QoSProfile:
@@ -138,6 +152,10 @@ class KittiPlayerNode(Node):
         self._started = False
         self._summary_logged = False
         self._last_wait_log = 0.0
+        self._expected = parse_topic_counts(p["wait_for_topics"])
+        unknown = set(self._expected) - {pub.topic_name for pub in self.publishers_list}
+        if unknown:
+            raise PlayerError(f"wait_for_topics: not published by the player: {sorted(unknown)}")
         self.timer = self.create_timer(min(0.01, period / 2) if period > 0 else 0.002, self._tick)
         self.get_logger().info(
             f"sequence {self.sequence.sequence}: {len(frames)} frames "
@@ -187,12 +205,13 @@ class KittiPlayerNode(Node):
         if not self._started:
             want = int(self.params["wait_for_subscribers"])
             have = self.pub_left.get_subscription_count()
-            # every subscription the ROS graph already knows of must also be matched, so that
-            # no subscriber misses the first frame
+            # every subscription the ROS graph already knows of, and the expected number per
+            # topic, must be matched, so that no subscriber misses the first frame
             unmatched = [
                 p.topic_name
                 for p in self.publishers_list
-                if p.get_subscription_count() < self.count_subscribers(p.topic_name)
+                if p.get_subscription_count()
+                < max(self.count_subscribers(p.topic_name), self._expected.get(p.topic_name, 0))
             ]
             if have < want or unmatched:
                 if now - self._last_wait_log > 2.0:

@@ -28,7 +28,7 @@ def _error(msg: str) -> int:
     return 2
 
 
-class _Progress:
+class TrackProgress:
     """Counts tracked-vehicle arrays (one per processed frame) and shows a progress bar."""
 
     def __init__(self, total: int):
@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     try:
         launcher.start()
-        progress = _Progress(frames)
+        progress = TrackProgress(frames)
         launcher.wait(until_finished=True)
     except LaunchError as exc:
         print(f"error: {exc}", file=sys.stderr)

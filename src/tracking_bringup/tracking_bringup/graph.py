@@ -7,7 +7,7 @@ this description, so the two cannot drift apart.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,9 @@ class NodeSpec:
     finishes: bool = False
     optional: bool = False
     extra_args: tuple[str, ...] = field(default=())
+    #: parameter through which a source node is told how many subscriptions to wait for per
+    #: published topic ("topic:N,topic:N") before it publishes its first message
+    wait_parameter: str | None = None
 
 
 LEFT_IMAGE = "/stereo/left/image_rect"
@@ -50,6 +53,7 @@ PLAYER = NodeSpec(
     publishes=(LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO, GROUND_TRUTH, CLOCK),
     source=True,
     finishes=True,
+    wait_parameter="wait_for_topics",
 )
 DETECTOR = NodeSpec(
     name="vehicle_detector",
@@ -69,7 +73,7 @@ TRACKER = NodeSpec(
     name="vehicle_tracker",
     package="tracker_node",
     executable="vehicle_tracker",
-    subscribes=(DETECTIONS_3D,),
+    subscribes=(DETECTIONS_3D, LEFT_INFO),  # camera info: 2D boxes of coasting tracks
     publishes=(TRACKS, TRACK_MARKERS),
 )
 RECORDER = NodeSpec(
@@ -89,6 +93,9 @@ RECORDER = NodeSpec(
     optional=True,
 )
 
+#: The detector with its ablation backend "oracle", which also reads the ground truth.
+ORACLE_DETECTOR = replace(DETECTOR, subscribes=(LEFT_IMAGE, GROUND_TRUTH))
+
 #: The whole pipeline in data-flow order.
 PIPELINE: tuple[NodeSpec, ...] = (PLAYER, DETECTOR, STEREO, TRACKER, RECORDER)
 
@@ -102,3 +109,17 @@ def by_name(names: list[str] | None = None) -> list[NodeSpec]:
     if unknown:
         raise ValueError(f"unknown node(s) {', '.join(unknown)}; known: {', '.join(known)}")
     return [n for n in PIPELINE if n.name in names]
+
+
+def with_detector_backend(nodes: list[NodeSpec], backend: str) -> list[NodeSpec]:
+    """``nodes`` with the detector's subscriptions matching its backend ("cnn" | "oracle")."""
+    spec = ORACLE_DETECTOR if backend == "oracle" else DETECTOR
+    return [spec if n.name == DETECTOR.name else n for n in nodes]
+
+
+def expected_subscriptions(source: NodeSpec, nodes: list[NodeSpec]) -> dict[str, int]:
+    """For each topic ``source`` publishes: how many of the other ``nodes`` subscribe to it."""
+    return {
+        topic: sum(topic in n.subscribes for n in nodes if n.name != source.name)
+        for topic in source.publishes
+    }

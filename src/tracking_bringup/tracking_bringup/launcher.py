@@ -294,7 +294,10 @@ def graph_processes(
     params_file: str | os.PathLike | None = PARAMS_FILE,
     overrides: Sequence[str] = (),
 ) -> list[ProcessSpec]:
-    """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings."""
+    """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings.
+
+    The detector's subscriptions follow its ``backend`` parameter (file or override), and each
+    source node is told how many subscriptions to wait for on each of its topics."""
     per_node: dict[str, list[str]] = {n.name: [] for n in nodes}
     for ov in overrides:
         target, sep, rest = ov.partition(".")
@@ -304,6 +307,14 @@ def graph_processes(
                 + ", ".join(per_node)
             )
         per_node[target].append(rest)
+    nodes = graph.with_detector_backend(
+        list(nodes), _parameter(params_file, per_node, graph.DETECTOR.name, "backend", "cnn")
+    )
+    for n in nodes:
+        if n.source and n.wait_parameter:
+            counts = graph.expected_subscriptions(n, nodes)
+            spec = ",".join(f"{t}:{c}" for t, c in counts.items() if c)
+            per_node[n.name].append(f"{n.wait_parameter}:={spec}")
     return [
         ProcessSpec(
             name=n.name,
@@ -315,6 +326,20 @@ def graph_processes(
         )
         for n in nodes
     ]
+
+
+def _parameter(params_file, per_node: dict[str, list[str]], node: str, name: str, default):
+    """A node parameter's value: the last ``-p`` override, else the parameter file's value."""
+    for ov in reversed(per_node.get(node, [])):
+        key, _, value = ov.partition(":=")
+        if key == name:
+            return value.strip("'\"")
+    if params_file and Path(params_file).is_file():
+        import yaml
+
+        data = yaml.safe_load(Path(params_file).read_text()) or {}
+        return data.get(node, {}).get("ros__parameters", {}).get(name, default)
+    return default
 
 
 def run_graph(
