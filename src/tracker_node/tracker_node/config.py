@@ -27,7 +27,10 @@ class TrackerConfig:
     (see docs/tracker.md)."""
 
     filter: str = "kalman"  # kalman | particle | none
-    association: str = "hungarian"  # hungarian | nearest (the paper's greedy)
+    # nearest (the paper's greedy) | hungarian. Nearest is the default because it measured best
+    # on the KITTI validation sequences (MOTA 84.94 vs 84.85, IDSW 0 vs 1, FRAG 8 vs 10 with
+    # Kalman, docs/tracker.md); Hungarian + Mahalanobis keeps ids better in crossing scenes.
+    association: str = "nearest"
     cost: str = "mahalanobis"  # mahalanobis | euclidean | iou2d | giou3d
     dist_cap: float = 4.0  # [m] gate on the centre distance (all costs)
     mahalanobis_gate: float = 25.0  # gate on the squared Mahalanobis distance (3 dof)
