@@ -85,6 +85,14 @@ def evaluate(detector: CnnDetector, spec: str, label: str) -> dict:
         f"  orientation accuracy (Car, matched IoU>=0.5): {100 * ori.accuracy:5.1f} % "
         f"over {ori.n_pairs} pairs (paper: 76.8 %)"
     )
+    cm = ori.confusion
+    rows = cm.sum(axis=1)
+    majority = rows.max() / max(cm.sum(), 1)
+    balanced = float(np.mean([cm[i, i] / rows[i] for i in range(4) if rows[i]])) if cm.sum() else 0
+    print(
+        f"  baseline 'always the most frequent true bin': {100 * majority:5.1f} %;  "
+        f"balanced accuracy (mean per-bin recall): {100 * balanced:5.1f} %"
+    )
     print("  confusion (rows true 0/45/90/135, cols predicted):")
     for r in ori.confusion:
         print("    " + " ".join(f"{v:5d}" for v in r))
@@ -95,6 +103,8 @@ def evaluate(detector: CnnDetector, spec: str, label: str) -> dict:
         "orientation_accuracy": ori.accuracy,
         "orientation_pairs": ori.n_pairs,
         "confusion": ori.confusion.tolist(),
+        "orientation_majority_baseline": float(majority),
+        "orientation_balanced_accuracy": balanced,
     }
 
 
