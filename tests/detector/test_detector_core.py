@@ -203,3 +203,24 @@ def test_simple_ap_and_orientation_confusion():
     assert r.confusion[1, 1] == 1 and r.confusion[3, 2] == 1
     r7 = evaluate_frames(frames, 0.85)
     assert r7.ap == pytest.approx(0.5)
+
+
+def test_orientation_bin_weights_scale_the_orientation_term():
+    from detector_node.loss import LossWeights
+
+    config = preset("tiny", input_width=320, input_height=96)
+    torch.manual_seed(0)
+    raw = torch.randn(1, 45, 3, 10)
+    boxes = [np.array([[40.0, 30, 90, 70], [200, 20, 260, 80]], np.float32)]
+    bins = [np.array([1, 2])]
+    dc = [np.zeros((0, 4))]
+    _, plain = detection_loss(raw, boxes, bins, dc, config)
+    _, only1 = detection_loss(
+        raw, boxes, bins, dc, config, LossWeights(orientation_bin_weights=(0.0, 1.0, 0.0, 0.0))
+    )
+    _, only2 = detection_loss(
+        raw, boxes, bins, dc, config, LossWeights(orientation_bin_weights=(0.0, 0.0, 3.0, 0.0))
+    )
+    assert only1["ori"] > 0 and only2["ori"] > 0
+    assert only1["ori"] + only2["ori"] / 3 == pytest.approx(plain["ori"], rel=1e-5)
+    assert only1["box"] == pytest.approx(plain["box"])

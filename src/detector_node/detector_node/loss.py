@@ -21,6 +21,8 @@ class LossWeights:
     noobj: float = 1.0
     orientation: float = 1.0
     ignore_iou: float = 0.6
+    #: optional per-bin weights of the orientation cross-entropy (e.g. against class imbalance)
+    orientation_bin_weights: tuple[float, float, float, float] | None = None
 
 
 def build_targets(samples_boxes, samples_bins, config: DetectorConfig):
@@ -118,7 +120,12 @@ def detection_loss(
             )
             / b
         )
-        l_ori = F.cross_entropy(sel[:, 5:], tbin_t[mask_t], reduction="sum") / b
+        bw = (
+            torch.tensor(w.orientation_bin_weights, dtype=sel.dtype, device=dev)
+            if w.orientation_bin_weights is not None
+            else None
+        )
+        l_ori = F.cross_entropy(sel[:, 5:], tbin_t[mask_t], weight=bw, reduction="sum") / b
     else:
         l_xy = l_wh = l_obj = l_ori = raw.sum() * 0.0
     total = w.coord * (l_xy + l_wh) + w.obj * l_obj + w.noobj * l_noobj + w.orientation * l_ori

@@ -22,7 +22,7 @@ from .anchors import kmeans_anchors
 from .checkpoint import load_checkpoint, save_checkpoint
 from .dataset import Sample, add_data_arguments, augment, load_sample, sources_from_args
 from .inference import choose_device, decode_output, to_tensor
-from .loss import detection_loss
+from .loss import LossWeights, detection_loss
 from .model import YoloV2Passthrough, preset
 from .validation import ApResult, FrameResult, evaluate_frames
 
@@ -98,6 +98,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--final-epochs", type=int, default=2)
     p.add_argument("--no-flip", action="store_true", help="disable horizontal flips")
     p.add_argument("--no-jitter", action="store_true", help="disable colour jitter")
+    p.add_argument(
+        "--balance-orientation",
+        action="store_true",
+        help="weight the orientation loss by 1/sqrt(bin frequency) of the training boxes",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
     p.add_argument("--num-threads", type=int, default=2, help="torch CPU threads")
@@ -178,6 +183,16 @@ def _train(args: argparse.Namespace) -> int:
             )
         config = preset(args.size, **{**overrides, "anchors": tuple(map(tuple, anchors))})
         model = YoloV2Passthrough(config).to(device)
+    weights = LossWeights()
+    if args.balance_orientation:
+        counts = np.bincount(np.concatenate([s.bins for s in train_samples]), minlength=4)
+        inv = 1.0 / np.sqrt(np.maximum(counts, 1) / max(counts.sum(), 1))
+        weights.orientation_bin_weights = tuple(float(v) for v in inv / inv.mean())
+        print(
+            f"orientation bin counts {counts.tolist()}, loss weights "
+            f"{np.round(weights.orientation_bin_weights, 3).tolist()}",
+            flush=True,
+        )
     opt = torch.optim.Adam(model.parameters(), lr=args.lr, betas=(0.9, 0.999))
     if args.resume and "optimizer" in state:
         opt.load_state_dict(state["optimizer"])
@@ -212,6 +227,7 @@ def _train(args: argparse.Namespace) -> int:
                 [s.bins for s in batch],
                 [s.dontcare for s in batch],
                 config,
+                weights,
             )
             opt.zero_grad(set_to_none=True)
             loss.backward()
