@@ -61,3 +61,37 @@ def test_cli_bad_input_is_one_line_exit_2(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("error: ") and "missing" in err[0]
     assert anchors_main(["--train", str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+
+
+def test_object_layout_source_and_dontcare(tmp_path):
+    import math
+
+    import numpy as np
+    from detector_node.dataset import frames_from_source, load_sample
+    from kitti_player_node.kitti import KittiObject, write_object_labels, write_png
+
+    img = np.zeros((375, 1242, 3), np.uint8)
+    write_png(tmp_path / "image_2" / "000007.png", img)
+    write_object_labels(
+        tmp_path / "label_2" / "000007.txt",
+        [
+            KittiObject("Car", alpha=math.radians(88), bbox=(100.0, 150.0, 300.0, 250.0)),
+            KittiObject("Van", alpha=math.radians(-44), bbox=(400.0, 150.0, 500.0, 250.0)),
+            KittiObject("Cyclist", alpha=0.0, bbox=(600.0, 150.0, 650.0, 250.0)),
+            KittiObject("DontCare", bbox=(700.0, 100.0, 800.0, 200.0)),
+        ],
+    )
+    refs = frames_from_source(str(tmp_path))
+    assert [r.name for r in refs] == [f"{tmp_path.name}/000007"]
+    s = load_sample(refs[0], 640, 192, ("Car", "Van"))
+    sx, sy = 640 / 1242, 192 / 375
+    assert np.allclose(
+        s.boxes,
+        [[100 * sx, 150 * sy, 300 * sx, 250 * sy], [400 * sx, 150 * sy, 500 * sx, 250 * sy]],
+        atol=1e-3,
+    )
+    assert s.bins.tolist() == [2, 3]
+    assert np.allclose(s.dontcare, [[700 * sx, 100 * sy, 800 * sx, 200 * sy]], atol=1e-3)
+    assert s.image.shape == (192, 640, 3)
+    cars_only = load_sample(refs[0], 640, 192, ("Car",))
+    assert len(cars_only.boxes) == 1
