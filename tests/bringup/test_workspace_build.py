@@ -104,6 +104,8 @@ def test_colcon_build_of_the_workspace(tmp_path):
     share = ws / "install" / "tracking_bringup" / "share" / "tracking_bringup"
     assert (share / "launch" / "stereo_tracking.launch.py").is_file()
     assert (share / "config" / "pipeline.params.yaml").is_file()
+    models = ws / "install" / "detector_node" / "share" / "detector_node" / "models"
+    assert (models / "tiny_synthetic.pt").is_file()
     # the generated Python interface imports from the colcon install
     site = next((ws / "install" / "stereo_vehicle_msgs" / "lib").glob("python3*/site-packages"))
     check = subprocess.run(

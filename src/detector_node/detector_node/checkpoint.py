@@ -9,8 +9,23 @@ import torch
 
 from .model import DetectorConfig, YoloV2Passthrough
 
+
+def _shipped_checkpoint() -> Path:
+    """The shipped checkpoint: ``src/detector_node/models/`` in the source tree (editable
+    install), else ``share/detector_node/models/`` of a colcon/ament install."""
+    source = Path(__file__).resolve().parent.parent / "models" / "tiny_synthetic.pt"
+    if source.is_file():
+        return source
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        return Path(get_package_share_directory("detector_node")) / "models" / source.name
+    except (ImportError, LookupError):
+        return source
+
+
 #: The checkpoint shipped in the repository (trained on synthetic KITTI-format sequences).
-SHIPPED_CHECKPOINT = Path(__file__).resolve().parent.parent / "models" / "tiny_synthetic.pt"
+SHIPPED_CHECKPOINT = _shipped_checkpoint()
 FORMAT_VERSION = 1
 
 

@@ -144,8 +144,8 @@ def main(argv: list[str] | None = None) -> int:
     progress = None
     t0 = time.monotonic()
     try:
+        progress = TrackProgress(frames)  # subscribed before the player publishes anything
         launcher.start()
-        progress = TrackProgress(frames)
         launcher.wait(until_finished=True)
     except LaunchError as exc:
         print(f"error: {exc}", file=sys.stderr)
