@@ -96,10 +96,14 @@ def test_real_kitti_0005_with_oracle_detector(kitti_tracking_root, tmp_path):
     assert det["3"]["moderate"] >= REAL_MODERATE_3M_MIN_AP, det
 
 
-# Thresholds (see README, "Measured results"): measured value minus a margin for noise.
-SYNTHETIC_EASY_3M_MIN_AP = 0.0
-REAL_MODERATE_15M_MIN_AP = 0.0
-REAL_MODERATE_3M_MIN_AP = 0.0
+# Thresholds (README, "Measured results"). The lockstep run is deterministic up to floating-point
+# differences between machines; measured here (2-core x86-64): synthetic 20 frames, CNN, tracks,
+# easy, 3 m: 0.838; real 0005, oracle boxes, 3D detections, moderate: 0.203 at 1.5 m and 0.360
+# at 3 m. Thresholds sit about 0.05-0.14 below, so a regression in ranging, tracking or
+# association (which moves these by more than that) fails while machine noise does not.
+SYNTHETIC_EASY_3M_MIN_AP = 0.70
+REAL_MODERATE_15M_MIN_AP = 0.15
+REAL_MODERATE_3M_MIN_AP = 0.28
 
 
 def _tracks_by_stamp(bag: Path) -> dict[int, list[tuple]]:
