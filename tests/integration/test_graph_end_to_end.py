@@ -68,6 +68,11 @@ def test_synthetic_localisation_map_above_threshold(synthetic_run):
     ap = results["tracks_3d"]["3"]["easy"]
     # threshold justified in the README (measured value with margin)
     assert ap >= SYNTHETIC_EASY_3M_MIN_AP, results["tracks_3d"]["3"]
+    # the offline re-run of the tracker core (filter comparison, kalman) on the recorded 3D
+    # detections computes what the live graph computed
+    for level in ("easy", "moderate", "hard"):
+        live = results["tracks_3d"]["1.5"][level]
+        assert results["filter_comparison"]["kalman"][level] == pytest.approx(live, abs=1e-9)
     for name in ("report.md", "report.html", "overlay.gif"):
         assert (synthetic_run / "report" / name).stat().st_size > 0
 

@@ -43,7 +43,7 @@ def trackset_to_objects(tracks, offset: np.ndarray, frame: int, mean_hwl) -> lis
                 rotation_y=yaw,
                 frame=frame,
                 track_id=int(tracks.track_id[i]),
-                score=float(tracks.score[i]),
+                score=float(np.clip(tracks.score[i], 0.0, 1.0)),  # as vehicle_tracker publishes
             )
         )
     return out

@@ -73,7 +73,7 @@ def tracks_to_msg(tracks: TrackSet, header):
         v.track_id = int(tracks.track_id[i])
         v.class_id = tracks.class_id[i]
         v.state = int(tracks.state[i])
-        v.confidence = float(tracks.confidence[i])
+        v.confidence = float(np.clip(tracks.score[i], 0.0, 1.0))  # detection score x track conf.
         v.position.x, v.position.y, v.position.z = (float(a) for a in tracks.position[i])
         v.position_covariance = [float(a) for a in tracks.position_cov[i].ravel()]
         v.velocity.x, v.velocity.y, v.velocity.z = (float(a) for a in tracks.velocity[i])

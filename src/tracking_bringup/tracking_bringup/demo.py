@@ -167,17 +167,24 @@ def main(argv: list[str] | None = None) -> int:
     )
     if args.no_eval:
         return 0
-    return _evaluate(bag, root, sequence, out, processed, elapsed)
+    return _evaluate(bag, root, sequence, out, processed, elapsed, args.params)
 
 
-def _evaluate(bag: Path, root: Path, sequence: str, out: Path, processed: int, elapsed: float):
+def _evaluate(
+    bag: Path, root: Path, sequence: str, out: Path, processed: int, elapsed: float, params: str
+):
     from eval_node.bag_evaluation import evaluate_bag
     from eval_node.cli import write_json
     from eval_node.report import results_table, write_report
+    from tracker_node.config import TrackerConfig
 
     labels = root / "label_02"
     results = evaluate_bag(
-        bag, labels_dir=labels if labels.is_dir() else None, sequence=sequence, progress=True
+        bag,
+        labels_dir=labels if labels.is_dir() else None,
+        sequence=sequence,
+        tracker_config=TrackerConfig.from_yaml(params),  # the filter comparison = the live graph
+        progress=True,
     )
     results["demo"] = {
         "frames_tracked": processed,
