@@ -32,7 +32,12 @@ def _record(tmp_path, rclpy_context, sig, extra_params):
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     pub_tracks = node.create_publisher(TrackedVehicleArray, "/vehicles/tracks", qos)
     pub_det = node.create_publisher(VehicleDetection3DArray, "/vehicles/detections_3d", qos)
-    params = ["-p", f"output:={bag}"] + [x for p in extra_params for x in ("-p", p)]
+    topics = (
+        "['/vehicles/tracks:stereo_vehicle_msgs/msg/TrackedVehicleArray',"
+        "'/vehicles/detections_3d:stereo_vehicle_msgs/msg/VehicleDetection3DArray']"
+    )
+    params = ["-p", f"output:={bag}", "-p", f"topics:={topics}"]
+    params += [x for p in extra_params for x in ("-p", p)]
     proc = subprocess.Popen(
         [sys.executable, "-m", "eval_node.recorder", "--ros-args", *params],
         stdout=subprocess.PIPE,

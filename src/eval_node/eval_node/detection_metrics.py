@@ -11,7 +11,9 @@ kitti-object-eval-python ``eval.py``): per-frame greedy matching of each ground 
 remaining prediction, ignored ground truth (neighbouring class ``Van``, outside the difficulty) and
 ignored predictions (below the level's minimum height; unmatched predictions covering a DontCare box
 with intersection over their own area > ``dontcare_overlap``), score thresholds sampled from the
-true positives' scores at 41 recall points, precision made monotone, then
+true positives' scores, precision interpolated at 41 recall points r = 0, 1/40, ..., 1 (the best
+precision at recall >= r; unlike the devkit's sampling this does not cap AP near num_gt/41 when
+fewer than 40 ground-truth boxes are counted), then
 
 - ``ap_r11``: mean precision at recall 0, 0.1, ..., 1 (every 4th of the 41 samples; KITTI's original
   metric, "AP|R11"),
@@ -251,11 +253,12 @@ def sample_thresholds(
 class PrecisionRecall:
     """Sampled precision/recall curve of one (class, difficulty, criterion, threshold)."""
 
-    precision: np.ndarray  # (n_sample_pts,), monotone non-increasing, zero-filled
-    recall: np.ndarray  # (n_sample_pts,)
+    precision: np.ndarray  # (n_sample_pts,) interpolated precision at each recall sample point
+    recall: np.ndarray  # (n_sample_pts,) the recall sample points 0, 1/(n-1), ..., 1
     thresholds: list[float]  # score thresholds of the samples
     num_gt: int  # counted ground truth
     tp_fp_fn: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=int))
+    max_recall: float = 0.0  # highest recall reached by any operating point
 
     @property
     def ap_r11(self) -> float:
@@ -339,13 +342,19 @@ def precision_recall(
                 cache[k] = _tp_fp_fn(f, k)
             pr[t] += cache[k]
     tp, fp, fn = pr[:, 0].astype(float), pr[:, 1].astype(float), pr[:, 2].astype(float)
-    n = len(thresholds)
     with np.errstate(divide="ignore", invalid="ignore"):
-        recall[:n] = np.where(tp + fn > 0, tp / (tp + fn), 0.0)
-        precision[:n] = np.where(tp + fp > 0, tp / (tp + fp), 0.0)
-    precision[:n] = np.maximum.accumulate(precision[:n][::-1])[::-1]
-    recall[:n] = np.maximum.accumulate(recall[:n][::-1])[::-1]
-    return PrecisionRecall(precision, recall, thresholds, num_gt, pr)
+        op_recall = np.where(tp + fn > 0, tp / (tp + fn), 0.0)
+        op_precision = np.where(tp + fp > 0, tp / (tp + fp), 0.0)
+    # Interpolated precision at the recall sample points r_k = k / (n - 1): the best precision
+    # of any operating point with recall >= r_k (0 where recall r_k is never reached). With many
+    # ground-truth boxes this equals the devkit's "k-th threshold" sampling; with few (< 40) it
+    # avoids the devkit's artefact of capping AP at about num_gt / 41.
+    recall[:] = np.linspace(0.0, 1.0, n_sample_pts)
+    for k, r in enumerate(recall):
+        reached = op_precision[op_recall >= r - 1e-9]
+        precision[k] = reached.max() if reached.size else 0.0
+    max_recall = float(op_recall.max()) if op_recall.size else 0.0
+    return PrecisionRecall(precision, recall, thresholds, num_gt, pr, max_recall)
 
 
 def localisation_ap(
