@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from kitti_player_node.box3d import iou_3d as box3d_iou
 from kitti_player_node.box3d import projected_bbox
 from kitti_player_node.kitti import KittiFormatError, KittiObject, read_calib, read_tracking_labels
 from scipy.optimize import linear_sum_assignment
@@ -75,71 +76,12 @@ _MAX_COST = 1e9
 # ----------------------------------------------------------------------------- 3D IoU
 
 
-def _clip_polygon(subject: list, clip: np.ndarray) -> list:
-    """Sutherland-Hodgman: the part of ``subject`` inside the convex counter-clockwise polygon
-    ``clip`` (both lists/arrays of 2D points)."""
-    out = subject
-    n = len(clip)
-    for i in range(n):
-        if not out:
-            break
-        ax, ay = clip[i]
-        bx, by = clip[(i + 1) % n]
-        ex, ey = bx - ax, by - ay
-        inp, out = out, []
-        m = len(inp)
-        for j in range(m):
-            px, py = inp[j]
-            qx, qy = inp[(j + 1) % m]
-            sp = ex * (py - ay) - ey * (px - ax)  # >= 0: inside (left of the edge)
-            sq = ex * (qy - ay) - ey * (qx - ax)
-            if sp >= 0.0:
-                out.append((px, py))
-            if (sp >= 0.0) != (sq >= 0.0):
-                t = sp / (sp - sq)
-                out.append((px + t * (qx - px), py + t * (qy - py)))
-    return out
-
-
-def _polygon_area(poly) -> float:
-    if len(poly) < 3:
-        return 0.0
-    p = np.asarray(poly)
-    x, y = p[:, 0], p[:, 1]
-    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
-
-
-def bev_corners(dimensions, location, rotation_y: float) -> np.ndarray:
-    """Bird's-eye footprint (4, 2) of a KITTI box in (x, z), counter-clockwise in that plane."""
-    _, w, l = (float(v) for v in dimensions)
-    x = np.array([l, -l, -l, l]) / 2.0
-    z = np.array([w, w, -w, -w]) / 2.0
-    c, s = math.cos(rotation_y), math.sin(rotation_y)
-    pts = np.stack([c * x + s * z + location[0], -s * x + c * z + location[2]], axis=1)
-    # make counter-clockwise (positive signed area) whatever the rotation convention
-    signed = 0.5 * float(
-        np.dot(pts[:, 0], np.roll(pts[:, 1], -1)) - np.dot(pts[:, 1], np.roll(pts[:, 0], -1))
-    )
-    return pts if signed >= 0 else pts[::-1].copy()
-
-
 def iou_3d(a: KittiObject, b: KittiObject) -> float:
-    """3D IoU of two KITTI boxes: bird's-eye polygon intersection (Sutherland-Hodgman) times the
-    vertical overlap, over the union volume. 1 for identical boxes, 0 for invalid sizes."""
-    ha, wa, la = a.dimensions
-    hb, wb, lb = b.dimensions
-    if min(ha, wa, la, hb, wb, lb) <= 0.0:
-        return 0.0
-    # y points down: a box spans [y - h, y]
-    y_overlap = min(a.location[1], b.location[1]) - max(a.location[1] - ha, b.location[1] - hb)
-    if y_overlap <= 0.0:
-        return 0.0
-    pa = bev_corners(a.dimensions, a.location, a.rotation_y)
-    pb = bev_corners(b.dimensions, b.location, b.rotation_y)
-    inter_area = _polygon_area(_clip_polygon([tuple(p) for p in pa], pb))
-    inter = inter_area * y_overlap
-    union = ha * wa * la + hb * wb * lb - inter
-    return float(min(1.0, max(0.0, inter / union))) if union > 0 else 0.0
+    """3D IoU of two KITTI objects (:func:`kitti_player_node.box3d.iou_3d`): 1 for identical
+    boxes, 0 for invalid sizes."""
+    return box3d_iou(
+        (a.dimensions, a.location, a.rotation_y), (b.dimensions, b.location, b.rotation_y)
+    )
 
 
 def iou_3d_matrix(a: list[KittiObject], b: list[KittiObject]) -> np.ndarray:

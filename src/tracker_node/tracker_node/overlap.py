@@ -1,5 +1,5 @@
 """Box overlaps used as association costs: 2D IoU with shape similarity, and 3D GIoU of boxes
-with size and yaw (bird's-eye-view polygon intersection times the vertical overlap).
+with size and yaw (the geometry is :mod:`kitti_player_node.box3d`'s).
 
 3D boxes here are ``(cx, cy, cz, l, w, h, yaw)``: the centre of the box (camera frame, y down),
 length/width/height, yaw about the camera y axis (KITTI rotation_y; length along +x at yaw 0).
@@ -8,6 +8,7 @@ length/width/height, yaw about the camera y axis (KITTI rotation_y; length along
 from __future__ import annotations
 
 import numpy as np
+from kitti_player_node.box3d import giou_3d as box3d_giou
 
 
 def iou_2d(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -35,89 +36,19 @@ def shape_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.nan_to_num(np.exp(-d))
 
 
-def bev_corners(box: np.ndarray) -> np.ndarray:
-    """The 4 footprint corners (4, 2) in (x, z), counter-clockwise in the x-z plane."""
-    cx, _, cz, l, w, _, yaw = (float(v) for v in box)
-    c, s = np.cos(yaw), np.sin(yaw)
-    xs = np.array([l, -l, -l, l]) / 2.0
-    zs = np.array([w, w, -w, -w]) / 2.0
-    # same rotation as kitti_player_node.box3d.box_corners: x' = c x + s z, z' = -s x + c z
-    pts = np.stack([cx + c * xs + s * zs, cz - s * xs + c * zs], axis=1)
-    return _ccw(pts)
-
-
-def _ccw(poly: np.ndarray) -> np.ndarray:
-    area2 = np.sum(poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1) * poly[:, 1])
-    return poly if area2 >= 0 else poly[::-1]
-
-
-def polygon_area(poly: np.ndarray) -> float:
-    if len(poly) < 3:
-        return 0.0
-    x, y = poly[:, 0], poly[:, 1]
-    return float(abs(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)) / 2.0)
-
-
-def clip_convex(subject: np.ndarray, clip: np.ndarray) -> np.ndarray:
-    """Intersection of two convex counter-clockwise polygons (Sutherland-Hodgman)."""
-    out = [tuple(p) for p in subject]
-    n = len(clip)
-    for i in range(n):
-        if not out:
-            break
-        ax, ay = clip[i]
-        bx, by = clip[(i + 1) % n]
-        inp, out = out, []
-
-        def side(p, ax=ax, ay=ay, bx=bx, by=by):
-            return (bx - ax) * (p[1] - ay) - (by - ay) * (p[0] - ax)
-
-        for j in range(len(inp)):
-            p, q = inp[j], inp[(j + 1) % len(inp)]
-            sp, sq = side(p), side(q)
-            if sp >= 0:
-                out.append(p)
-            if (sp >= 0) != (sq >= 0):
-                t = sp / (sp - sq)
-                out.append((p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])))
-    return np.array(out, dtype=float).reshape(-1, 2)
-
-
-def convex_hull(points: np.ndarray) -> np.ndarray:
-    """Convex hull (monotone chain), counter-clockwise."""
-    pts = sorted(set(map(tuple, np.asarray(points, float))))
-    if len(pts) <= 2:
-        return np.array(pts)
-
-    def cross(o, a, b):
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    lower, upper = [], []
-    for p in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
-            lower.pop()
-        lower.append(p)
-    for p in reversed(pts):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
-            upper.pop()
-        upper.append(p)
-    return np.array(lower[:-1] + upper[:-1])
+def kitti_box(
+    box: np.ndarray,
+) -> tuple[tuple[float, float, float], tuple[float, float, float], float]:
+    """A box ``(cx, cy, cz, l, w, h, yaw)`` as the KITTI ``(dimensions (h, w, l), bottom-centre
+    location, rotation_y)`` of :mod:`kitti_player_node.box3d` (y down: bottom = cy + h / 2)."""
+    cx, cy, cz, l, w, h, yaw = (float(v) for v in box)
+    return (h, w, l), (cx, cy + h / 2.0, cz), yaw
 
 
 def giou_3d(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """(3D IoU, 3D GIoU) of two boxes ``(cx, cy, cz, l, w, h, yaw)``."""
-    pa, pb = bev_corners(a), bev_corners(b)
-    inter_area = polygon_area(clip_convex(pa, pb))
-    ya0, ya1 = a[1] - a[5] / 2.0, a[1] + a[5] / 2.0
-    yb0, yb1 = b[1] - b[5] / 2.0, b[1] + b[5] / 2.0
-    ih = max(0.0, min(ya1, yb1) - max(ya0, yb0))
-    inter = inter_area * ih
-    va, vb = a[3] * a[4] * a[5], b[3] * b[4] * b[5]
-    union = va + vb - inter
-    hull = polygon_area(convex_hull(np.vstack([pa, pb]))) * (max(ya1, yb1) - min(ya0, yb0))
-    iou = inter / union if union > 0 else 0.0
-    giou = iou - (hull - union) / hull if hull > 0 else iou
-    return float(iou), float(giou)
+    """(3D IoU, 3D GIoU) of two boxes ``(cx, cy, cz, l, w, h, yaw)``
+    (:func:`kitti_player_node.box3d.giou_3d`)."""
+    return box3d_giou(kitti_box(a), kitti_box(b))
 
 
 def giou_3d_matrix(
