@@ -42,7 +42,9 @@ class TrackProgress:
         rclpy.init(context=self._ctx, args=[])
         self._node = rclpy.create_node("demo_progress", context=self._ctx)
         self._node.create_subscription(TrackedVehicleArray, graph.TRACKS, self._on_tracks, 10)
-        self._bar = tqdm(total=total, unit="frame", desc="pipeline", dynamic_ncols=True)
+        self._bar = tqdm(
+            total=total, unit="frame", desc="pipeline", dynamic_ncols=True, mininterval=0.5
+        )
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
