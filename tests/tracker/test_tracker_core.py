@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from detector_node.orientation import alpha_to_bin as bin_from_alpha
 from kitti_player_node.box3d import box_corners
 from tracker_node.config import TrackerConfig, TrackerConfigError
 from tracker_node.kalman import BatchedKalmanFilter, filterpy_reference, process_noise, transition
-from tracker_node.orientation import align_to, bin_from_alpha, heading_from_velocity, yaw_from_bin
+from tracker_node.orientation import align_to, heading_from_velocity, yaw_from_bin
 from tracker_node.overlap import giou_3d
 from tracker_node.particle import BatchedParticleFilter
 from tracker_node.tracker import COASTING, CONFIRMED, TENTATIVE, DetectionBatch, Tracker

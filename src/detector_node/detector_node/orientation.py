@@ -34,6 +34,12 @@ def alpha_to_bin(alpha: float | np.ndarray) -> int | np.ndarray:
     return int(b) if np.ndim(b) == 0 else b
 
 
+def bin_to_alpha(bins: int | np.ndarray) -> float | np.ndarray:
+    """Observation angle [rad] at the centre of orientation bins (0, 45, 90, 135 deg)."""
+    a = np.asarray(bins, dtype=np.int64) % NUM_BINS * BIN_WIDTH
+    return float(a) if np.ndim(a) == 0 else a
+
+
 def flip_alpha(alpha: float | np.ndarray) -> float | np.ndarray:
     """Observation angle after a horizontal image flip: pi - alpha, wrapped to (-pi, pi]."""
     a = math.pi - np.asarray(alpha, dtype=float)

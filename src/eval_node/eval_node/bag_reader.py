@@ -12,12 +12,13 @@ the tracker offline. Pure core: rosbags only, no rclpy.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from detector_node.orientation import bin_to_alpha
 from kitti_player_node.kitti import (
+    MEAN_CAR_DIMENSIONS,
     KittiFormatError,
     KittiObject,
     alpha_from_rotation_y,
@@ -31,8 +32,6 @@ DET3D_TOPIC = "/vehicles/detections_3d"
 TRACKS_TOPIC = "/vehicles/tracks"
 LEFT_IMAGE_TOPIC = "/stereo/left/image_rect"
 LEFT_INFO_TOPIC = "/stereo/left/camera_info"
-#: KITTI mean car size (h, w, l) [m], used where a message carries no size.
-MEAN_CAR_HWL = (1.53, 1.63, 3.88)
 #: Track states reported as tracker output (confirmed and coasting; tentative ones are not).
 OUTPUT_STATES = (1, 2)
 
@@ -100,11 +99,6 @@ def _bbox(b) -> tuple[float, float, float, float]:
     )
 
 
-def bin_to_alpha(orientation_bin: int) -> float:
-    """Observation angle [rad] at the centre of an orientation bin (0, 45, 90, 135 deg)."""
-    return wrap_angle(int(orientation_bin) * math.pi / 4.0)
-
-
 def _gt_object(o) -> KittiObject:
     return KittiObject(
         type=str(o.type),
@@ -121,7 +115,7 @@ def _gt_object(o) -> KittiObject:
 
 def det3d_to_object(det: Detection3D, offset: np.ndarray, frame: int) -> KittiObject:
     """A 3D detection as a KITTI result row (camera 0, bottom centre, mean car size)."""
-    h, w, length = MEAN_CAR_HWL
+    h, w, length = MEAN_CAR_DIMENSIONS  # message carries no size
     x, y, z = np.asarray(det.position, dtype=float) - offset
     alpha = bin_to_alpha(det.orientation_bin)
     return KittiObject(
@@ -139,7 +133,7 @@ def det3d_to_object(det: Detection3D, offset: np.ndarray, frame: int) -> KittiOb
 def _track_object(v, offset: np.ndarray, frame: int) -> KittiObject:
     length, w, h = float(v.size.x), float(v.size.y), float(v.size.z)
     if not (length > 0 and w > 0 and h > 0):
-        h, w, length = MEAN_CAR_HWL
+        h, w, length = MEAN_CAR_DIMENSIONS  # message carries no size
     x, y, z = np.array([v.position.x, v.position.y, v.position.z], dtype=float) - offset
     yaw = wrap_angle(float(v.yaw))
     return KittiObject(

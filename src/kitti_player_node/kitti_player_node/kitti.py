@@ -29,6 +29,9 @@ import numpy as np
 #: class (ignored, neither TP nor FP) for the Car benchmark.
 DONTCARE = "DontCare"
 
+#: Mean dimensions (h, w, l) in metres of KITTI's labelled cars, for boxes of unknown size.
+MEAN_CAR_DIMENSIONS = (1.53, 1.63, 3.88)
+
 
 class KittiFormatError(ValueError):
     """A KITTI file or folder is missing or malformed. The message names the file (and line)."""
@@ -465,9 +468,11 @@ def list_object_frames(root: str | os.PathLike) -> list[ObjectFrame]:
 # ----------------------------------------------------------------------------- angles
 
 
-def wrap_angle(a: float) -> float:
-    """Wrap an angle to (-pi, pi]."""
-    a = math.fmod(a + math.pi, 2.0 * math.pi)
+def wrap_angle(a):
+    """Wrap an angle, or an array of angles, to (-pi, pi]."""
+    if np.ndim(a) > 0:
+        return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
+    a = math.fmod(float(a) + math.pi, 2.0 * math.pi)
     if a <= 0.0:
         a += 2.0 * math.pi
     return a - math.pi

@@ -28,13 +28,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from detector_node.orientation import BIN_WIDTH, NUM_BINS
 
 from .reprojection import StereoGeometry
 
 METHODS = ("robust", "median")
 SURFACE_MODELS = ("visible", "nearest")
-NUM_BINS = 4
-BIN_WIDTH = np.pi / NUM_BINS  # orientation bins centred on 0, 45, 90, 135 deg (alpha mod 180)
 
 
 def centre_depth_behind_surface(

@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
+from kitti_player_node.kitti import MEAN_CAR_DIMENSIONS
+
 FILTERS = ("kalman", "particle", "none")
 ASSOCIATIONS = ("hungarian", "nearest")
 COSTS = ("mahalanobis", "euclidean", "iou2d", "giou3d")
@@ -47,9 +49,10 @@ class TrackerConfig:
     size_gain: float = 0.3  # smoothing gain of the box size (0..1, 1 = take the detection)
     yaw_gain: float = 0.5  # smoothing gain of the yaw (0..1)
     min_heading_speed: float = 2.0  # [m/s] above this the velocity resolves the 180 deg yaw
-    mean_length: float = 3.88  # [m] car size used when detections have none (KITTI means)
-    mean_width: float = 1.63  # [m]
-    mean_height: float = 1.53  # [m]
+    # [m] car size used when detections have none (KITTI means)
+    mean_length: float = MEAN_CAR_DIMENSIONS[2]
+    mean_width: float = MEAN_CAR_DIMENSIONS[1]
+    mean_height: float = MEAN_CAR_DIMENSIONS[0]
     num_particles: int = 100  # particle filter: particles per track (paper)
     particle_init_radius: float = 1.0  # [m] particles drawn uniformly within this radius
     particle_obs_var: float = 9.0  # [m^2] variance of the Gaussian weighting (paper)

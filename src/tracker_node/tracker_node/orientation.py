@@ -11,24 +11,13 @@ plane (``kitti_player_node.box3d``), so a vehicle moving with velocity ``(vx, vz
 from __future__ import annotations
 
 import numpy as np
-
-BIN_WIDTH = np.pi / 4.0
-
-
-def wrap(a):
-    """Wrap angles to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
+from detector_node.orientation import bin_to_alpha
+from kitti_player_node.kitti import wrap_angle as wrap
 
 
 def yaw_from_bin(orientation_bin, x, z):
     """A yaw (one of the two 180-degree-apart candidates) from an orientation bin at (x, z)."""
-    return wrap(np.asarray(orientation_bin, float) * BIN_WIDTH + np.arctan2(x, z))
-
-
-def bin_from_alpha(alpha):
-    """The orientation bin (0..3) of observation angles ``alpha`` (folded mod 180 deg)."""
-    folded = np.mod(np.asarray(alpha, float), np.pi)
-    return (np.round(folded / BIN_WIDTH).astype(int)) % 4
+    return wrap(bin_to_alpha(orientation_bin) + np.arctan2(x, z))
 
 
 def heading_from_velocity(vx, vz):
