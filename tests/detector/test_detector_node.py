@@ -57,7 +57,7 @@ def _spin_until(executor, cond, timeout):
 def _run_node(context, params, publish):
     """Start the detector with ``params``, wait for matching, call ``publish(pubs)`` and collect
     the arrays published on /vehicles/detections_2d."""
-    from detector_node.node import VehicleDetectorNode, _qos
+    from detector_node.node import VehicleDetectorNode
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
@@ -69,12 +69,10 @@ def _run_node(context, params, publish):
     )
     test = Node("detector_test", context=context)
     got = []
-    test.create_subscription(
-        VehicleDetection2DArray, "/vehicles/detections_2d", got.append, _qos(10)
-    )
+    test.create_subscription(VehicleDetection2DArray, "/vehicles/detections_2d", got.append, 10)
     pubs = {
-        "image": test.create_publisher(Image, "/stereo/left/image_rect", _qos(5)),
-        "gt": test.create_publisher(KittiFrameLabels, "/kitti/ground_truth", _qos(10)),
+        "image": test.create_publisher(Image, "/stereo/left/image_rect", 5),
+        "gt": test.create_publisher(KittiFrameLabels, "/kitti/ground_truth", 10),
     }
     ex = SingleThreadedExecutor(context=context)
     ex.add_node(det)

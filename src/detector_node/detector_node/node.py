@@ -15,7 +15,6 @@ from kitti_player_node.frame_messages import kitti_objects_from_message
 from kitti_player_node.image_conversion import ImageConversionError, image_to_rgb
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2D, VehicleDetection2DArray
 
@@ -42,15 +41,6 @@ PARAMETERS = {
     "oracle_seed": 0,
     "oracle_max_pending": 10,
 }
-
-
-def _qos(depth: int) -> QoSProfile:
-    return QoSProfile(
-        reliability=ReliabilityPolicy.RELIABLE,
-        history=HistoryPolicy.KEEP_LAST,
-        durability=DurabilityPolicy.VOLATILE,
-        depth=depth,
-    )
 
 
 def _stamp_ns(header) -> int:
@@ -84,7 +74,7 @@ class VehicleDetectorNode(Node):
         p = {name: self.get_parameter(name).value for name in PARAMETERS}
         self.backend = str(p["backend"])
         types = tuple(p["vehicle_types"])
-        self.pub = self.create_publisher(VehicleDetection2DArray, DETECTIONS_TOPIC, _qos(10))
+        self.pub = self.create_publisher(VehicleDetection2DArray, DETECTIONS_TOPIC, 10)
         if self.backend == "cnn":
             import torch
 
@@ -115,13 +105,13 @@ class VehicleDetectorNode(Node):
                 seed=int(p["oracle_seed"]),
             )
             self.pairing = StampPairing(max_pending=int(p["oracle_max_pending"]))
-            self.create_subscription(KittiFrameLabels, GT_TOPIC, self._on_labels, _qos(10))
+            self.create_subscription(KittiFrameLabels, GT_TOPIC, self._on_labels, 10)
             self.get_logger().warning(
                 "ORACLE backend: publishing ground-truth boxes as detections (ablation only)"
             )
         else:
             raise ValueError(f"parameter backend: expected 'cnn' or 'oracle', got {self.backend!r}")
-        self.create_subscription(Image, IMAGE_TOPIC, self._on_image, _qos(5))
+        self.create_subscription(Image, IMAGE_TOPIC, self._on_image, 5)
 
     def _on_image(self, msg: Image) -> None:
         if self.backend == "oracle":

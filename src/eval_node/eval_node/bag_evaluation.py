@@ -159,10 +159,14 @@ def evaluate_bag(
     tracker_config=None,
     progress: bool = False,
     calib_dir: str | Path | None = None,
+    run: RecordedRun | None = None,
 ) -> dict:
     """Evaluate a recorded run; returns the results dict described in the module docstring.
+    ``run``: the bag already read with :func:`read_run` (read here when None), so that a caller
+    writing the report as well reads the bag once.
     Raises BagReadError (a KittiFormatError) naming the file for unusable input."""
-    run = read_run(bag_path, progress=progress)
+    if run is None:
+        run = read_run(bag_path, progress=progress)
     if not run.frames:
         raise BagReadError(f"{bag_path}: no frames (no {GT_TOPIC} and no pipeline outputs)")
     seq = sequence or run.sequence or "0000"

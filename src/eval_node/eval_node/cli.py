@@ -101,6 +101,7 @@ def _run_tracking(args) -> int:
 
 def _run_bag(args) -> int:
     from eval_node.bag_evaluation import evaluate_bag
+    from eval_node.bag_reader import read_run
     from eval_node.report import results_table, write_report
 
     config = None
@@ -113,8 +114,10 @@ def _run_bag(args) -> int:
             raise KittiFormatError(f"{args.tracker_params}: {exc}") from None
     if args.calib and not Path(args.calib).is_dir():
         raise KittiFormatError(f"{args.calib}: calib folder not found")
+    run = read_run(args.bag, progress=not args.no_progress)
     res = evaluate_bag(
         args.bag,
+        run=run,
         labels_dir=args.labels,
         sequence=args.sequence,
         run_filters=not args.no_filters,
@@ -125,7 +128,7 @@ def _run_bag(args) -> int:
     if args.json:
         write_json(args.json, res)
     if args.report:
-        files = write_report(res, args.report, images_dir=args.images)
+        files = write_report(res, args.report, run=run, images_dir=args.images)
         res_files = ", ".join(sorted(p.name for p in files.values()))
         print(f"report: {args.report} ({res_files})", file=sys.stderr)
     print(results_table(res))

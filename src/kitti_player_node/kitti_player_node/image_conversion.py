@@ -104,16 +104,3 @@ def camera_info_from_projection(P: np.ndarray, width: int, height: int, header=N
     msg.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
     msg.p = [float(v) for v in P.ravel()]
     return msg
-
-
-def stereo_geometry(left_info, right_info) -> tuple[float, float, float, float, float]:
-    """(fx, fy, cx, cy, baseline) of a rectified pair from its two CameraInfo messages."""
-    Pl = np.asarray(left_info.p, dtype=float).reshape(3, 4)
-    Pr = np.asarray(right_info.p, dtype=float).reshape(3, 4)
-    fx = Pl[0, 0]
-    if fx <= 0:
-        raise ImageConversionError("left CameraInfo has no valid projection matrix P")
-    baseline = (Pl[0, 3] - Pr[0, 3]) / fx
-    if baseline <= 0:
-        raise ImageConversionError("right CameraInfo P[0,3] must be -fx*baseline (< 0)")
-    return float(fx), float(Pl[1, 1]), float(Pl[0, 2]), float(Pl[1, 2]), float(baseline)

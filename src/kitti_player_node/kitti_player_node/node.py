@@ -16,7 +16,6 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, TrackedVehicleArray
@@ -73,15 +72,6 @@ def parse_topic_counts(spec: str) -> dict[str, int]:
     return counts
 
 
-def _qos(depth: int) -> QoSProfile:
-    return QoSProfile(
-        reliability=ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.VOLATILE,
-        history=HistoryPolicy.KEEP_LAST,
-        depth=depth,
-    )
-
-
 def _coerce(value, default):
     """``value`` converted to the type of ``default`` (bool, int, float or str)."""
     if isinstance(default, bool):
@@ -135,17 +125,15 @@ class KittiPlayerNode(Node):
         except ValueError as exc:
             raise PlayerError(f"drop_probability: {exc}") from None
 
-        self.pub_left = self.create_publisher(Image, "/stereo/left/image_rect", _qos(5))
-        self.pub_right = self.create_publisher(Image, "/stereo/right/image_rect", _qos(5))
-        self.pub_left_info = self.create_publisher(CameraInfo, "/stereo/left/camera_info", _qos(5))
-        self.pub_right_info = self.create_publisher(
-            CameraInfo, "/stereo/right/camera_info", _qos(5)
-        )
-        self.pub_gt = self.create_publisher(KittiFrameLabels, "/kitti/ground_truth", _qos(10))
-        self.pub_clock = self.create_publisher(Clock, "/clock", _qos(10))
+        self.pub_left = self.create_publisher(Image, "/stereo/left/image_rect", 5)
+        self.pub_right = self.create_publisher(Image, "/stereo/right/image_rect", 5)
+        self.pub_left_info = self.create_publisher(CameraInfo, "/stereo/left/camera_info", 5)
+        self.pub_right_info = self.create_publisher(CameraInfo, "/stereo/right/camera_info", 5)
+        self.pub_gt = self.create_publisher(KittiFrameLabels, "/kitti/ground_truth", 10)
+        self.pub_clock = self.create_publisher(Clock, "/clock", 10)
         if p["lockstep"]:
             self.create_subscription(
-                TrackedVehicleArray, p["lockstep_topic"], self._on_lockstep, _qos(10)
+                TrackedVehicleArray, p["lockstep_topic"], self._on_lockstep, 10
             )
         self.done = False
         self.error: str | None = None

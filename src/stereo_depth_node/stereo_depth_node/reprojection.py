@@ -24,16 +24,17 @@ class StereoGeometry:
     def from_camera_infos(cls, left_info, right_info) -> StereoGeometry:
         """Geometry from the two sensor_msgs/CameraInfo of a rectified pair (ROS P convention:
         right ``P[0,3] = -fx * baseline``). Raises ValueError when they do not describe one."""
-        from kitti_player_node.image_conversion import stereo_geometry
-
-        return cls(*stereo_geometry(left_info, right_info))
+        return cls.from_projections(
+            np.asarray(left_info.p, dtype=float).reshape(3, 4),
+            np.asarray(right_info.p, dtype=float).reshape(3, 4),
+        )
 
     @classmethod
     def from_projections(cls, P_left: np.ndarray, P_right: np.ndarray) -> StereoGeometry:
         """Geometry from the 3x4 projection matrices of the rectified left and right cameras."""
         Pl, Pr = np.asarray(P_left, float), np.asarray(P_right, float)
         fx = float(Pl[0, 0])
-        baseline = float((Pl[0, 3] - Pr[0, 3]) / fx)
+        baseline = float((Pl[0, 3] - Pr[0, 3]) / fx) if fx > 0 else 0.0
         if fx <= 0 or baseline <= 0:
             raise ValueError("projection matrices do not describe a rectified left/right pair")
         return cls(fx, float(Pl[1, 1]), float(Pl[0, 2]), float(Pl[1, 2]), baseline)

@@ -176,13 +176,16 @@ def _evaluate(
     bag: Path, root: Path, sequence: str, out: Path, processed: int, elapsed: float, params: str
 ):
     from eval_node.bag_evaluation import evaluate_bag
+    from eval_node.bag_reader import read_run
     from eval_node.cli import write_json
     from eval_node.report import results_table, write_report
     from tracker_node.config import TrackerConfig
 
     labels = root / "label_02"
+    run = read_run(bag, progress=True)  # read once for the evaluation and the report
     results = evaluate_bag(
         bag,
+        run=run,
         labels_dir=labels if labels.is_dir() else None,
         sequence=sequence,
         tracker_config=TrackerConfig.from_yaml(params),  # the filter comparison = the live graph
@@ -194,7 +197,7 @@ def _evaluate(
         "end_to_end_fps": round(processed / max(elapsed, 1e-9), 3),
     }
     write_json(out / "results.json", results)
-    files = write_report(results, out / "report", images_dir=root)
+    files = write_report(results, out / "report", run=run, images_dir=root)
     print(results_table(results))
     print(f"[demo] report: {files.get('md', out / 'report')}")
     print(f"[demo] everything is in {out}")
