@@ -23,6 +23,30 @@ def header(stamp_ns: int, frame_id: str):
     return h
 
 
+def stamp_ns(header) -> int:
+    """The stamp of a std_msgs/Header (or any object with ``stamp.sec``/``stamp.nanosec``,
+    such as a message read back by rosbags) in nanoseconds."""
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def bbox_to_xyxy(bbox) -> tuple[float, float, float, float]:
+    """(x1, y1, x2, y2) [px] of a stereo_vehicle_msgs/BoundingBox2D (centre + size)."""
+    hx, hy = bbox.size_x / 2.0, bbox.size_y / 2.0
+    return (
+        float(bbox.center_x - hx),
+        float(bbox.center_y - hy),
+        float(bbox.center_x + hx),
+        float(bbox.center_y + hy),
+    )
+
+
+def xyxy_to_bbox(box, bbox) -> None:
+    """Fill a stereo_vehicle_msgs/BoundingBox2D from (x1, y1, x2, y2) [px] (size >= 0)."""
+    x1, y1, x2, y2 = (float(v) for v in box)
+    bbox.center_x, bbox.center_y = (x1 + x2) / 2.0, (y1 + y2) / 2.0
+    bbox.size_x, bbox.size_y = max(0.0, x2 - x1), max(0.0, y2 - y1)
+
+
 def stereo_camera_infos(calib: Calibration, width: int, height: int, stamp_ns: int):
     """(left, right) sensor_msgs/CameraInfo: left P = [K|0], right P[0,3] = -fx * baseline."""
     P_left, P_right = stereo_projections(calib)
