@@ -239,16 +239,15 @@ class StereoRenderer:
         in_cross = np.abs(Z - self.scene.junction_z) < CROSS_HALF_WIDTH
         # lane markings on the carriageway (not across the junction)
         mark = np.zeros_like(X)
-        if True:
-            dash = pulses(Z, fz, 9.0, 0.0, 3.0)
-            for xb in (ROAD_LEFT + LANE_WIDTH, ROAD_LEFT + 3 * LANE_WIDTH):
-                mark = np.maximum(mark, band(X, fx, xb - 0.075, xb + 0.075) * dash)
-            xc = ROAD_LEFT + 2 * LANE_WIDTH
-            mark = np.maximum(mark, band(X, fx, xc - 0.2, xc - 0.08))
-            mark = np.maximum(mark, band(X, fx, xc + 0.08, xc + 0.2))
-            mark = np.maximum(mark, band(X, fx, ROAD_LEFT + 0.15, ROAD_LEFT + 0.3))
-            mark = np.maximum(mark, band(X, fx, ROAD_RIGHT - 0.3, ROAD_RIGHT - 0.15))
-            mark = np.where(in_cross, 0.0, mark)
+        dash = pulses(Z, fz, 9.0, 0.0, 3.0)
+        for xb in (ROAD_LEFT + LANE_WIDTH, ROAD_LEFT + 3 * LANE_WIDTH):
+            mark = np.maximum(mark, band(X, fx, xb - 0.075, xb + 0.075) * dash)
+        xc = ROAD_LEFT + 2 * LANE_WIDTH
+        mark = np.maximum(mark, band(X, fx, xc - 0.2, xc - 0.08))
+        mark = np.maximum(mark, band(X, fx, xc + 0.08, xc + 0.2))
+        mark = np.maximum(mark, band(X, fx, ROAD_LEFT + 0.15, ROAD_LEFT + 0.3))
+        mark = np.maximum(mark, band(X, fx, ROAD_RIGHT - 0.3, ROAD_RIGHT - 0.15))
+        mark = np.where(in_cross, 0.0, mark)
         value = grey * (1 - mark) + (0.85 + 0.05 * n1) * mark
         rgb = np.stack([value, value, value * 1.02], axis=-1)
         # sidewalks with paving tiles, except across the junction; grass beyond the walls
@@ -436,8 +435,10 @@ class StereoRenderer:
     def _window(self, P, dimensions, loc, ry, pad: int = 1):
         """Integer pixel window (v0, v1, u0, u1) covering a projected box, or None."""
         box = projected_bbox(P, dimensions, loc, ry, (self.width, self.height))
-        if box is None:
-            return None
+        return None if box is None else self._box_window(box, pad)
+
+    def _box_window(self, box, pad: int = 1):
+        """Integer pixel window (v0, v1, u0, u1) covering the image-clipped 2D ``box``."""
         x1, y1, x2, y2 = box
         u0, v0 = max(int(math.floor(x1)) - pad, 0), max(int(math.floor(y1)) - pad, 0)
         u1 = min(int(math.ceil(x2)) + pad + 1, self.width)
@@ -545,8 +546,7 @@ class StereoRenderer:
             sil = left.silhouette.get(v.track_id, 0)
             if box is None or sil == 0:
                 continue
-            win = self._window(P2, v.dimensions, loc, ry)
-            v0, v1, u0, u1 = win
+            v0, v1, u0, u1 = self._box_window(box)
             visible = int((left.ids[v0:v1, u0:u1] == VEHICLE_ID0 + v.track_id).sum())
             if visible < MIN_VISIBLE_PX:
                 continue
