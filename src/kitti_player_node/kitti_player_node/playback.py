@@ -155,11 +155,6 @@ class PlaybackScheduler:
         self._awaiting_since = 0.0
 
     @property
-    def awaiting_stamp_ns(self) -> int | None:
-        """Stamp whose lockstep acknowledgement is awaited, or None."""
-        return self._awaiting
-
-    @property
     def exhausted(self) -> bool:
         """All frames were handed out (never true when looping)."""
         return self._pass > 0 and not self.loop

@@ -34,7 +34,7 @@ from .kitti import (
     write_tracking_labels,
 )
 from .synthetic_render import StereoRenderer
-from .synthetic_scene import Scene, random_scene
+from .synthetic_scene import random_scene
 
 GENERATOR_VERSION = 2  # bump whenever the output changes (invalidates manifests)
 KITTI_WIDTH, KITTI_HEIGHT = 1242, 375
@@ -68,11 +68,9 @@ def build_renderer(
     vehicles: int = 12,
     width: int = KITTI_WIDTH,
     height: int = KITTI_HEIGHT,
-    scene: Scene | None = None,
 ) -> StereoRenderer:
-    """The renderer of a random scene (or of ``scene``) with the synthetic calibration."""
-    if scene is None:
-        scene = random_scene(seed, frames, vehicles, _sequence_index(sequence))
+    """The renderer of a random scene with the synthetic calibration."""
+    scene = random_scene(seed, frames, vehicles, _sequence_index(sequence))
     return StereoRenderer(scene, synthetic_calibration(width, height), width, height)
 
 

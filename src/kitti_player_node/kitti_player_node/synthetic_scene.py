@@ -142,7 +142,7 @@ _PALETTE = np.array(
 )
 
 
-def _random_vehicle_body(rng: np.random.Generator, track_id: int, van: bool):
+def _random_vehicle_body(rng: np.random.Generator, van: bool):
     if van:
         dims = (rng.uniform(1.85, 2.35), rng.uniform(1.80, 2.00), rng.uniform(4.4, 5.5))
         shape = VehicleShape(
@@ -239,7 +239,7 @@ def random_scene(seed: int, frames: int, n_vehicles: int = 12, sequence_index: i
             role = str(rng.choice(ROLES, p=[0.22, 0.1, 0.2, 0.14, 0.14, 0.2]))
         van = rng.random() < 0.2
         track_id = len(vehicles)
-        dims, colour, shape = _random_vehicle_body(rng, track_id, van)
+        dims, colour, shape = _random_vehicle_body(rng, van)
         t_m = float(rng.uniform(0.0, duration)) if duration > 0 else 0.0
         # times at which the junction is 12..60 m ahead of the ego car
         t_lo = max(0.0, (junction_z - 60.0) / ego_speed) if ego_speed > 0 else 0.0
