@@ -11,8 +11,9 @@ from __future__ import annotations
 import sys
 
 import rclpy
-from kitti_player_node.frame_messages import kitti_objects_from_message
+from kitti_player_node.frame_messages import kitti_objects_from_message, stamp_ns, xyxy_to_bbox
 from kitti_player_node.image_conversion import ImageConversionError, image_to_rgb
+from kitti_player_node.node_parameters import declare_parameters
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import Image
@@ -43,10 +44,6 @@ PARAMETERS = {
 }
 
 
-def _stamp_ns(header) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-
-
 def detections_message(header, detections: list[Detection]) -> VehicleDetection2DArray:
     """VehicleDetection2DArray with ``header``: centre/size boxes, ids "0", "1", ..."""
     msg = VehicleDetection2DArray(header=header)
@@ -55,9 +52,7 @@ def detections_message(header, detections: list[Detection]) -> VehicleDetection2
         m.id = str(i)
         m.class_id = "car"
         m.score = float(d.score)
-        x1, y1, x2, y2 = d.box
-        m.bbox.center_x, m.bbox.center_y = (x1 + x2) / 2.0, (y1 + y2) / 2.0
-        m.bbox.size_x, m.bbox.size_y = max(0.0, x2 - x1), max(0.0, y2 - y1)
+        xyxy_to_bbox(d.box, m.bbox)
         m.orientation_bin = int(d.orientation_bin)
         m.orientation_probs = [float(p) for p in d.orientation_probs]
         msg.detections.append(m)
@@ -69,9 +64,7 @@ class VehicleDetectorNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__("vehicle_detector", **kwargs)
-        for name, default in PARAMETERS.items():
-            self.declare_parameter(name, default)
-        p = {name: self.get_parameter(name).value for name in PARAMETERS}
+        p = declare_parameters(self, PARAMETERS)  # ValueError names a mistyped parameter
         self.backend = str(p["backend"])
         types = tuple(p["vehicle_types"])
         self.pub = self.create_publisher(VehicleDetection2DArray, DETECTIONS_TOPIC, 10)
@@ -115,7 +108,7 @@ class VehicleDetectorNode(Node):
 
     def _on_image(self, msg: Image) -> None:
         if self.backend == "oracle":
-            for image, labels in self.pairing.add_image(_stamp_ns(msg.header), msg):
+            for image, labels in self.pairing.add_image(stamp_ns(msg.header), msg):
                 self._publish_oracle(image, labels)
             return
         try:
@@ -127,13 +120,13 @@ class VehicleDetectorNode(Node):
         self.pub.publish(detections_message(msg.header, self.cnn.detect(rgb)))
 
     def _on_labels(self, msg: KittiFrameLabels) -> None:
-        for image, labels in self.pairing.add_labels(_stamp_ns(msg.header), msg):
+        for image, labels in self.pairing.add_labels(stamp_ns(msg.header), msg):
             self._publish_oracle(image, labels)
 
     def _publish_oracle(self, image: Image, labels: KittiFrameLabels | None) -> None:
         if labels is None:
             self.get_logger().warning(
-                f"{GT_TOPIC}: no ground truth for image stamp {_stamp_ns(image.header)} ns; "
+                f"{GT_TOPIC}: no ground truth for image stamp {stamp_ns(image.header)} ns; "
                 "publishing an empty array"
             )
             dets = []

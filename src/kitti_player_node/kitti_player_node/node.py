@@ -12,7 +12,6 @@ import sys
 import time
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -25,10 +24,12 @@ from .frame_messages import (
     RIGHT_FRAME,
     ground_truth_message,
     header,
+    stamp_ns,
     stereo_camera_infos,
 )
 from .image_conversion import numpy_to_image
 from .kitti import KittiFormatError, TrackingSequence
+from .node_parameters import declare_parameters
 from .playback import (
     FrameEvent,
     PlaybackScheduler,
@@ -70,27 +71,6 @@ def parse_topic_counts(spec: str) -> dict[str, int]:
             raise PlayerError(f"wait_for_topics: expected TOPIC:COUNT, got {entry!r}")
         counts[topic] = int(n)
     return counts
-
-
-def _coerce(value, default):
-    """``value`` converted to the type of ``default`` (bool, int, float or str)."""
-    if isinstance(default, bool):
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, str) and value.lower() in ("true", "false"):
-            return value.lower() == "true"
-        raise ValueError(value)
-    if isinstance(default, int):
-        if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
-            raise ValueError(value)
-        return int(value)
-    if isinstance(default, float):
-        if isinstance(value, bool):
-            raise ValueError(value)
-        return float(value)
-    if isinstance(value, (list, bytes)):
-        raise ValueError(value)
-    return str(value)
 
 
 class PlayerError(RuntimeError):
@@ -155,20 +135,10 @@ class KittiPlayerNode(Node):
     def _read_parameters(self) -> dict:
         """Declare every parameter (dynamically typed, so ``sequence:=0005`` or ``rate:=10``
         work) and coerce it to its default's type; a value that does not fit is a PlayerError."""
-        desc = ParameterDescriptor(dynamic_typing=True)
-        values = {}
-        for name, default in PARAMETERS.items():
-            raw = self.declare_parameter(name, default, desc).value
-            try:
-                values[name] = _coerce(raw, default)
-            except (TypeError, ValueError):
-                raise PlayerError(
-                    f"{name}: expected {type(default).__name__}, got {raw!r}"
-                ) from None
-        seq = values["sequence"]
-        if isinstance(PARAMETERS["sequence"], str) and seq.isdigit():
-            values["sequence"] = f"{int(seq):04d}"
-        return values
+        try:
+            return declare_parameters(self, PARAMETERS)
+        except ValueError as exc:
+            raise PlayerError(str(exc)) from None
 
     @property
     def publishers_list(self):
@@ -182,7 +152,7 @@ class KittiPlayerNode(Node):
         ]
 
     def _on_lockstep(self, msg: TrackedVehicleArray) -> None:
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp = stamp_ns(msg.header)
         if self.scheduler.acknowledge(stamp):
             self._tick()
 
