@@ -11,11 +11,13 @@ from kitti_player_node.bag_replay import (
     BagError,
     BagMessage,
     iter_bag,
+    open_reader,
     output_types,
     paced,
     parse_remaps,
     parse_topics,
 )
+from kitti_player_node.kitti import KittiFormatError
 
 MSG_DIR = Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
 T0 = 1_700_000_000_000_000_000
@@ -130,6 +132,23 @@ def test_bare_mcap_reads_back_exactly(tmp_path):
 
     gt = deserialize_message(next(iter_bag(bag, ["/kitti/ground_truth"])).data, KittiFrameLabels)
     assert gt.frame_index == 1 and gt.objects[0].type == "Car" and gt.objects[0].height == 1.4
+
+
+def test_folder_with_one_mcap_and_no_metadata_opens(tmp_path):
+    msgs = _messages()
+    folder = tmp_path / "run"
+    folder.mkdir()
+    _write_bare_mcap(folder / "run_0.mcap", msgs)
+    assert list(iter_bag(folder)) == msgs
+    reader = open_reader(folder)
+    try:
+        assert {c.topic for c in reader.connections} == {m.topic for m in msgs}
+    finally:
+        reader.close()
+    _write_bare_mcap(folder / "run_1.mcap", msgs)
+    with pytest.raises(BagError, match="no metadata.yaml and 2 .mcap files") as err:
+        open_reader(folder)
+    assert isinstance(err.value, KittiFormatError)
 
 
 def test_option_parsing_and_bad_bags(tmp_path):

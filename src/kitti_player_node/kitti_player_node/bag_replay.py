@@ -1,7 +1,9 @@
-"""Replay core (no rclpy): read an MCAP bag (rosbag2 layout or a bare ``.mcap``) as a stream of
-(topic, type name, timestamp, raw CDR bytes) with topic selection and remapping, and pace it.
+"""Replay core (no rclpy): open an MCAP bag (rosbag2 layout or a bare ``.mcap``), read it as a
+stream of (topic, type name, timestamp, raw CDR bytes) with topic selection and remapping, and
+pace it.
 
-Used by the ``bag_player`` node (:mod:`.bag_player`), which publishes the bytes as they are.
+Used by the ``bag_player`` node (:mod:`.bag_player`), which publishes the bytes as they are, and
+by the evaluator, which opens recorded runs with :func:`open_reader`.
 """
 
 from __future__ import annotations
@@ -12,8 +14,10 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from .kitti import KittiFormatError
 
-class BagError(ValueError):
+
+class BagError(KittiFormatError):
     """The bag cannot be read or an option does not fit it; the message names what."""
 
 
@@ -45,28 +49,42 @@ def parse_topics(items: Iterable[str]) -> list[str] | None:
     return topics or None
 
 
-def _reader(path: str | Path):
+def open_reader(path: str | Path):
+    """An opened ``rosbags`` AnyReader (the caller closes it) on a rosbag2 bag directory, a
+    folder without ``metadata.yaml`` that holds exactly one ``.mcap``, or a bare ``.mcap`` file.
+    Raises BagError naming the file when the bag is missing or unreadable."""
     from rosbags.highlevel import AnyReader
 
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: bag not found")
     if path.is_dir() and not (path / "metadata.yaml").is_file():
-        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
-    return AnyReader([path])
-
-
-def _open(reader, path) -> None:
+        mcaps = sorted(path.glob("*.mcap"))
+        if len(mcaps) != 1:
+            raise BagError(
+                f"{path}: not a rosbag2 directory (no metadata.yaml and "
+                f"{len(mcaps)} .mcap files instead of one)"
+            )
+        path = mcaps[0]
     try:
+        reader = AnyReader([path])
         reader.open()
     except Exception as exc:  # rosbags raises several unrelated types for corrupt files
         raise BagError(f"{path}: cannot read bag ({exc})") from None
+    return reader
+
+
+def _check_topics(available: Iterable[str], topics: Iterable[str] | None, path) -> None:
+    """Raise BagError when a requested topic is not among the bag's ``available`` topics."""
+    if topics is not None:
+        missing = sorted(set(topics) - set(available))
+        if missing:
+            raise BagError(f"--topics: {', '.join(missing)} not in bag {path}")
 
 
 def bag_topics(path: str | Path) -> dict[str, str]:
     """``{topic: type name}`` of the bag's connections."""
-    reader = _reader(path)
-    _open(reader, path)
+    reader = open_reader(path)
     try:
         return {c.topic: c.msgtype for c in reader.connections}
     finally:
@@ -81,14 +99,10 @@ def iter_bag(
     """The bag's messages in timestamp order, restricted to ``topics`` (all when None), with
     topic names remapped. Unknown topics in ``topics`` raise BagError."""
     remap = remap or {}
-    reader = _reader(path)
-    _open(reader, path)
+    reader = open_reader(path)
     try:
-        available = {c.topic for c in reader.connections}
+        _check_topics((c.topic for c in reader.connections), topics, path)
         if topics is not None:
-            missing = sorted(set(topics) - available)
-            if missing:
-                raise BagError(f"--topics: {', '.join(missing)} not in bag {path}")
             conns = [c for c in reader.connections if c.topic in set(topics)]
         else:
             conns = list(reader.connections)
@@ -143,10 +157,8 @@ def message_class(type_name: str):
 def output_types(path: str | Path, topics: list[str] | None, remap: dict[str, str]):
     """``{output topic: type name}`` of the selected topics after remapping."""
     types = bag_topics(path)
+    _check_topics(types, topics, path)
     if topics is not None:
-        missing = sorted(set(topics) - set(types))
-        if missing:
-            raise BagError(f"--topics: {', '.join(missing)} not in bag {path}")
         types = {t: types[t] for t in topics}
     out: dict[str, str] = {}
     for topic, type_name in types.items():
