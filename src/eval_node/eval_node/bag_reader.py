@@ -17,9 +17,10 @@ from pathlib import Path
 
 import numpy as np
 from detector_node.orientation import bin_to_alpha
+from kitti_player_node.bag_replay import BagError, open_reader
+from kitti_player_node.frame_messages import bbox_to_xyxy, kitti_objects_from_message, stamp_ns
 from kitti_player_node.kitti import (
     MEAN_CAR_DIMENSIONS,
-    KittiFormatError,
     KittiObject,
     alpha_from_rotation_y,
     rotation_y_from_alpha,
@@ -36,21 +37,8 @@ LEFT_INFO_TOPIC = "/stereo/left/camera_info"
 OUTPUT_STATES = (1, 2)
 
 
-class BagReadError(KittiFormatError):
+class BagReadError(BagError):
     """A bag is missing, unreadable or lacks what the evaluation needs (message names it)."""
-
-
-@dataclass
-class Detection3D:
-    """A recorded 3D detection in the left optical frame (as in the message)."""
-
-    position: np.ndarray  # (3,) [m], centre of the visible vehicle
-    covariance: np.ndarray  # (3, 3) [m^2]
-    bbox: tuple[float, float, float, float]  # x1, y1, x2, y2 [px]
-    score: float
-    orientation_bin: int
-    class_id: str = "car"
-    det_id: str = ""
 
 
 @dataclass
@@ -62,9 +50,8 @@ class RecordedFrame:
     offset: np.ndarray  # left_camera_offset (3,)
     gt: list[KittiObject] = field(default_factory=list)
     det2d: list[KittiObject] = field(default_factory=list)
-    det2d_bins: list[int] = field(default_factory=list)
     det3d: list[KittiObject] = field(default_factory=list)
-    det3d_raw: list[Detection3D] = field(default_factory=list)
+    det3d_msg: object | None = None  # the recorded VehicleDetection3DArray (tracker input)
     tracks: list[KittiObject] = field(default_factory=list)
     track_velocities: list[np.ndarray] = field(default_factory=list)  # (3,) per track [m/s]
     receive_ns: dict[str, int] = field(default_factory=dict)  # topic -> receive time [ns]
@@ -82,46 +69,16 @@ class RecordedRun:
     image_size: tuple[int, int] | None  # (width, height)
     unmatched_stamps: int = 0  # messages whose stamp has no ground-truth frame
 
-    def frame_by_index(self) -> dict[int, RecordedFrame]:
-        return {f.frame: f for f in self.frames}
 
-
-def _stamp_ns(header) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-
-
-def _bbox(b) -> tuple[float, float, float, float]:
-    return (
-        float(b.center_x - b.size_x / 2),
-        float(b.center_y - b.size_y / 2),
-        float(b.center_x + b.size_x / 2),
-        float(b.center_y + b.size_y / 2),
-    )
-
-
-def _gt_object(o) -> KittiObject:
-    return KittiObject(
-        type=str(o.type),
-        truncated=float(o.truncated),
-        occluded=int(o.occluded),
-        alpha=float(o.alpha),
-        bbox=(float(o.x_min), float(o.y_min), float(o.x_max), float(o.y_max)),
-        dimensions=(float(o.height), float(o.width), float(o.length)),
-        location=(float(o.location.x), float(o.location.y), float(o.location.z)),
-        rotation_y=float(o.rotation_y),
-        track_id=int(o.track_id),
-    )
-
-
-def det3d_to_object(det: Detection3D, offset: np.ndarray, frame: int) -> KittiObject:
-    """A 3D detection as a KITTI result row (camera 0, bottom centre, mean car size)."""
+def det3d_to_object(det, offset: np.ndarray, frame: int) -> KittiObject:
+    """A VehicleDetection3D as a KITTI result row (camera 0, bottom centre, mean car size)."""
     h, w, length = MEAN_CAR_DIMENSIONS  # message carries no size
-    x, y, z = np.asarray(det.position, dtype=float) - offset
+    x, y, z = np.array([det.position.x, det.position.y, det.position.z], dtype=float) - offset
     alpha = bin_to_alpha(det.orientation_bin)
     return KittiObject(
         type="Car",
         alpha=alpha,
-        bbox=det.bbox,
+        bbox=bbox_to_xyxy(det.bbox),
         dimensions=(h, w, length),
         location=(float(x), float(y + h / 2.0), float(z)),
         rotation_y=rotation_y_from_alpha(alpha, x, z),
@@ -139,7 +96,7 @@ def _track_object(v, offset: np.ndarray, frame: int) -> KittiObject:
     return KittiObject(
         type="Car",
         alpha=alpha_from_rotation_y(yaw, x, z),
-        bbox=_bbox(v.bbox),
+        bbox=bbox_to_xyxy(v.bbox),
         dimensions=(h, w, length),
         location=(float(x), float(y + h / 2.0), float(z)),
         rotation_y=yaw,
@@ -147,26 +104,6 @@ def _track_object(v, offset: np.ndarray, frame: int) -> KittiObject:
         track_id=int(v.track_id),
         score=float(v.confidence),
     )
-
-
-def open_reader(path: str | Path):
-    """An opened ``rosbags`` AnyReader on a bag directory or ``.mcap`` file."""
-    from rosbags.highlevel import AnyReader
-
-    path = Path(path)
-    if not path.exists():
-        raise BagReadError(f"{path}: bag not found")
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        mcaps = sorted(path.glob("*.mcap"))
-        if len(mcaps) != 1:
-            raise BagReadError(f"{path}: no metadata.yaml (not a rosbag2 bag directory)")
-        path = mcaps[0]
-    try:
-        reader = AnyReader([path])
-        reader.open()
-    except Exception as exc:  # rosbags raises several error types for unreadable bags
-        raise BagReadError(f"{path}: cannot read bag ({exc})") from None
-    return reader
 
 
 def read_run(
@@ -202,7 +139,7 @@ def read_run(
             if conn.topic == LEFT_INFO_TOPIC:
                 info_seen = msg
                 continue
-            stamp = _stamp_ns(msg.header)
+            stamp = stamp_ns(msg.header)
             if conn.topic == GT_TOPIC:
                 gts[stamp] = msg
             msgs[conn.topic][stamp] = (msg, int(t_ns))
@@ -216,7 +153,7 @@ def read_run(
             sequence = sequence or str(m.sequence)
             off = np.array(m.left_camera_offset, dtype=float).reshape(3)
             f = RecordedFrame(frame=int(m.frame_index), stamp_ns=stamp, offset=off)
-            f.gt = [_gt_object(o).with_(frame=f.frame) for o in m.objects]
+            f.gt = kitti_objects_from_message(m)
             f.receive_ns[GT_TOPIC] = msgs[GT_TOPIC][stamp][1]
             frames[stamp] = f
     else:
@@ -241,30 +178,18 @@ def read_run(
             f.receive_ns[topic] = t_ns
             if topic == DET2D_TOPIC:
                 for d in m.detections:
-                    b = int(d.orientation_bin)
                     f.det2d.append(
                         KittiObject(
                             type="Car",
-                            alpha=bin_to_alpha(b),
-                            bbox=_bbox(d.bbox),
+                            alpha=bin_to_alpha(int(d.orientation_bin)),
+                            bbox=bbox_to_xyxy(d.bbox),
                             frame=f.frame,
                             score=float(d.score),
                         )
                     )
-                    f.det2d_bins.append(b)
             elif topic == DET3D_TOPIC:
-                for d in m.detections:
-                    raw = Detection3D(
-                        position=np.array([d.position.x, d.position.y, d.position.z], float),
-                        covariance=np.array(d.position_covariance, float).reshape(3, 3),
-                        bbox=_bbox(d.bbox),
-                        score=float(d.score),
-                        orientation_bin=int(d.orientation_bin),
-                        class_id=str(d.class_id),
-                        det_id=str(d.id),
-                    )
-                    f.det3d_raw.append(raw)
-                    f.det3d.append(det3d_to_object(raw, f.offset, f.frame))
+                f.det3d_msg = m
+                f.det3d = [det3d_to_object(d, f.offset, f.frame) for d in m.detections]
             else:
                 for v in m.vehicles:
                     if int(v.state) not in track_states:
@@ -297,7 +222,7 @@ def read_left_images(path: str | Path, stamps: set[int] | None = None) -> dict[i
             return out
         for conn, _t, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
-            s = _stamp_ns(msg.header)
+            s = stamp_ns(msg.header)
             if stamps is None or s in stamps:
                 out[s] = image_to_rgb(msg)
     finally:

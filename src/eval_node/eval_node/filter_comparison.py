@@ -1,5 +1,5 @@
 """The filter ablation (the paper's Table 1): re-run the tracker core offline on a recorded run's
-3D detections with each motion filter (``none``, ``kalman``, ``particle``; association and
+3D detection messages with each motion filter (``none``, ``kalman``, ``particle``; association and
 lifecycle unchanged) and score the resulting tracks by 3D localisation AP at 1.5 m per
 difficulty. Pure core: uses ``tracker_node.tracker`` and the detection metrics, no ROS.
 """
@@ -52,6 +52,7 @@ def trackset_to_objects(tracks, offset: np.ndarray, frame: int, mean_hwl) -> lis
 def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, list[KittiObject]]:
     """Track the run's recorded 3D detections with ``config`` (a TrackerConfig):
     ``{frame: [KittiObject...]}`` of the reported (confirmed/coasting) tracks."""
+    from tracker_node.node import detections_from_msg
     from tracker_node.tracker import DetectionBatch, Tracker
 
     tracker = Tracker(config)
@@ -66,18 +67,8 @@ def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, l
     out: dict[int, list[KittiObject]] = {}
     mean_hwl = (config.mean_height, config.mean_width, config.mean_length)
     for f in frames:
-        dets = f.det3d_raw
-        if dets:
-            batch = DetectionBatch.create(
-                position=np.array([d.position for d in dets]),
-                covariance=np.array([d.covariance for d in dets]),
-                orientation_bin=np.array([d.orientation_bin for d in dets]),
-                bbox=np.array([d.bbox for d in dets]),
-                score=np.array([d.score for d in dets]),
-                class_id=[d.class_id for d in dets],
-            )
-        else:
-            batch = DetectionBatch.empty()
+        # the same message conversion as the live vehicle_tracker node
+        batch = detections_from_msg(f.det3d_msg)[0] if f.det3d_msg else DetectionBatch.empty()
         tracks = tracker.step(batch, f.stamp_ns * 1e-9)
         out[f.frame] = trackset_to_objects(tracks, f.offset, f.frame, mean_hwl)
     return out

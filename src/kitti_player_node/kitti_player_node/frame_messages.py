@@ -91,13 +91,13 @@ def kitti_objects_from_message(msg) -> list[KittiObject]:
     """The label rows of a KittiFrameLabels message as :class:`KittiObject` (frame filled in)."""
     return [
         KittiObject(
-            type=o.type,
+            type=str(o.type),
             truncated=float(o.truncated),
             occluded=int(o.occluded),
             alpha=float(o.alpha),
-            bbox=(o.x_min, o.y_min, o.x_max, o.y_max),
-            dimensions=(o.height, o.width, o.length),
-            location=(o.location.x, o.location.y, o.location.z),
+            bbox=(float(o.x_min), float(o.y_min), float(o.x_max), float(o.y_max)),
+            dimensions=(float(o.height), float(o.width), float(o.length)),
+            location=(float(o.location.x), float(o.location.y), float(o.location.z)),
             rotation_y=float(o.rotation_y),
             frame=int(msg.frame_index),
             track_id=int(o.track_id),

@@ -15,6 +15,7 @@ import sys
 from dataclasses import fields
 
 import numpy as np
+from kitti_player_node.frame_messages import bbox_to_xyxy, stamp_ns, xyxy_to_bbox
 
 from .config import NODE_NAME, TrackerConfig, TrackerConfigError
 from .tracker import DetectionBatch, Tracker, TrackSet
@@ -35,12 +36,7 @@ def detections_from_msg(msg) -> tuple[DetectionBatch, list[str]]:
             c = np.full((3, 3), np.nan)  # unknown: the configured measurement noise is used
         b = d.bbox
         if b.size_x > 0 and b.size_y > 0 and math.isfinite(b.center_x + b.center_y):
-            box = (
-                b.center_x - b.size_x / 2,
-                b.center_y - b.size_y / 2,
-                b.center_x + b.size_x / 2,
-                b.center_y + b.size_y / 2,
-            )
+            box = bbox_to_xyxy(b)
         else:
             box = (math.nan,) * 4
         pos.append(p)
@@ -83,10 +79,7 @@ def tracks_to_msg(tracks: TrackSet, header):
         v.orientation_bin = int(tracks.orientation_bin[i])
         b = tracks.bbox[i]
         if np.isfinite(b).all():
-            v.bbox.center_x = float(b[0] + b[2]) / 2
-            v.bbox.center_y = float(b[1] + b[3]) / 2
-            v.bbox.size_x = float(b[2] - b[0])
-            v.bbox.size_y = float(b[3] - b[1])
+            xyxy_to_bbox(b, v.bbox)
         v.age = int(tracks.age[i])
         v.frames_since_update = int(tracks.frames_since_update[i])
         out.vehicles.append(v)
@@ -202,7 +195,7 @@ def _make_node_class():
                 dets, problems = DetectionBatch.empty(), []
             for p in problems:
                 self.get_logger().warning(f"/vehicles/detections_3d: {p}")
-            stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            stamp = stamp_ns(msg.header) * 1e-9
             tracks = self.tracker.step(dets, stamp)
             self.pub.publish(tracks_to_msg(tracks, msg.header))
             ids = {int(t) for t in tracks.track_id}
