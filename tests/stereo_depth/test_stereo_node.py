@@ -162,7 +162,7 @@ def test_malformed_image_is_skipped_and_node_keeps_working(harness):
     assert harness.det3d[1].header.stamp.sec == 2 and len(harness.det3d[1].detections) == 1
 
 
-def test_detections_whose_frame_never_arrives_are_dropped_and_counted(harness):
+def test_detections_whose_frame_never_arrives_get_an_empty_array_and_are_counted(harness):
     harness.send_detections(50, [(150, 30, 250, 90)])  # stereo frame 50 never comes
     assert harness.spin_until(lambda: len(harness.node.frame_sync) == 1)
     for sec in (51, 52, 53):  # frames without detections fill the cache (size 3)
@@ -170,9 +170,63 @@ def test_detections_whose_frame_never_arrives_are_dropped_and_counted(harness):
         assert harness.spin_until(lambda s=sec: harness.node.frames_processed == s - 50)
     assert harness.node.dropped_detection_arrays == 1
     assert len(harness.node.frame_sync) <= 3
+    # the evicted array still gets its one (empty) output, with its own header
+    assert harness.spin_until(lambda: len(harness.det3d) == 1)
+    assert (harness.det3d[0].header.stamp.sec, harness.det3d[0].header.stamp.nanosec) == (50, 500)
+    assert harness.det3d[0].detections == []
+    harness.det3d.clear()
     harness.send_detections(53, [(150, 30, 250, 90)])
     assert harness.spin_until(lambda: len(harness.det3d) == 1)
     assert harness.det3d[0].header.stamp.sec == 53
+
+
+def test_incomplete_stereo_pair_gives_its_detection_array_an_empty_array(harness):
+    """Right image of frame 60 lost: frame 60 still gets exactly one (empty) 3D array, and the
+    next frame is ranged as usual (no stall waiting for the cache to overflow)."""
+    from stereo_vehicle_msgs.msg import VehicleDetection2DArray
+
+    hdr = harness.header(60)
+    for name, info in zip(("linfo", "rinfo"), harness.infos, strict=True):
+        info.header = hdr
+        harness.pubs[name].publish(info)
+    harness.pubs["left"].publish(numpy_to_image(harness.left, "rgb8", hdr))
+    det60 = VehicleDetection2DArray(header=harness.header(60))
+    det60.header.frame_id = "detector_frame"  # the output takes the detection array's header
+    harness.pubs["det"].publish(det60)
+    assert harness.spin_until(lambda: len(harness.node.frame_sync) == 1)
+    assert harness.det3d == []
+    harness.send_frame(61)
+    harness.send_detections(61, [(150, 30, 250, 90)])
+    assert harness.spin_until(lambda: len(harness.det3d) == 2)
+    first, second = harness.det3d
+    assert (first.header.stamp.sec, first.header.stamp.nanosec) == (60, 500)
+    assert first.header.frame_id == "detector_frame" and first.detections == []
+    assert second.header.stamp.sec == 61 and len(second.detections) == 1
+    assert harness.node.pair_sync.dropped == {"left": 1, "right": 0}
+    assert harness.node.frames_processed == 1 and harness.node.frames_failed == 0
+    assert len(harness.node.pair_sync) == 0 and len(harness.node.frame_sync) == 0
+
+
+def test_geometry_is_built_once_per_calibration_and_a_bad_one_skips_frames(harness):
+    harness.send_frame(1)
+    harness.send_detections(1, [(150, 30, 250, 90)])
+    assert harness.spin_until(lambda: len(harness.det3d) == 1)
+    geometry = harness.node.geometry
+    assert geometry.fx == FX and geometry.baseline == pytest.approx(B)
+    harness.send_frame(2)  # same calibration again: the geometry object is kept
+    harness.send_detections(2, [(150, 30, 250, 90)])
+    assert harness.spin_until(lambda: len(harness.det3d) == 2)
+    assert harness.node.geometry is geometry and len(harness.det3d[1].detections) == 1
+    K = np.array([[FX, 0, W / 2], [0, FX, H / 2], [0, 0, 1]])
+    bad_right = camera_info_from_projection(np.hstack([K, np.zeros((3, 1))]), W, H)
+    harness.pubs["rinfo"].publish(bad_right)  # zero baseline
+    assert harness.spin_until(lambda: harness.node.geometry is None)
+    harness.infos = (harness.infos[0], bad_right)
+    harness.send_frame(3)  # no geometry: the frame is skipped, its output is empty
+    harness.send_detections(3, [(150, 30, 250, 90)])
+    assert harness.spin_until(lambda: len(harness.det3d) == 3)
+    assert harness.node.geometry is None and harness.node.frames_failed == 1
+    assert harness.det3d[2].header.stamp.sec == 3 and harness.det3d[2].detections == []
 
 
 def test_parameters_accept_yaml_integers_and_reach_the_core(rclpy_context):

@@ -7,7 +7,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from stereo_depth_node.disparity import INVALID_DISPARITY
-from stereo_depth_node.ranging import RangingParams, position_covariance, range_boxes
+from stereo_depth_node.ranging import (
+    RangingParams,
+    RangingSetup,
+    position_covariance,
+    range_boxes,
+)
 from stereo_depth_node.reprojection import StereoGeometry
 
 GEO = StereoGeometry(721.5377, 721.5377, 609.5593, 172.854, 0.5371)
@@ -86,3 +91,34 @@ def test_covariance_follows_the_stereo_error_model():
 def test_invalid_method_raises():
     with pytest.raises(ValueError):
         range_boxes(np.ones((10, 10), np.float32), [(0, 0, 5, 5)], GEO, RangingParams(method="x"))
+
+
+def test_invalid_orientation_bin_uses_the_mean_correction_not_a_wrapped_bin():
+    disp = np.full((375, 1242), FB / 15.0, np.float32)
+    box = (900.0, 150.0, 1000.0, 222.0)
+    p = RangingParams(depth_offset=(0.5, 0.0, 0.0, 0.0))
+    none = range_boxes(disp, [box], GEO, p)[0]
+    got = range_boxes(disp, [box] * 4, GEO, p, orientation_bins=[4, 0, 255, -1])
+    np.testing.assert_allclose(got[0].position, none.position, rtol=1e-12)
+    np.testing.assert_allclose(got[2].position, none.position, rtol=1e-12)
+    np.testing.assert_allclose(got[3].position, none.position, rtol=1e-12)
+    # bin 0 (side view) is nearer than the mean; bin 4 must not have been wrapped onto it
+    assert np.linalg.norm(got[1].position) < np.linalg.norm(got[0].position) - 0.1
+
+
+def test_prepared_setup_gives_the_same_results_and_validates_once():
+    disp, car = scene_with_occluded_car()
+    boxes, bins = [car, (700, 100, 800, 200)], [2, 1]
+    p = RangingParams(correction_bin_spread=0.5, depth_offset=(0.1, 0.2, 0.3, 0.4))
+    setup = RangingSetup.from_params(p)
+    assert setup.params is p and setup.centre_offsets.shape == (5,)
+    a = range_boxes(disp, boxes, GEO, p, bins)
+    b = range_boxes(disp, boxes, GEO, setup, bins)
+    for ra, rb in zip(a, b, strict=True):
+        np.testing.assert_array_equal(ra.position, rb.position)
+        np.testing.assert_array_equal(ra.covariance, rb.covariance)
+        assert (ra.disparity, ra.valid_pixel_fraction) == (rb.disparity, rb.valid_pixel_fraction)
+    with pytest.raises(ValueError):
+        RangingSetup.from_params(RangingParams(core_fraction=0.0))
+    off = RangingSetup.from_params(RangingParams(centre_correction=False)).centre_offsets
+    assert np.all(off == 0.0)

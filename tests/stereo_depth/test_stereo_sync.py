@@ -38,3 +38,20 @@ def test_bad_configuration_raises():
         ExactStampSync(("a", "a"))
     with pytest.raises(KeyError):
         ExactStampSync(("a", "b")).add(1, "c", None)
+
+
+def test_in_order_a_complete_stamp_evicts_the_older_pending_ones():
+    s = ExactStampSync(("left", "right"), cache_size=10, in_order=True)
+    assert s.add(10, "left", "l10") is None  # right 10 is lost
+    assert s.add(20, "left", "l20") is None
+    assert s.add(30, "right", "r30") is None  # newer than the complete stamp: kept
+    assert s.add(20, "right", "r20") == {"left": "l20", "right": "r20"}
+    ev = s.take_evicted()
+    assert [(e.stamp, e.values) for e in ev] == [(10, {"left": "l10"})]
+    assert s.pending_stamps() == [30] and s.dropped == {"left": 1, "right": 0}
+    # without in_order the stale stamp stays until the cache overflows
+    plain = ExactStampSync(("left", "right"), cache_size=10)
+    plain.add(10, "left", "l10")
+    plain.add(20, "left", "l20")
+    plain.add(20, "right", "r20")
+    assert plain.pending_stamps() == [10] and plain.take_evicted() == []

@@ -4,7 +4,8 @@ Subscribes to the rectified stereo pair, its CameraInfos and ``/vehicles/detecti
 ``/stereo/disparity`` (stereo_msgs/DisparityImage, invalid pixels -1.0), ``/stereo/points``
 (sensor_msgs/PointCloud2, off by default) and ``/vehicles/detections_3d``. Left and right images
 are paired, and detection arrays matched to their stereo frame, by exact header stamp through
-bounded caches (:mod:`.stamp_sync`). All computation is in the pure core modules.
+bounded caches (:mod:`.stamp_sync`); every detection array gets exactly one 3D array (empty when
+its stereo frame is lost or failed). All computation is in the pure core modules.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import dataclasses
 import sys
 
 import numpy as np
+from kitti_player_node.frame_messages import bbox_to_xyxy, stamp_ns
 from kitti_player_node.image_conversion import (
     ImageConversionError,
     image_to_rgb,
@@ -20,7 +22,7 @@ from kitti_player_node.image_conversion import (
 )
 
 from .disparity import DisparityParams, compute_disparity, disparity_range
-from .ranging import RangingParams, range_boxes
+from .ranging import RangingParams, RangingSetup, range_boxes
 from .reprojection import StereoGeometry, decimated_points
 from .stamp_sync import ExactStampSync
 
@@ -61,8 +63,12 @@ def _core_fields(cls):
         yield f.name, _RENAMED.get(f.name, f.name), default
 
 
-def _stamp_key(header) -> tuple[int, int]:
-    return int(header.stamp.sec), int(header.stamp.nanosec)
+def _stamp_text(ns: int) -> str:
+    return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
+
+
+class _NoGeometry(ValueError):
+    """No usable stereo geometry (no CameraInfo yet, or a bad calibration)."""
 
 
 @dataclasses.dataclass
@@ -119,7 +125,9 @@ def _make_node_class():
         def __init__(self, **kwargs):
             super().__init__(NODE_NAME, **kwargs)
             self.disparity_params = self._read_disparity_params()
-            self.ranging_params = self._read_ranging_params()
+            self.ranging = self._read_ranging_setup()  # validated once, with the bin offsets
+            self.ranging_params = self.ranging.params
+            self._band_params: tuple[int, DisparityParams] | None = None  # (height, params)
             p = {k: self._declare(k, v) for k, v in _NODE_PARAMS.items()}
             self.publish_disparity = bool(p["publish_disparity"])
             self.publish_points = bool(p["publish_points"])
@@ -130,10 +138,13 @@ def _make_node_class():
                 raise ValueError(f"parameter match_rows: {p['match_rows']} needs [top, bottom]")
             self.match_rows = (int(p["match_rows"][0]), int(p["match_rows"][1]))
             cache = max(1, int(p["sync_cache_size"]))
-            self.pair_sync = ExactStampSync(("left", "right"), cache)
-            self.frame_sync = ExactStampSync(("frame", "detections"), cache)
+            self.pair_sync = ExactStampSync(("left", "right"), cache, in_order=True)
+            self.frame_sync = ExactStampSync(("frame", "detections"), cache, in_order=True)
             self.left_info = None
             self.right_info = None
+            self.geometry: StereoGeometry | None = None  # from the latest CameraInfo pair
+            self._geometry_error = "no CameraInfo received yet on both camera_info topics"
+            self._calibration_key = None  # (left P, right P) the geometry was built from
             self.dropped_detection_arrays = 0
             self.unranged_detections = 0
             self.frames_processed = 0
@@ -187,10 +198,8 @@ def _make_node_class():
             params.validate()
             return params
 
-        def _read_ranging_params(self) -> RangingParams:
-            params = RangingParams(**self._declare_fields(RangingParams))
-            params.validate()
-            return params
+        def _read_ranging_setup(self) -> RangingSetup:
+            return RangingSetup.from_params(RangingParams(**self._declare_fields(RangingParams)))
 
         def _match_band(self, height: int):
             top, bottom = self.match_rows
@@ -198,25 +207,57 @@ def _make_node_class():
                 return None
             return (max(0, top), min(height, bottom))
 
+        def _disparity_params_for(self, height: int) -> DisparityParams:
+            """The disparity settings with the match band of images ``height`` rows tall."""
+            if self._band_params is None or self._band_params[0] != height:
+                params = dataclasses.replace(
+                    self.disparity_params, row_band=self._match_band(height)
+                )
+                self._band_params = (height, params)
+            return self._band_params[1]
+
         # ------------------------------------------------------------------ callbacks
         def _on_left_info(self, msg) -> None:
             self.left_info = msg
+            self._update_geometry()
 
         def _on_right_info(self, msg) -> None:
             self.right_info = msg
+            self._update_geometry()
+
+        def _update_geometry(self) -> None:
+            """Rebuild the stereo geometry when the calibration changes (a bad one is reported
+            once per change; its frames are then skipped)."""
+            if self.left_info is None or self.right_info is None:
+                return
+            key = (tuple(self.left_info.p), tuple(self.right_info.p))
+            if key == self._calibration_key:
+                return
+            self._calibration_key = key
+            try:
+                self.geometry = StereoGeometry.from_camera_infos(self.left_info, self.right_info)
+            except ValueError as exc:
+                self.geometry = None
+                self._geometry_error = f"{TOPIC_LEFT_INFO}/{TOPIC_RIGHT_INFO}: {exc}"
+                self.get_logger().warning(
+                    f"{self._geometry_error}; frames skipped until it changes"
+                )
 
         def _on_image(self, side: str, msg) -> None:
-            group = self.pair_sync.add(_stamp_key(msg.header), side, msg)
+            group = self.pair_sync.add(stamp_ns(msg.header), side, msg)
             for ev in self.pair_sync.take_evicted():
                 self.get_logger().warning(
-                    f"stereo pair at stamp {ev.stamp[0]}.{ev.stamp[1]:09d} incomplete (missing "
+                    f"stereo pair at stamp {_stamp_text(ev.stamp)} incomplete (missing "
                     f"{', '.join(ev.missing(self.pair_sync.slots))}); dropped"
                 )
+                # its detection array (waiting or still to come) gets an empty 3D array
+                header = next(iter(ev.values.values())).header
+                self._add_to_frame_sync(ev.stamp, "frame", _Frame(header, None, None))
             if group is not None:
                 self._process_pair(group["left"], group["right"])
 
         def _on_detections(self, msg) -> None:
-            self._add_to_frame_sync(_stamp_key(msg.header), "detections", msg)
+            self._add_to_frame_sync(stamp_ns(msg.header), "detections", msg)
 
         def _add_to_frame_sync(self, key, slot, value) -> None:
             group = self.frame_sync.add(key, slot, value)
@@ -224,10 +265,11 @@ def _make_node_class():
                 if "detections" in ev.values:
                     self.dropped_detection_arrays += 1
                     self.get_logger().warning(
-                        f"{TOPIC_DETECTIONS_2D}: detection array at stamp "
-                        f"{ev.stamp[0]}.{ev.stamp[1]:09d} dropped, its stereo frame never arrived "
-                        f"({self.dropped_detection_arrays} dropped so far)"
+                        f"{TOPIC_DETECTIONS_2D}: detection array at stamp {_stamp_text(ev.stamp)} "
+                        "not ranged, its stereo frame never arrived; empty 3D array published "
+                        f"({self.dropped_detection_arrays} so far)"
                     )
+                    self._publish_empty(ev.values["detections"])
             if group is not None:
                 self._publish_detections(group["frame"], group["detections"])
 
@@ -235,7 +277,9 @@ def _make_node_class():
         def _process_pair(self, left_msg, right_msg) -> None:
             frame = _Frame(left_msg.header, None, None)
             try:
-                frame.geometry = self._geometry()
+                if self.geometry is None:
+                    raise _NoGeometry(self._geometry_error)
+                frame.geometry = self.geometry
                 left = image_to_rgb(left_msg)
                 right = image_to_rgb(right_msg)
                 if left.shape != right.shape:
@@ -243,13 +287,15 @@ def _make_node_class():
                         f"left {left.shape[1]}x{left.shape[0]} and right "
                         f"{right.shape[1]}x{right.shape[0]} sizes differ"
                     )
-                params = dataclasses.replace(
-                    self.disparity_params, row_band=self._match_band(left.shape[0])
-                )
+                params = self._disparity_params_for(left.shape[0])
                 frame.disparity = compute_disparity(left, right, params)
             except (ImageConversionError, ValueError) as exc:
                 self.frames_failed += 1
-                self.get_logger().warning(f"{TOPIC_LEFT}/{TOPIC_RIGHT}: {exc}; frame skipped")
+                # a bad calibration was reported when it arrived; a missing one is reported here
+                log = self.get_logger().debug
+                if not isinstance(exc, _NoGeometry) or self._calibration_key is None:
+                    log = self.get_logger().warning
+                log(f"{TOPIC_LEFT}/{TOPIC_RIGHT}: {exc}; frame skipped")
                 frame.disparity = None
             if frame.disparity is not None:
                 self.frames_processed += 1
@@ -264,12 +310,7 @@ def _make_node_class():
                         self.points_max_depth,
                     )
                     self.pub_points.publish(build_point_cloud(pts, rgb, left_msg.header))
-            self._add_to_frame_sync(_stamp_key(left_msg.header), "frame", frame)
-
-        def _geometry(self) -> StereoGeometry:
-            if self.left_info is None or self.right_info is None:
-                raise ValueError("no CameraInfo received yet on both camera_info topics")
-            return StereoGeometry.from_camera_infos(self.left_info, self.right_info)
+            self._add_to_frame_sync(stamp_ns(left_msg.header), "frame", frame)
 
         def _disparity_msg(self, frame: _Frame):
             DisparityImage = self._msg_types[0]
@@ -290,27 +331,21 @@ def _make_node_class():
                 msg.valid_window.height = int(rows[-1] - rows[0] + 1)
             return msg
 
+        def _publish_empty(self, det_msg) -> None:
+            """An empty 3D array for a detection array that cannot be ranged."""
+            out = self._msg_types[2]()
+            out.header = det_msg.header
+            self.pub_det3d.publish(out)
+
         def _publish_detections(self, frame: _Frame, det_msg) -> None:
             _, VehicleDetection3D, VehicleDetection3DArray = self._msg_types
             out = VehicleDetection3DArray()
             out.header = frame.header if frame.disparity is not None else det_msg.header
             dets = list(det_msg.detections)
             if frame.disparity is not None and dets:
-                boxes, bins = [], []
-                for d in dets:
-                    b = d.bbox
-                    boxes.append(
-                        [
-                            b.center_x - b.size_x / 2,
-                            b.center_y - b.size_y / 2,
-                            b.center_x + b.size_x / 2,
-                            b.center_y + b.size_y / 2,
-                        ]
-                    )
-                    bins.append(int(d.orientation_bin))
-                results = range_boxes(
-                    frame.disparity, boxes, frame.geometry, self.ranging_params, bins
-                )
+                boxes = [bbox_to_xyxy(d.bbox) for d in dets]
+                bins = [int(d.orientation_bin) for d in dets]
+                results = range_boxes(frame.disparity, boxes, frame.geometry, self.ranging, bins)
             else:
                 results = [None] * len(dets)
             for d, r in zip(dets, results, strict=True):

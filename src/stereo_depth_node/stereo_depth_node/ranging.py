@@ -130,7 +130,33 @@ class RangeResult:
     covariance: np.ndarray
     disparity: float
     valid_pixel_fraction: float
-    n_pixels: int
+
+
+@dataclass(frozen=True, eq=False)
+class RangingSetup:
+    """Validated :class:`RangingParams` with their per-bin centre offsets [m] (shape (5,), see
+    :func:`bin_centre_offsets`; zeros without ``centre_correction``): what depends only on the
+    settings, computed once and reused for every frame."""
+
+    params: RangingParams
+    centre_offsets: np.ndarray
+
+    @classmethod
+    def from_params(cls, params: RangingParams | None = None) -> RangingSetup:
+        """Validate ``params`` (default :class:`RangingParams`) and compute the offsets; raises
+        ValueError for unusable settings."""
+        params = params or RangingParams()
+        params.validate()
+        centre = np.zeros(NUM_BINS + 1)
+        if params.centre_correction:
+            centre = bin_centre_offsets(
+                params.car_length,
+                params.car_width,
+                params.surface_model,
+                params.correction_bin_spread,
+            )
+        centre.setflags(write=False)
+        return cls(params, centre)
 
 
 def _box_slice(box, width: int, height: int, fraction: float) -> tuple[slice, slice] | None:
@@ -233,22 +259,19 @@ def range_boxes(
     disparity: np.ndarray,
     boxes,
     geometry: StereoGeometry,
-    params: RangingParams | None = None,
+    params: RangingParams | RangingSetup | None = None,
     orientation_bins=None,
 ) -> list[RangeResult | None]:
     """Range each box (x1, y1, x2, y2) [px] of the left image in a disparity map [px].
 
     Returns one entry per box: a :class:`RangeResult`, or None when the box has too few valid
-    disparities. ``orientation_bins`` (0..3 per box) selects the per-bin centre correction and
-    ``depth_offset``; without bins the correction's mean over all angles and bin 0's offset.
+    disparities. ``params``: settings, or a :class:`RangingSetup` prepared once from them (same
+    results, without re-validating and recomputing the offsets per call). ``orientation_bins``
+    (0..3 per box) selects the per-bin centre correction and ``depth_offset``; without bins, and
+    for a bin outside 0..3, the correction's mean over all angles and bin 0's offset.
     """
-    params = params or RangingParams()
-    params.validate()
-    centre = np.zeros(NUM_BINS + 1)
-    if params.centre_correction:
-        centre = bin_centre_offsets(
-            params.car_length, params.car_width, params.surface_model, params.correction_bin_spread
-        )
+    setup = params if isinstance(params, RangingSetup) else RangingSetup.from_params(params)
+    params, centre = setup.params, setup.centre_offsets
     disparity = np.asarray(disparity, np.float32)
     boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
     results: list[RangeResult | None] = []
@@ -262,23 +285,23 @@ def range_boxes(
             results.append(None)
             continue
         if params.method == "median":
-            d, n_used = d_med, n_valid
+            d = d_med
         else:
-            d, n_used = robust_disparity(disparity, box, geometry, params)
+            d, _ = robust_disparity(disparity, box, geometry, params)
             if not np.isfinite(d):
-                d, n_used = d_med, n_valid
+                d = d_med
         if not (np.isfinite(d) and d > 0):
             results.append(None)
             continue
         u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
         z_surface = float(geometry.fx * geometry.baseline / d)
-        if orientation_bins is not None:
-            b = int(orientation_bins[i]) % NUM_BINS
+        b = int(orientation_bins[i]) if orientation_bins is not None else NUM_BINS
+        if 0 <= b < NUM_BINS:
             offset = float(centre[b] + params.depth_offset[b])
-        else:
+        else:  # no bin, or an invalid one: the mean correction over all angles
             offset = float(centre[NUM_BINS] + params.depth_offset[0])
         ray = geometry.backproject(u, v, 1.0)
         point = ray * z_surface + offset * ray / np.linalg.norm(ray)
         cov = position_covariance(u, v, float(point[2]), geometry, params)
-        results.append(RangeResult(point, cov, float(d), float(frac), int(n_used)))
+        results.append(RangeResult(point, cov, float(d), float(frac)))
     return results

@@ -39,16 +39,6 @@ class StereoGeometry:
             raise ValueError("projection matrices do not describe a rectified left/right pair")
         return cls(fx, float(Pl[1, 1]), float(Pl[0, 2]), float(Pl[1, 2]), baseline)
 
-    def scaled(self, factor: float) -> StereoGeometry:
-        """The geometry of the images resized by ``factor`` (baseline unchanged)."""
-        return StereoGeometry(
-            self.fx * factor,
-            self.fy * factor,
-            (self.cx + 0.5) * factor - 0.5,
-            (self.cy + 0.5) * factor - 0.5,
-            self.baseline,
-        )
-
     @property
     def q_matrix(self) -> np.ndarray:
         """4x4 reprojection matrix Q: ``[X Y Z W]^T = Q [u v d 1]^T`` (equal principal points,

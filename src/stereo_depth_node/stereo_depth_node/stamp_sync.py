@@ -1,10 +1,13 @@
 """Exact-stamp synchroniser with a bounded cache (what message_filters' TimeSynchronizer does).
 
-Pure core, no ROS: stamps are any hashable key (the node uses ``(sec, nanosec)``). Messages of
-several named slots are collected per stamp; once every slot of a stamp is filled the group is
+Pure core, no ROS: stamps are any hashable key (the node uses the stamp in nanoseconds). Messages
+of several named slots are collected per stamp; once every slot of a stamp is filled the group is
 returned and forgotten. At most ``cache_size`` incomplete stamps are kept: adding a new one beyond
-that evicts the oldest (by first arrival), and the eviction is counted per missing slot so that a
-caller can report, e.g., detection arrays whose stereo frame never arrived.
+that evicts the oldest (by first arrival), and the eviction is counted per slot it held so that a
+caller can report, e.g., detection arrays whose stereo frame never arrived. With ``in_order``
+(every slot's values arrive in stamp order, as on one ROS topic; stamps must then be ordered), a
+complete stamp also evicts the pending stamps older than it at once: their missing values can no
+longer come.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ class ExactStampSync:
 
     slots: tuple[str, ...]
     cache_size: int = 10
+    in_order: bool = False  # a complete stamp evicts the older pending ones
     evicted: list[Evicted] = field(default_factory=list)  # recent evictions (drained by caller)
     dropped: dict[str, int] = field(default_factory=dict)  # evicted groups per slot they held
     _pending: OrderedDict = field(default_factory=OrderedDict)
@@ -55,15 +59,21 @@ class ExactStampSync:
             group = {}
             self._pending[stamp] = group
             while len(self._pending) > self.cache_size:
-                old_stamp, old = self._pending.popitem(last=False)
-                self.evicted.append(Evicted(old_stamp, old))
-                for s in old:
-                    self.dropped[s] += 1
+                self._evict(next(iter(self._pending)))
         group[slot] = value
         if all(s in group for s in self.slots):
             del self._pending[stamp]
+            if self.in_order:
+                for old in [t for t in self._pending if t < stamp]:
+                    self._evict(old)
             return group
         return None
+
+    def _evict(self, stamp: Hashable) -> None:
+        old = self._pending.pop(stamp)
+        self.evicted.append(Evicted(stamp, old))
+        for s in old:
+            self.dropped[s] += 1
 
     def take_evicted(self) -> list[Evicted]:
         """The groups evicted since the last call (and forget them)."""
