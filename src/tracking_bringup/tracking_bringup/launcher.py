@@ -58,7 +58,6 @@ class _Running:
     proc: subprocess.Popen
     log_path: Path
     log_file: object = field(repr=False)
-    started: float = 0.0
 
 
 def _bind_to_parent() -> None:
@@ -199,7 +198,7 @@ class GraphLauncher:
             start_new_session=True,  # Ctrl-C reaches the launcher only; it stops the children
             preexec_fn=_bind_to_parent,
         )
-        self.running[spec.name] = _Running(spec, proc, log_path, log_file, time.monotonic())
+        self.running[spec.name] = _Running(spec, proc, log_path, log_file)
 
     def _stop(self, run: _Running) -> int:
         proc = run.proc
@@ -224,6 +223,8 @@ class GraphLauncher:
         import rclpy
         from rclpy.context import Context
 
+        # The observer must join the children's DDS domain with the same transport settings;
+        # rmw reads them from this process's environment when the participant is created.
         os.environ.update(
             {k: v for k, v in self.env.items() if k.startswith(("ROS_", "RMW_", "FASTRTPS_"))}
         )
@@ -259,16 +260,20 @@ class GraphLauncher:
     def _wait_ready(self, specs: Sequence[ProcessSpec]) -> None:
         deadline = time.monotonic() + self.ready_timeout
         while True:
+            waiting = []
             for spec in specs:
                 run = self.running[spec.name]
                 code = run.proc.poll()
-                if code is not None and not (spec.finishes and code == 0):
+                if code is None:
+                    waiting.append(spec)
+                elif not (spec.finishes and code == 0):
                     raise LaunchError(
                         f"node '{spec.name}' died during start-up (exit code {code}); "
                         f"log: {run.log_path}\n" + _tail(run.log_path),
                         node=spec.name,
                     )
-            missing = self._missing_endpoints(specs)
+                # a finishing node that is already done (a short sequence) is not waited for
+            missing = self._missing_endpoints(waiting)
             if not missing:
                 return
             if time.monotonic() > deadline:
