@@ -28,7 +28,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 from kitti_player_node.kitti import KittiObject
 
 
@@ -85,8 +84,3 @@ def gt_counted_for_tracking(obj: KittiObject, min_height: float | None = None) -
         and float(obj.truncated) <= TRACKING_MAX_TRUNCATION
         and (min_height is None or obj.height_px > min_height)
     )
-
-
-def heights(objects: list[KittiObject]) -> np.ndarray:
-    """2D box heights (pixels) of a list of objects, as an array."""
-    return np.array([abs(o.bbox[3] - o.bbox[1]) for o in objects], dtype=float)

@@ -41,6 +41,7 @@ LocA averaged over alpha = 0.05 .. 0.95, 2D IoU similarity by default. All figur
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 from collections.abc import Hashable, Iterable, Mapping
@@ -114,7 +115,9 @@ class _Frame:
     t_scores: np.ndarray
     t_ign: np.ndarray  # bool: ignored when unmatched (neighbour class, small, DontCare)
     sim: np.ndarray  # (n_g, n_t) similarity of the CLEAR-MOT matching
-    hota_sim: np.ndarray  # (n_g, n_t) similarity for HOTA
+    hota_sim: np.ndarray | None  # (n_g, n_t) similarity for HOTA (None: HOTA not computed)
+    # _FrameResult per number of top-scored tracker rows kept; it depends on that number alone
+    # (the IoU threshold is fixed per evaluation), so it stays valid across score thresholds
     cache: dict = field(default_factory=dict)
 
 
@@ -136,9 +139,10 @@ def _prepare_frame(
     pred: list[KittiObject],
     cls: str,
     similarity: str,
-    hota_similarity: str,
+    hota_similarity: str | None,
     gt_min_height: float | None = None,
 ) -> _Frame:
+    """One frame's filtered data; ``hota_similarity`` None skips the HOTA similarity."""
     g = [o for o in gt if not o.is_dontcare and class_status(o.type, cls) >= 0]
     dc = boxes_2d([o for o in gt if o.is_dontcare])
     t = _tracker_rows(pred, cls)
@@ -156,7 +160,7 @@ def _prepare_frame(
     if len(dc) and len(t):
         t_ign |= (box_overlap_over_first(tb, dc) > 0.5).any(axis=1)
     sims = {}
-    for kind in {similarity, hota_similarity}:
+    for kind in {similarity, hota_similarity} - {None}:
         if kind == "iou2d":
             sims[kind] = box_iou_2d(boxes_2d(g), tb)
         elif kind == "iou3d":
@@ -170,7 +174,7 @@ def _prepare_frame(
         t_scores=np.array([_score(o) for o in t]),
         t_ign=t_ign,
         sim=sims[similarity],
-        hota_sim=sims[hota_similarity],
+        hota_sim=None if hota_similarity is None else sims[hota_similarity],
     )
 
 
@@ -414,7 +418,7 @@ def _prepare_sequences(
     preds: list[Frames],
     cls: str,
     similarity: str,
-    hota_similarity: str,
+    hota_similarity: str | None,
     score_mode: str = "track_mean",
     gt_min_height: float | None = None,
 ) -> list[list[_Frame]]:
@@ -536,18 +540,19 @@ def evaluate_tracking_sequences(
         [preds.get(n, {}) for n in names],
         cls,
         similarity,
-        hota_similarity,
+        hota_similarity if hota else None,
         score_mode,
         gt_min_height,
     )
+    # the frames' match caches stay valid across sequences' and the total's score thresholds
     per = {
         n: _evaluate([s], iou_threshold, n_sample_pts, hota)
         for n, s in zip(names, seqs, strict=False)
     }
-    for s in seqs:
-        for fr in s:
-            fr.cache.clear()
-    total = _evaluate(seqs, iou_threshold, n_sample_pts, hota)
+    if len(seqs) == 1:  # the total is that sequence's evaluation
+        total = copy.deepcopy(per[names[0]])
+    else:
+        total = _evaluate(seqs, iou_threshold, n_sample_pts, hota)
     return {"per_sequence": per, "total": total}
 
 
@@ -576,11 +581,6 @@ def match_tracks(
 
 
 # ----------------------------------------------------------------------------- files
-
-
-def read_tracking_results(path: str | os.PathLike) -> dict[int, list[KittiObject]]:
-    """A KITTI tracking result file (label rows + score); an empty file is an empty output."""
-    return read_tracking_labels(path)
 
 
 def fill_missing_boxes(
@@ -633,7 +633,7 @@ def evaluate_tracking_dirs(
     for n in names:
         gts[n] = read_tracking_labels(labels_dir / f"{n}.txt")
         rp = results_dir / f"{n}.txt"
-        pred = read_tracking_results(rp) if rp.is_file() else {}
+        pred = read_tracking_labels(rp) if rp.is_file() else {}  # score column kept
         if calib_dir is not None:
             pred = fill_missing_boxes(pred, Path(calib_dir) / f"{n}.txt")
         preds[n] = pred
