@@ -7,7 +7,7 @@ given here; ``tracker_offline --params FILE.yaml`` reads the same names from the
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 from kitti_player_node.kitti import MEAN_CAR_DIMENSIONS
@@ -96,9 +96,6 @@ class TrackerConfig:
     def mean_size(self) -> tuple[float, float, float]:
         """(length, width, height) in metres."""
         return (self.mean_length, self.mean_width, self.mean_height)
-
-    def as_dict(self) -> dict:
-        return asdict(self)
 
     @classmethod
     def from_dict(cls, values: dict, source: str = "parameters") -> TrackerConfig:

@@ -33,26 +33,24 @@ from .detection_files import TYPE_NAMES, DetectionRows, read_detection_file
 from .tracker import COASTING, TENTATIVE, DetectionBatch, Tracker
 
 FRAME_PERIOD = 0.1  # [s] KITTI's 10 Hz
+CAR_TYPE_ID = 2  # detection files' type column (TYPE_NAMES)
 
 
 def track_sequence(
     rows: DetectionRows,
     config: TrackerConfig,
     calib: Calibration | None = None,
-    type_id: int = 2,
-    num_frames: int | None = None,
 ) -> list[KittiObject]:
-    """Track one sequence's detections of ``type_id``; returns KITTI result rows (camera 0,
+    """Track one sequence's car detections (``type_id`` 2); returns KITTI result rows (camera 0,
     bottom-centre locations, track ids, scores)."""
-    rows = rows.select(rows.type_id == type_id)
+    rows = rows.select(rows.type_id == CAR_TYPE_ID)
     offset = np.zeros(3) if calib is None else calib.left_camera_offset
     projection = None
     if calib is not None:
         projection = np.hstack([calib.K, np.zeros((3, 1))])
     tracker = Tracker(config, projection=projection)
-    type_name = TYPE_NAMES.get(type_id, "Car")
-    last = int(rows.frame.max()) + 1 if len(rows) else 0
-    n_frames = max(last, num_frames or 0)
+    type_name = TYPE_NAMES[CAR_TYPE_ID]
+    n_frames = int(rows.frame.max()) + 1 if len(rows) else 0
     order = np.argsort(rows.frame, kind="stable")
     frames = rows.frame[order]
     starts = np.searchsorted(frames, np.arange(n_frames + 1))
