@@ -29,7 +29,7 @@ def test_kalman_matches_filterpy_reference():
         if k % 4 != 0:  # some frames without a measurement
             z = z0 + np.array([0.5, 0.0, -1.0]) * 0.1 * k + rng.normal(scale=0.3, size=3)
             kf.update(z)
-            bf.update(np.array([0]), z[None], R[None], dt)
+            bf.update(np.array([0]), z[None], R[None])
         np.testing.assert_allclose(bf.x[0], kf.x, rtol=1e-8, atol=1e-8)
         np.testing.assert_allclose(bf.P[0], kf.P, rtol=1e-8, atol=1e-8)
 
@@ -105,7 +105,7 @@ def test_particle_filter_converges_on_noisy_straight_track():
         pf.predict(0.1)
         truth = start + vel * 0.1 * k
         z = truth + rng.normal(scale=0.3, size=3)
-        pf.update(np.array([0]), z[None], np.eye(3)[None], 0.1)
+        pf.update(np.array([0]), z[None], np.eye(3)[None])
         errs.append(np.linalg.norm(pf.position[0] - truth))
     assert np.mean(errs[-20:]) < 1.0
     np.testing.assert_allclose(pf.velocity[0], vel, atol=1.5)
@@ -116,7 +116,7 @@ def test_particle_filter_reseeds_when_weights_vanish():
     pf.add(np.array([[0.0, 0.0, 10.0]]), np.eye(3)[None])
     pf.predict(0.1)
     far = np.array([[200.0, 0.0, 10.0]])
-    pf.update(np.array([0]), far, np.eye(3)[None], 0.1)
+    pf.update(np.array([0]), far, np.eye(3)[None])
     assert pf.reseeds == 1
     assert np.linalg.norm(pf.position[0] - far[0]) < 0.5
 

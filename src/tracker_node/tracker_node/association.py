@@ -20,32 +20,29 @@ def euclidean_cost(track_pos: np.ndarray, det_pos: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("nmi,nmi->nm", d, d))
 
 
-def mahalanobis_cost(
-    track_pos: np.ndarray, track_cov: np.ndarray, det_pos: np.ndarray, det_cov: np.ndarray
-) -> np.ndarray:
-    """Squared Mahalanobis distances (N, M) of each detection from each track under the
-    innovation covariance ``S_ij = P_i + R_j`` (P_i the track's predicted position covariance,
-    R_j the detection's)."""
-    d = det_pos[None, :, :] - track_pos[:, None, :]
-    S = track_cov[:, None, :, :] + det_cov[None, :, :, :]
-    Si = inv3_sym(S)
-    return (d * (Si @ d[..., None])[..., 0]).sum(axis=-1)
-
-
 def mahalanobis_cost_gated(
     track_pos: np.ndarray,
     track_cov: np.ndarray,
     det_pos: np.ndarray,
     det_cov: np.ndarray,
     candidates: np.ndarray,
+    gate: float = np.inf,
 ) -> np.ndarray:
-    """:func:`mahalanobis_cost` computed only for ``candidates`` (bool (N, M)); others inf."""
+    """Squared Mahalanobis distances (N, M) of each detection from each track under the
+    innovation covariance ``S_ij = P_i + R_j`` (``track_cov`` P (N, 3, 3): the tracks' predicted
+    position covariances; ``det_cov`` R: (M, 3, 3) per detection, or (3, 3) shared by all).
+    Computed only for ``candidates`` (bool (N, M)); other pairs and distances above ``gate`` are
+    inf. A shared R takes N inversions instead of one per candidate pair."""
     out = np.full(candidates.shape, np.inf)
     r, c = np.nonzero(candidates)
     if len(r):
         d = det_pos[c] - track_pos[r]
-        Si = inv3_sym(track_cov[r] + det_cov[c])
-        out[r, c] = (d * (Si @ d[..., None])[..., 0]).sum(axis=-1)
+        if det_cov.ndim == 2:
+            Si = inv3_sym(track_cov + det_cov)[r]
+        else:
+            Si = inv3_sym(track_cov[r] + det_cov[c])
+        q = (d * (Si @ d[..., None])[..., 0]).sum(axis=-1)
+        out[r, c] = np.where(q <= gate, q, np.inf)
     return out
 
 

@@ -1,7 +1,7 @@
 """The motion-filter interface, the unfiltered baseline, and the factory selecting a filter.
 
 Every filter is batched over the tracks (row i = the tracker's i-th track) and offers:
-``add(z, R)``, ``keep(mask)``, ``predict(dt)``, ``update(rows, z, R, dt)`` and the arrays
+``add(z, R)``, ``keep(mask)``, ``predict(dt)``, ``update(rows, z, R)`` and the arrays
 ``position`` (N, 3), ``velocity`` (N, 3), ``position_cov`` (N, 3, 3), ``velocity_cov`` (N, 3, 3).
 """
 
@@ -25,7 +25,7 @@ class MotionFilter(Protocol):
     def add(self, z: np.ndarray, R: np.ndarray) -> None: ...
     def keep(self, mask: np.ndarray) -> None: ...
     def predict(self, dt: float) -> None: ...
-    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray, dt: float) -> None: ...
+    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None: ...
 
     @property
     def position(self) -> np.ndarray: ...
@@ -43,9 +43,12 @@ class PassThroughFilter:
 
     name = "none"
 
-    def __init__(self, init_position_var: float = 1.0, init_velocity_var: float = 50.0):
+    def __init__(
+        self, init_position_var: float = 1.0, init_velocity_var: float = 50.0, dt: float = 0.1
+    ):
         self.pos_var = float(init_position_var)
         self.vel_var = float(init_velocity_var)
+        self.dt = float(dt)  # [s] frame period assumed by velocity_cov
         self._pos = np.zeros((0, 3))
         self._vel = np.zeros((0, 3))
         self._R = np.zeros((0, 3, 3))
@@ -70,7 +73,7 @@ class PassThroughFilter:
     def predict(self, dt: float) -> None:
         self._elapsed = self._elapsed + dt
 
-    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray, dt: float) -> None:
+    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         if not len(rows):
             return
         self._vel[rows] = (z - self._pos[rows]) / np.maximum(self._elapsed[rows], 1e-6)[:, None]
@@ -95,7 +98,7 @@ class PassThroughFilter:
 
     @property
     def velocity_cov(self) -> np.ndarray:
-        v = np.where(self._seen, 2.0 * np.trace(self._R, axis1=1, axis2=2) / 3.0 / 0.01, 0.0)
+        v = np.where(self._seen, 2.0 * np.trace(self._R, axis1=1, axis2=2) / 3.0 / self.dt**2, 0.0)
         v = np.where(self._seen, v, self.vel_var)
         return v[:, None, None] * np.eye(3)
 
@@ -112,7 +115,8 @@ def make_filter(cfg: TrackerConfig) -> MotionFilter:
             cfg.velocity_history,
             cfg.particle_diffusion,
             cfg.seed,
+            cfg.default_dt,
         )
     if cfg.filter == "none":
-        return PassThroughFilter(cfg.init_position_var, cfg.init_velocity_var)
+        return PassThroughFilter(cfg.init_position_var, cfg.init_velocity_var, cfg.default_dt)
     raise ValueError(f"filter: unknown filter {cfg.filter!r}")

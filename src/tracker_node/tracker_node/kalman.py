@@ -109,14 +109,14 @@ class BatchedKalmanFilter:
         P += Q
         self.P = P
 
-    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray, dt: float) -> None:
+    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         """Correct tracks ``rows`` (M,) with measured positions ``z`` (M, 3), covariances
         ``R`` (M, 3, 3)."""
         if not len(rows):
             return
         x, P = self.x[rows], self.P[rows]
         PHt = P[:, :, :3]  # P H^T, (M, 6, 3)
-        K = PHt @ np.linalg.inv(P[:, :3, :3] + R)  # gain P H^T S^-1
+        K = PHt @ inv3_sym(P[:, :3, :3] + R)  # gain P H^T S^-1
         x += (K @ (z - x[:, :3])[:, :, None])[:, :, 0]
         # P - K H P (equal to filterpy's Joseph form for this optimal gain), kept symmetric
         P -= K @ P[:, :3, :]

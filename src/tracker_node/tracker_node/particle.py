@@ -22,6 +22,12 @@ def _uniform_ball(rng: np.random.Generator, shape: tuple[int, int], radius: floa
     return v * r
 
 
+def _spread(particles: np.ndarray, n: int) -> np.ndarray:
+    """Sample covariances (N, 3, 3) of particle sets (N, n, 3)."""
+    d = particles - particles.mean(axis=1, keepdims=True)
+    return np.einsum("npi,npj->nij", d, d) / max(n - 1, 1)
+
+
 class BatchedParticleFilter:
     """Particle filters of N tracks: ``particles`` (N, Np, 3)."""
 
@@ -35,6 +41,7 @@ class BatchedParticleFilter:
         history: int = 3,
         diffusion: float = 0.3,
         seed: int = 0,
+        dt: float = 0.1,
     ):
         self.n = int(num_particles)
         self.init_radius = float(init_radius)
@@ -42,6 +49,7 @@ class BatchedParticleFilter:
         self.history = int(history)
         self.diffusion = float(diffusion)
         self.rng = np.random.default_rng(seed)
+        self.dt = float(dt)  # [s] frame period assumed by velocity_cov
         self.particles = np.zeros((0, self.n, 3))
         self.vel_hist = np.zeros((0, self.history, 3))
         self.vel_count = np.zeros(0, dtype=int)
@@ -50,6 +58,7 @@ class BatchedParticleFilter:
         self.last_pos = np.zeros((0, 3))  # estimate at the last update
         self.elapsed = np.zeros(0)  # [s] since the last update
         self.reseeds = 0  # how many times particles were re-seeded (all weights vanished)
+        self._cov: np.ndarray | None = None  # position_cov of the current particles (cache)
 
     def __len__(self) -> int:
         return len(self.particles)
@@ -64,6 +73,8 @@ class BatchedParticleFilter:
         self.velocity = np.concatenate([self.velocity, np.zeros((m, 3))])
         self.last_pos = np.concatenate([self.last_pos, p.mean(axis=1)])
         self.elapsed = np.concatenate([self.elapsed, np.zeros(m)])
+        if self._cov is not None:
+            self._cov = np.concatenate([self._cov, _spread(p, self.n)])
 
     def keep(self, mask: np.ndarray) -> None:
         self.particles = self.particles[mask]
@@ -73,6 +84,8 @@ class BatchedParticleFilter:
         self.velocity = self.velocity[mask]
         self.last_pos = self.last_pos[mask]
         self.elapsed = self.elapsed[mask]
+        if self._cov is not None:
+            self._cov = self._cov[mask]
 
     def _mean_velocity(self) -> np.ndarray:
         count = np.minimum(self.vel_count, self.history)
@@ -88,8 +101,9 @@ class BatchedParticleFilter:
         self.estimate = self.estimate + v * dt
         self.velocity = v
         self.elapsed = self.elapsed + dt
+        self._cov = None  # every particle moved
 
-    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray, dt: float) -> None:
+    def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         if not len(rows):
             return
         p = self.particles[rows]  # (M, Np, 3)
@@ -124,6 +138,8 @@ class BatchedParticleFilter:
         self.last_pos[rows] = new_est
         self.elapsed[rows] = 0.0
         self.velocity[rows] = self._mean_velocity()[rows]
+        if self._cov is not None:
+            self._cov[rows] = _spread(p, self.n)
 
     @property
     def position(self) -> np.ndarray:
@@ -131,10 +147,13 @@ class BatchedParticleFilter:
 
     @property
     def position_cov(self) -> np.ndarray:
-        d = self.particles - self.particles.mean(axis=1, keepdims=True)
-        return np.einsum("npi,npj->nij", d, d) / max(self.n - 1, 1)
+        """Sample covariances of the particles (N, 3, 3); computed once after each prediction,
+        then kept up to date row-wise by update/add/keep."""
+        if self._cov is None:
+            self._cov = _spread(self.particles, self.n)
+        return self._cov
 
     @property
     def velocity_cov(self) -> np.ndarray:
-        cov = self.position_cov
-        return cov * (2.0 / 0.01)  # finite difference of two estimates 0.1 s apart
+        # finite difference of two estimates one frame period apart
+        return self.position_cov * (2.0 / self.dt**2)

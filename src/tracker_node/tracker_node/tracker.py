@@ -161,7 +161,6 @@ class Tracker:
         self.image_size = image_size or (self.cfg.image_width, self.cfg.image_height)
         self.next_id = 1
         self.last_stamp: float | None = None
-        self.frame_count = 0
         self._R0 = np.eye(3) * self.cfg.measurement_noise**2
         self.ids = np.zeros(0, np.int64)
         self.hits = np.zeros(0, np.int64)
@@ -197,7 +196,6 @@ class Tracker:
             if self.last_stamp is not None and stamp > self.last_stamp:
                 dt = float(stamp - self.last_stamp)
             self.last_stamp = float(stamp)
-        self.frame_count += 1
 
         R, shared_R = self._det_covariances(dets)
         det_yaw = self._det_yaw(dets)
@@ -208,7 +206,7 @@ class Tracker:
         rows, cols = solve(self._cost(dets, R, det_yaw, shared_R), cfg.association)
 
         # matched tracks
-        self.filter.update(rows, dets.position[cols], R[cols], dt)
+        self.filter.update(rows, dets.position[cols], R[cols])
         self.hits[rows] += 1
         self.misses[rows] = 0
         self.conf[rows] = 1.0
@@ -276,9 +274,6 @@ class Tracker:
             yaw[from_bin] = yaw_from_bin(dets.orientation_bin[from_bin], p[:, 0], p[:, 2])
         return yaw
 
-    def _boxes3d(self, pos, size, yaw) -> np.ndarray:
-        return np.column_stack([pos, size, yaw])
-
     def _cost(
         self, dets: DetectionBatch, R: np.ndarray, det_yaw: np.ndarray, shared_R: bool = False
     ) -> np.ndarray:
@@ -287,26 +282,16 @@ class Tracker:
         if n == 0 or m == 0:
             return np.zeros((n, m))
         tpos = self.filter.position
-        if cfg.cost == "mahalanobis" and shared_R:
-            # one R for all detections: S_i = P_i + R, N inversions instead of one per pair;
-            # the squared distance only for pairs within dist_cap
-            d = dets.position[None, :, :] - tpos[:, None, :]  # (N, M, 3)
-            near = np.einsum("nmi,nmi->nm", d, d) <= cfg.dist_cap**2
-            r, c = np.nonzero(near)
-            cost = np.full((n, m), np.inf)
-            if len(r):
-                Si = np.linalg.inv(self.filter.position_cov + R[0])
-                dd = d[r, c]
-                q = np.einsum("ki,kij,kj->k", dd, Si[r], dd)
-                cost[r, c] = np.where(q <= cfg.mahalanobis_gate, q, np.inf)
-            return cost
         dist = euclidean_cost(tpos, dets.position)
         near = dist <= cfg.dist_cap
         if cfg.cost == "euclidean":
             cost = dist
         elif cfg.cost == "mahalanobis":
-            cost = mahalanobis_cost_gated(tpos, self.filter.position_cov, dets.position, R, near)
-            near &= cost <= cfg.mahalanobis_gate
+            det_cov = R[0] if shared_R else R  # one R for all: N inversions, not one per pair
+            cost = mahalanobis_cost_gated(
+                tpos, self.filter.position_cov, dets.position, det_cov, near, cfg.mahalanobis_gate
+            )
+            near &= np.isfinite(cost)
         elif cfg.cost == "iou2d":
             cost = iou_shape_cost(self._predicted_bboxes(), dets.bbox)
             near &= cost <= 1.0 - cfg.min_iou
@@ -314,8 +299,8 @@ class Tracker:
             dsize = np.where(np.isfinite(dets.size), dets.size, np.array(cfg.mean_size))
             dyaw = np.where(np.isfinite(det_yaw), det_yaw, DEFAULT_YAW)
             cost = giou_cost(
-                self._boxes3d(tpos, self.size, self.yaw),
-                self._boxes3d(dets.position, dsize, dyaw),
+                np.column_stack([tpos, self.size, self.yaw]),
+                np.column_stack([dets.position, dsize, dyaw]),
                 near,
             )
             near &= cost <= 1.0 - cfg.min_giou
