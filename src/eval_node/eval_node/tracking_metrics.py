@@ -444,8 +444,10 @@ def _evaluate(
     seqs: list[list[_Frame]],
     iou_threshold: float,
     n_sample_pts: int,
-    hota: bool,
+    hota_parts: list[dict] | None,
 ) -> dict:
+    """CLEAR-MOT figures of ``seqs`` pooled; with ``hota_parts`` (the sequences'
+    :func:`_hota_sequence` components) also the HOTA figures."""
     base = _clear_mot(seqs, None, iou_threshold)
     n_gt = base["n_gt"]
     # devkit getThresholds(scores, num_gt): num_gt = tp + fn with the ignored TPs
@@ -473,8 +475,8 @@ def _evaluate(
     out["amota"] = amota / denom if n_gt else math.nan
     out["amotp"] = amotp / denom if n_gt else math.nan
     out["all_rows"] = {k: v for k, v in base.items() if not k.startswith("_")}
-    if hota:
-        out.update(_hota_summary([_hota_sequence(frames, iou_threshold) for frames in seqs]))
+    if hota_parts is not None:
+        out.update(_hota_summary(hota_parts))
     return out
 
 
@@ -544,15 +546,17 @@ def evaluate_tracking_sequences(
         score_mode,
         gt_min_height,
     )
-    # the frames' match caches stay valid across sequences' and the total's score thresholds
+    # the frames' match caches stay valid across sequences' and the total's score thresholds;
+    # HOTA's per-sequence components serve the sequences and the total
+    parts = [_hota_sequence(s, iou_threshold) for s in seqs] if hota else None
     per = {
-        n: _evaluate([s], iou_threshold, n_sample_pts, hota)
-        for n, s in zip(names, seqs, strict=False)
+        n: _evaluate([s], iou_threshold, n_sample_pts, None if parts is None else [parts[i]])
+        for i, (n, s) in enumerate(zip(names, seqs, strict=False))
     }
     if len(seqs) == 1:  # the total is that sequence's evaluation
         total = copy.deepcopy(per[names[0]])
     else:
-        total = _evaluate(seqs, iou_threshold, n_sample_pts, hota)
+        total = _evaluate(seqs, iou_threshold, n_sample_pts, parts)
     return {"per_sequence": per, "total": total}
 
 
