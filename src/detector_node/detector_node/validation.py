@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from kitti_player_node.box2d import overlap_over_first
 
 from .boxes import iou_matrix
 
@@ -37,26 +38,6 @@ class ApResult:
     confusion: np.ndarray
 
 
-def _ioa(det: np.ndarray, regions: np.ndarray) -> np.ndarray:
-    """Intersection over the detection's area, (N, M)."""
-    if not len(det) or not len(regions):
-        return np.zeros((len(det), len(regions)))
-    ix = np.clip(
-        np.minimum(det[:, None, 2], regions[None, :, 2])
-        - np.maximum(det[:, None, 0], regions[None, :, 0]),
-        0,
-        None,
-    )
-    iy = np.clip(
-        np.minimum(det[:, None, 3], regions[None, :, 3])
-        - np.maximum(det[:, None, 1], regions[None, :, 1]),
-        0,
-        None,
-    )
-    area = np.maximum((det[:, 2] - det[:, 0]) * (det[:, 3] - det[:, 1]), 1e-9)
-    return ix * iy / area[:, None]
-
-
 def evaluate_frames(frames: list[FrameResult], iou_threshold: float = 0.5) -> ApResult:
     """Greedy matching per frame by descending score, then AP over all frames."""
     records = []  # (score, tp, ignored)
@@ -66,7 +47,7 @@ def evaluate_frames(frames: list[FrameResult], iou_threshold: float = 0.5) -> Ap
         num_gt += len(f.gt_boxes)
         order = np.argsort(-f.det_scores, kind="stable")
         ious = iou_matrix(f.det_boxes, f.gt_boxes) if len(f.gt_boxes) else np.zeros((len(order), 0))
-        ioa = _ioa(np.asarray(f.det_boxes).reshape(-1, 4), np.asarray(f.dontcare).reshape(-1, 4))
+        ioa = overlap_over_first(f.det_boxes, f.dontcare)
         taken = np.zeros(len(f.gt_boxes), bool)
         for i in order:
             best, best_iou = -1, iou_threshold

@@ -34,6 +34,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from detector_node.orientation import alpha_to_bin
+from kitti_player_node.box2d import iou_2d as box_iou_2d
+from kitti_player_node.box2d import overlap_over_first as box_overlap_over_first
 from kitti_player_node.kitti import KittiObject
 from scipy.optimize import linear_sum_assignment
 
@@ -61,37 +63,6 @@ def centres_of_mass(objects: Iterable[KittiObject]) -> np.ndarray:
     """3D box centres (N, 3) in camera-0 coordinates (bottom centre lifted by h/2)."""
     arr = np.array([o.centre_of_mass for o in objects], dtype=float)
     return arr.reshape(-1, 3)
-
-
-def _intersection_2d(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    iw = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0])
-    ih = np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1])
-    return np.clip(iw, 0.0, None) * np.clip(ih, 0.0, None)
-
-
-def _area_2d(a: np.ndarray) -> np.ndarray:
-    return np.clip(a[:, 2] - a[:, 0], 0.0, None) * np.clip(a[:, 3] - a[:, 1], 0.0, None)
-
-
-def box_iou_2d(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pairwise IoU (N, M) of 2D boxes ``(x1, y1, x2, y2)`` (continuous pixel coordinates)."""
-    a = np.asarray(a, dtype=float).reshape(-1, 4)
-    b = np.asarray(b, dtype=float).reshape(-1, 4)
-    inter = _intersection_2d(a, b)
-    union = _area_2d(a)[:, None] + _area_2d(b)[None, :] - inter
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(union > 0.0, inter / union, 0.0)
-
-
-def box_overlap_over_first(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pairwise intersection over the area of the *first* box (N, M): the devkits' DontCare
-    criterion (a prediction lies in a DontCare region when this exceeds 0.5)."""
-    a = np.asarray(a, dtype=float).reshape(-1, 4)
-    b = np.asarray(b, dtype=float).reshape(-1, 4)
-    inter = _intersection_2d(a, b)
-    area = _area_2d(a)[:, None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(area > 0.0, inter / area, 0.0)
 
 
 def centre_distances(pred: Iterable[KittiObject], gt: Iterable[KittiObject]) -> np.ndarray:

@@ -11,21 +11,6 @@ import numpy as np
 from kitti_player_node.box3d import giou_3d as box3d_giou
 
 
-def iou_2d(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pairwise IoU of boxes ``a`` (N, 4) and ``b`` (M, 4), (x1, y1, x2, y2) -> (N, M)."""
-    a = np.asarray(a, float)[:, None, :]
-    b = np.asarray(b, float)[None, :, :]
-    iw = np.clip(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0, None)
-    ih = np.clip(np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1]), 0, None)
-    inter = iw * ih
-    area_a = (a[..., 2] - a[..., 0]) * (a[..., 3] - a[..., 1])
-    area_b = (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1])
-    union = area_a + area_b - inter
-    with np.errstate(invalid="ignore", divide="ignore"):
-        iou = np.where(union > 0, inter / union, 0.0)
-    return np.nan_to_num(iou)
-
-
 def shape_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pairwise shape similarity ``exp(-(|w_a - w_b| / (w_a + w_b) + |h_a - h_b| / (h_a + h_b)))``
     of 2D boxes (N, 4) and (M, 4): 1 for equal sizes."""
