@@ -27,9 +27,9 @@ import torch
 from detector_node.dataset import frames_from_source
 from detector_node.inference import CnnDetector
 from detector_node.model import YoloV2Passthrough, preset
-from detector_node.orientation import BIN_CENTRES_DEG, alpha_to_bin
 from detector_node.validation import FrameResult, evaluate_frames
-from kitti_player_node.kitti import KittiObject, read_png
+from vehicle_common.kitti import KittiObject, read_png
+from vehicle_common.orientation_bins import BIN_CENTRES_DEG, alpha_to_bin
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED_0005 = REPO.parent / "shared" / "kitti" / "tracking" / "training"

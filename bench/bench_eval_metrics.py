@@ -34,7 +34,7 @@ def timed(fn, *args, **kwargs):
 def main() -> int:
     from eval_node.detection_metrics import detection_ap_2d, localisation_ap
     from eval_node.tracking_metrics import evaluate_tracking_dirs
-    from kitti_player_node.kitti import read_tracking_labels
+    from vehicle_common.kitti import read_tracking_labels
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seqs", default="1,6,8,10,12,13")

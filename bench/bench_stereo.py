@@ -21,8 +21,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from detector_node.orientation import alpha_to_bin
-from kitti_player_node.kitti import TrackingSequence, read_png
 from stereo_depth_node.disparity import (
     DisparityParams,
     compute_disparity,
@@ -31,6 +29,8 @@ from stereo_depth_node.disparity import (
 )
 from stereo_depth_node.ranging import RangingParams, range_boxes
 from stereo_depth_node.reprojection import StereoGeometry
+from vehicle_common.kitti import TrackingSequence, read_png
+from vehicle_common.orientation_bins import alpha_to_bin
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "kitti"
 STEREO = SHARED / "stereo_2015" / "training"

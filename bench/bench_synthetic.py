@@ -17,8 +17,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from kitti_player_node.kitti import TrackingSequence, write_png
 from kitti_player_node.synthetic import generate_sequence
+from vehicle_common.kitti import TrackingSequence, write_png
 
 
 def main() -> None:

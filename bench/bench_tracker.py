@@ -171,7 +171,7 @@ def cmd_speed(args) -> None:
 
 
 def cmd_sim(args) -> None:
-    from kitti_player_node.kitti import read_calib, read_tracking_labels
+    from vehicle_common.kitti import read_calib, read_tracking_labels
 
     rng = np.random.default_rng(0)
     sigma_d, drop = args.sigma_d, args.drop

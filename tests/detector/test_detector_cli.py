@@ -68,7 +68,7 @@ def test_object_layout_source_and_dontcare(tmp_path):
 
     import numpy as np
     from detector_node.dataset import frames_from_source, load_sample
-    from kitti_player_node.kitti import KittiObject, write_object_labels, write_png
+    from vehicle_common.kitti import KittiObject, write_object_labels, write_png
 
     img = np.zeros((375, 1242, 3), np.uint8)
     write_png(tmp_path / "image_2" / "000007.png", img)

@@ -15,8 +15,8 @@ from detector_node.dataset import Sample, flip_sample
 from detector_node.inference import decode_output
 from detector_node.loss import detection_loss
 from detector_node.model import YoloV2Passthrough, preset
-from detector_node.orientation import alpha_to_bin, flip_alpha, flip_bin
 from detector_node.validation import FrameResult, evaluate_frames
+from vehicle_common.orientation_bins import alpha_to_bin, flip_alpha, flip_bin
 
 torch.set_num_threads(2)
 

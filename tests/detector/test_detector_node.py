@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 from detector_node.oracle import OracleDetector, StampPairing
-from kitti_player_node.kitti import KittiObject
+from vehicle_common.kitti import KittiObject
 
 
 def _objects():
@@ -101,9 +101,9 @@ def _stamp_ns(h):
 
 
 def test_oracle_backend_republishes_ground_truth(rclpy_context):
-    from kitti_player_node.frame_messages import ground_truth_message, header
-    from kitti_player_node.image_conversion import numpy_to_image
-    from kitti_player_node.kitti import stereo_calibration
+    from vehicle_common.frame_messages import ground_truth_message, header
+    from vehicle_common.image_conversion import numpy_to_image
+    from vehicle_common.kitti import stereo_calibration
 
     calib = stereo_calibration(700.0, 700.0, 620.0, 187.0, 0.54)
     img = np.zeros((375, 1242, 3), np.uint8)
@@ -137,10 +137,10 @@ def test_oracle_backend_republishes_ground_truth(rclpy_context):
 
 def test_cnn_backend_shipped_checkpoint_finds_synthetic_car(rclpy_context, tmp_path):
     from detector_node.boxes import iou_matrix
-    from kitti_player_node.frame_messages import header
-    from kitti_player_node.image_conversion import numpy_to_image
-    from kitti_player_node.kitti import TrackingSequence
     from kitti_player_node.synthetic import generate_sequence
+    from vehicle_common.frame_messages import header
+    from vehicle_common.image_conversion import numpy_to_image
+    from vehicle_common.kitti import TrackingSequence
 
     generate_sequence(tmp_path, "0007", 3, seed=4242)
     seq = TrackingSequence.open(tmp_path, "0007")

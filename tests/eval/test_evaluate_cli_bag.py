@@ -9,8 +9,8 @@ import sys
 
 import numpy as np
 import pytest
-from kitti_player_node.box3d import projected_bbox
-from kitti_player_node.kitti import KittiObject, alpha_from_rotation_y, stereo_calibration
+from vehicle_common.box3d import projected_bbox
+from vehicle_common.kitti import KittiObject, alpha_from_rotation_y, stereo_calibration
 
 CALIB = stereo_calibration(360.0, 360.0, 310.0, 94.0, 0.54, left_offset_x=0.06)
 SIZE = (620, 188)  # image width, height
@@ -44,8 +44,6 @@ def make_messages(track_offset_x: float = 0.0, images: bool = False):
     """(topic, msg, receive time) of a recorded run whose outputs equal the ground truth
     (tracks shifted by ``track_offset_x`` metres along x)."""
     from builtin_interfaces.msg import Time
-    from detector_node.orientation import alpha_to_bin
-    from kitti_player_node.image_conversion import numpy_to_image
     from sensor_msgs.msg import CameraInfo
     from stereo_vehicle_msgs.msg import (
         KittiFrameLabels,
@@ -57,6 +55,8 @@ def make_messages(track_offset_x: float = 0.0, images: bool = False):
         VehicleDetection3DArray,
     )
     from stereo_vehicle_msgs.msg import KittiObject as KittiObjectMsg
+    from vehicle_common.image_conversion import numpy_to_image
+    from vehicle_common.orientation_bins import alpha_to_bin
 
     off = CALIB.left_camera_offset
     out = []
@@ -230,7 +230,7 @@ def test_evaluate_cli_bag_json_and_table(tmp_path):
 
 def test_evaluate_bag_with_label_files(tmp_path):
     from eval_node.bag_evaluation import evaluate_bag
-    from kitti_player_node.kitti import write_tracking_labels
+    from vehicle_common.kitti import write_tracking_labels
 
     labels = tmp_path / "label_02"
     rows = [o for k in range(N_FRAMES) for o in gt_objects(k)]

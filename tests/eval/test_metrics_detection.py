@@ -24,7 +24,7 @@ from eval_node.detection_metrics import (
     precision_recall,
     voc07_ap,
 )
-from kitti_player_node.kitti import KittiObject, read_tracking_labels
+from vehicle_common.kitti import KittiObject, read_tracking_labels
 
 
 def car(

@@ -6,7 +6,7 @@ import math
 
 import pytest
 from eval_node.motion_metrics import jitter, stability, track_velocities, velocity_errors
-from kitti_player_node.kitti import KittiObject, read_tracking_labels
+from vehicle_common.kitti import KittiObject, read_tracking_labels
 
 
 def obj(frame, tid, x=0.0, z=20.0, x1=100.0, h=1.5):

@@ -13,8 +13,8 @@ from eval_node.tracking_metrics import (
     iou_3d,
     match_tracks,
 )
-from kitti_player_node.box3d import projected_bbox
-from kitti_player_node.kitti import (
+from vehicle_common.box3d import projected_bbox
+from vehicle_common.kitti import (
     KittiFormatError,
     KittiObject,
     stereo_calibration,

@@ -7,9 +7,9 @@ import time
 
 import numpy as np
 import pytest
-from kitti_player_node.kitti import KittiObject
+from vehicle_common.kitti import KittiObject
 
-from kitti_player_node import kitti
+from vehicle_common import kitti
 
 N_FRAMES = 5
 

@@ -14,10 +14,10 @@ from kitti_player_node.playback import (
     select_frames,
     snr_enabled,
     stamp_ns,
-    stereo_projections,
 )
+from vehicle_common.frame_messages import stereo_projections
 
-from kitti_player_node import kitti
+from vehicle_common import kitti
 
 
 def test_stamps_are_dataset_time():

@@ -8,16 +8,15 @@ from pathlib import Path
 
 import pytest
 from kitti_player_node.bag_replay import (
-    BagError,
     BagMessage,
     iter_bag,
-    open_reader,
     output_types,
     paced,
     parse_remaps,
     parse_topics,
 )
-from kitti_player_node.kitti import KittiFormatError
+from vehicle_common.bag_files import BagError, open_reader
+from vehicle_common.kitti import KittiFormatError
 
 MSG_DIR = Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
 T0 = 1_700_000_000_000_000_000

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from kitti_player_node.kitti import TrackingSequence
 from kitti_player_node.synthetic import (
     KITTI_BASELINE,
     KITTI_CX,
@@ -17,6 +16,7 @@ from kitti_player_node.synthetic import (
     generate_sequence,
     main,
 )
+from vehicle_common.kitti import TrackingSequence
 
 SMALL = {"width": 414, "height": 125}
 

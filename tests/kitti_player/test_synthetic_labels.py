@@ -6,8 +6,6 @@ import math
 
 import numpy as np
 import pytest
-from kitti_player_node.box3d import project_points, projected_bbox
-from kitti_player_node.kitti import TrackingSequence, alpha_from_rotation_y, wrap_angle
 from kitti_player_node.synthetic import build_renderer, generate_sequence, synthetic_calibration
 from kitti_player_node.synthetic_render import VEHICLE_ID0, StereoRenderer
 from kitti_player_node.synthetic_scene import (
@@ -19,6 +17,8 @@ from kitti_player_node.synthetic_scene import (
     VehicleShape,
     random_scene,
 )
+from vehicle_common.box3d import project_points, projected_bbox
+from vehicle_common.kitti import TrackingSequence, alpha_from_rotation_y, wrap_angle
 
 
 @pytest.fixture(scope="module")

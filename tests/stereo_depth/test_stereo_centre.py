@@ -7,9 +7,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from detector_node.orientation import alpha_to_bin
-from kitti_player_node.box3d import box_corners
-from kitti_player_node.kitti import rotation_y_from_alpha
 from stereo_depth_node.disparity import INVALID_DISPARITY
 from stereo_depth_node.ranging import (
     RangingParams,
@@ -18,6 +15,9 @@ from stereo_depth_node.ranging import (
     range_boxes,
 )
 from stereo_depth_node.reprojection import StereoGeometry
+from vehicle_common.box3d import box_corners
+from vehicle_common.kitti import rotation_y_from_alpha
+from vehicle_common.orientation_bins import alpha_to_bin
 
 GEO = StereoGeometry(721.5377, 721.5377, 609.5593, 172.854, 0.5371)
 FB = GEO.fx * GEO.baseline

@@ -118,7 +118,7 @@ def test_reprojection_gives_kitti_depth():
 
 
 def test_geometry_from_camera_infos_builds_q():
-    from kitti_player_node.image_conversion import camera_info_from_projection
+    from vehicle_common.image_conversion import camera_info_from_projection
 
     K = np.array([[700.0, 0, 600], [0, 710.0, 180], [0, 0, 1]])
     Pl = np.hstack([K, np.zeros((3, 1))])

@@ -10,13 +10,13 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from kitti_player_node.image_conversion import (  # noqa: E402
-    camera_info_from_projection,
-    numpy_to_image,
-)
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from stereo_depth_node.ranging import RangingParams, bin_centre_offsets  # noqa: E402
+from vehicle_common.image_conversion import (  # noqa: E402
+    camera_info_from_projection,
+    numpy_to_image,
+)
 
 FX, B, DISP = 700.0, 0.5, 20
 H, W = 120, 320
@@ -31,13 +31,13 @@ def textured_pair():
 class Harness:
     def __init__(self, ctx, **params):
         from sensor_msgs.msg import CameraInfo, Image
-        from stereo_depth_node.node import create_node
+        from stereo_depth_node.node import StereoDepthNode
         from stereo_msgs.msg import DisparityImage
         from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
 
         overrides = [Parameter("num_disparities", value=48)]
         overrides += [Parameter(k, value=v) for k, v in params.items()]
-        self.node = create_node(context=ctx, parameter_overrides=overrides)
+        self.node = StereoDepthNode(context=ctx, parameter_overrides=overrides)
         self.io = __import__("rclpy").create_node("stereo_depth_test_io", context=ctx)
         self.executor = SingleThreadedExecutor(context=ctx)
         self.executor.add_node(self.node)
@@ -230,9 +230,9 @@ def test_geometry_is_built_once_per_calibration_and_a_bad_one_skips_frames(harne
 
 
 def test_parameters_accept_yaml_integers_and_reach_the_core(rclpy_context):
-    from stereo_depth_node.node import create_node
+    from stereo_depth_node.node import StereoDepthNode
 
-    node = create_node(
+    node = StereoDepthNode(
         context=rclpy_context,
         parameter_overrides=[
             Parameter("p1_factor", value=6),
@@ -248,7 +248,7 @@ def test_parameters_accept_yaml_integers_and_reach_the_core(rclpy_context):
     finally:
         node.destroy_node()
     with pytest.raises(ValueError):
-        create_node(context=rclpy_context, parameter_overrides=[Parameter("mode", value="x")])
+        StereoDepthNode(context=rclpy_context, parameter_overrides=[Parameter("mode", value="x")])
 
 
 def test_point_cloud_is_published_when_enabled(rclpy_context):
@@ -273,10 +273,10 @@ def test_point_cloud_is_published_when_enabled(rclpy_context):
 
 def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_tracking_root):
     """offline == node: the node's 3D detections equal range_boxes on compute_disparity."""
-    from kitti_player_node.kitti import TrackingSequence
     from stereo_depth_node.disparity import DisparityParams, compute_disparity
     from stereo_depth_node.ranging import RangingParams, range_boxes
     from stereo_depth_node.reprojection import StereoGeometry
+    from vehicle_common.kitti import TrackingSequence
 
     seq = TrackingSequence.open(kitti_tracking_root, "0005")
     left, right = seq.read_stereo(0)

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from detector_node.orientation import alpha_to_bin as bin_from_alpha
-from kitti_player_node.box3d import box_corners
 from tracker_node.config import TrackerConfig, TrackerConfigError
 from tracker_node.kalman import BatchedKalmanFilter, filterpy_reference, process_noise, transition
 from tracker_node.orientation import align_to, heading_from_velocity, yaw_from_bin
 from tracker_node.overlap import giou_3d
 from tracker_node.particle import BatchedParticleFilter
 from tracker_node.tracker import COASTING, CONFIRMED, TENTATIVE, DetectionBatch, Tracker
+from vehicle_common.box3d import box_corners
+from vehicle_common.orientation_bins import alpha_to_bin as bin_from_alpha
 
 
 def test_kalman_matches_filterpy_reference():
@@ -130,7 +130,7 @@ def test_yaw_geometry_matches_box_corners():
 
 
 def test_bins_and_yaw_from_labels(shared_kitti):
-    from kitti_player_node.kitti import read_tracking_labels
+    from vehicle_common.kitti import read_tracking_labels
 
     labels = read_tracking_labels(shared_kitti / "tracking/training/label_02/0001.txt")
     n = 0

@@ -24,10 +24,10 @@ def test_node_publishes_one_track_array_per_detection_array(rclpy_context):
         VehicleDetection3D,
         VehicleDetection3DArray,
     )
-    from tracker_node.node import create_node
+    from tracker_node.node import VehicleTrackerNode
     from visualization_msgs.msg import Marker, MarkerArray
 
-    node = create_node(context=rclpy_context)
+    node = VehicleTrackerNode(context=rclpy_context)
     helper = Node("tracker_test_helper", context=rclpy_context)
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     pub = helper.create_publisher(VehicleDetection3DArray, "/vehicles/detections_3d", qos)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from kitti_player_node.kitti import read_tracking_labels
 from tracker_node.offline import main
+from vehicle_common.kitti import read_tracking_labels
 
 
 def _write_dets(path, n_frames=6):

@@ -62,7 +62,7 @@ def _kmeans_once(wh: np.ndarray, k: int, rng: np.random.Generator, iterations: i
 
 def main(argv: list[str] | None = None) -> int:
     """``detector_anchors``: k-means anchors from KITTI training labels."""
-    from kitti_player_node.kitti import KittiFormatError
+    from vehicle_common.kitti import KittiFormatError
 
     from .dataset import add_data_arguments, collect_box_sizes, sources_from_args
 

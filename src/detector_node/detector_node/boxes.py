@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from kitti_player_node.box2d import iou_2d as iou_matrix
+from vehicle_common.box2d import iou_2d as iou_matrix
 
 
 def iou_matrix_torch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Torch version of :func:`kitti_player_node.box2d.iou_2d` (no gradients needed)."""
+    """Torch version of :func:`vehicle_common.box2d.iou_2d` (no gradients needed)."""
     lt = torch.maximum(a[:, None, :2], b[None, :, :2])
     rb = torch.minimum(a[:, None, 2:], b[None, :, 2:])
     wh = (rb - lt).clamp(min=0)

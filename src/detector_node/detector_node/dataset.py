@@ -15,7 +15,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from kitti_player_node.kitti import (
+from vehicle_common.kitti import (
     DONTCARE,
     KittiFormatError,
     KittiObject,
@@ -24,8 +24,7 @@ from kitti_player_node.kitti import (
     list_tracking_sequences,
     read_png,
 )
-
-from .orientation import alpha_to_bin, flip_bin
+from vehicle_common.orientation_bins import alpha_to_bin, flip_bin
 
 
 @dataclass

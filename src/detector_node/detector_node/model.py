@@ -16,8 +16,7 @@ from dataclasses import asdict, dataclass, field
 
 import torch
 from torch import nn
-
-from .orientation import NUM_BINS
+from vehicle_common.orientation_bins import NUM_BINS
 
 #: Stages of the paper's table: (kernel, channels) per conv; a 2x2 max-pool follows stages 1-5.
 #: The output of stage 5 (stride 16) feeds the passthrough.

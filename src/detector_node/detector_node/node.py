@@ -9,78 +9,76 @@ Exactly one VehicleDetection2DArray per left image, with the image's header.
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 
 import rclpy
-from kitti_player_node.frame_messages import kitti_objects_from_message, stamp_ns, xyxy_to_bbox
-from kitti_player_node.image_conversion import ImageConversionError, image_to_rgb
-from kitti_player_node.node_parameters import declare_parameters
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import Image
-from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2D, VehicleDetection2DArray
+from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2DArray
+from vehicle_common.frame_messages import kitti_objects_from_message, stamp_ns
+from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
+from vehicle_common.node_parameters import (
+    EXIT_BAD_PARAMETER,
+    ParameterError,
+    declare_config,
+    param,
+    parameter_error_line,
+)
 
-from .inference import Detection
+from vehicle_common import topics
 
-IMAGE_TOPIC = "/stereo/left/image_rect"
-GT_TOPIC = "/kitti/ground_truth"
-DETECTIONS_TOPIC = "/vehicles/detections_2d"
+from .conversions import detections_message
 
-#: ROS parameters: name -> default.
-PARAMETERS = {
-    "backend": "cnn",
-    "checkpoint": "",
-    "device": "auto",
-    "score_threshold": 0.3,
-    "nms_iou": 0.45,
-    "input_width": 0,
-    "input_height": 0,
-    "num_threads": 2,
-    "vehicle_types": ["Car", "Van"],
-    "oracle_box_noise_px": 0.0,
-    "oracle_score": 1.0,
-    "oracle_drop_probability": 0.0,
-    "oracle_seed": 0,
-    "oracle_max_pending": 10,
-}
+NODE_NAME = "vehicle_detector"
+IMAGE_TOPIC = topics.LEFT_IMAGE
+GT_TOPIC = topics.GROUND_TRUTH
+DETECTIONS_TOPIC = topics.DETECTIONS_2D
 
 
-def detections_message(header, detections: list[Detection]) -> VehicleDetection2DArray:
-    """VehicleDetection2DArray with ``header``: centre/size boxes, ids "0", "1", ..."""
-    msg = VehicleDetection2DArray(header=header)
-    for i, d in enumerate(detections):
-        m = VehicleDetection2D()
-        m.id = str(i)
-        m.class_id = "car"
-        m.score = float(d.score)
-        xyxy_to_bbox(d.box, m.bbox)
-        m.orientation_bin = int(d.orientation_bin)
-        m.orientation_probs = [float(p) for p in d.orientation_probs]
-        msg.detections.append(m)
-    return msg
+@dataclass
+class DetectorParameters:
+    """The node's parameters (ROS names and defaults) with their allowed values."""
+
+    backend: str = param("cnn", choices=("cnn", "oracle"))
+    checkpoint: str = ""  # "" = the shipped tiny checkpoint
+    device: str = "auto"  # auto | cpu | cuda | cuda:N
+    score_threshold: float = param(0.3, low=0.0, high=1.0)
+    nms_iou: float = param(0.45, low=0.0, high=1.0, low_open=True)
+    # [px] network input; 0 = the checkpoint's; the network's stride is 32
+    input_width: int = param(0, low=0, multiple_of=32)
+    input_height: int = param(0, low=0, multiple_of=32)
+    num_threads: int = param(2, low=1)  # torch CPU threads
+    vehicle_types: list = param(["Car", "Van"])  # oracle: label types republished
+    oracle_box_noise_px: float = param(0.0, low=0.0)
+    oracle_score: float = param(1.0, low=0.0, high=1.0)
+    oracle_drop_probability: float = param(0.0, low=0.0, high=1.0)
+    oracle_seed: int = param(0, low=0)
+    oracle_max_pending: int = param(10, low=1)
 
 
 class VehicleDetectorNode(Node):
     """Thin ROS wrapper around :class:`CnnDetector` / :class:`OracleDetector`."""
 
     def __init__(self, **kwargs) -> None:
-        super().__init__("vehicle_detector", **kwargs)
-        p = declare_parameters(self, PARAMETERS)  # ValueError names a mistyped parameter
-        self.backend = str(p["backend"])
-        types = tuple(p["vehicle_types"])
+        super().__init__(NODE_NAME, **kwargs)
+        self.params = p = declare_config(self, DetectorParameters)
+        self.backend = p.backend
+        types = tuple(p.vehicle_types)
         self.pub = self.create_publisher(VehicleDetection2DArray, DETECTIONS_TOPIC, 10)
         if self.backend == "cnn":
             import torch
 
             from .inference import CnnDetector
 
-            torch.set_num_threads(max(1, int(p["num_threads"])))
+            torch.set_num_threads(p.num_threads)
             self.cnn = CnnDetector.from_checkpoint(
-                str(p["checkpoint"]),
-                str(p["device"]),
-                float(p["score_threshold"]),
-                float(p["nms_iou"]),
-                int(p["input_width"]),
-                int(p["input_height"]),
+                p.checkpoint,
+                p.device,
+                p.score_threshold,
+                p.nms_iou,
+                p.input_width,
+                p.input_height,
             )
             c = self.cnn.config
             self.get_logger().info(
@@ -92,18 +90,16 @@ class VehicleDetectorNode(Node):
 
             self.oracle = OracleDetector(
                 positive_types=types,
-                box_noise_px=float(p["oracle_box_noise_px"]),
-                score=float(p["oracle_score"]),
-                drop_probability=float(p["oracle_drop_probability"]),
-                seed=int(p["oracle_seed"]),
+                box_noise_px=p.oracle_box_noise_px,
+                score=p.oracle_score,
+                drop_probability=p.oracle_drop_probability,
+                seed=p.oracle_seed,
             )
-            self.pairing = StampPairing(max_pending=int(p["oracle_max_pending"]))
+            self.pairing = StampPairing(max_pending=p.oracle_max_pending)
             self.create_subscription(KittiFrameLabels, GT_TOPIC, self._on_labels, 10)
             self.get_logger().warning(
                 "ORACLE backend: publishing ground-truth boxes as detections (ablation only)"
             )
-        else:
-            raise ValueError(f"parameter backend: expected 'cnn' or 'oracle', got {self.backend!r}")
         self.create_subscription(Image, IMAGE_TOPIC, self._on_image, 5)
 
     def _on_image(self, msg: Image) -> None:
@@ -142,10 +138,10 @@ def main(args: list[str] | None = None) -> int:
     rclpy.init(args=args if args is not None else sys.argv)
     try:
         node = VehicleDetectorNode()
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except ParameterError as exc:
+        print(parameter_error_line(NODE_NAME, exc), file=sys.stderr)
         rclpy.try_shutdown()
-        return 2
+        return EXIT_BAD_PARAMETER
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from kitti_player_node.kitti import KittiObject
+from vehicle_common.kitti import KittiObject
+from vehicle_common.orientation_bins import NUM_BINS, alpha_to_bin
 
 from .inference import Detection
-from .orientation import NUM_BINS, alpha_to_bin
 
 
 @dataclass

@@ -113,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``detector_train``."""
-    from kitti_player_node.kitti import KittiFormatError
+    from vehicle_common.kitti import KittiFormatError
 
     args = build_parser().parse_args(argv)
     try:

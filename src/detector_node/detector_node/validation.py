@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from kitti_player_node.box2d import overlap_over_first
+from vehicle_common.box2d import overlap_over_first
 
 from .boxes import iou_matrix
 

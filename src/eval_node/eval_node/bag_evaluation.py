@@ -26,7 +26,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from kitti_player_node.kitti import KittiObject, read_calib, read_tracking_labels
+from vehicle_common.kitti import KittiObject, read_calib, read_tracking_labels
 
 from eval_node.bag_reader import (
     DET3D_TOPIC,

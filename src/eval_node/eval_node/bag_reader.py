@@ -3,10 +3,10 @@
 :func:`read_run` returns a :class:`RecordedRun`: one :class:`RecordedFrame` per recorded
 ``/kitti/ground_truth`` message (frame index, stamp, camera offset, ground truth) holding the
 2D detections, 3D detections and tracks with the same stamp, converted to
-:class:`kitti_player_node.kitti.KittiObject` in camera-0 coordinates (KITTI label convention):
-``p_cam0 = p_left - left_camera_offset``, centre of mass -> bottom centre ``y + h/2``, size from
-the message or the KITTI mean car, alpha from the orientation bin (folded, so ambiguous by pi)
-or from the track's yaw. The raw 3D detections (left optical frame) are kept too, for re-running
+:class:`vehicle_common.kitti.KittiObject` in camera-0 coordinates (KITTI label convention):
+through :mod:`vehicle_common.camera_frames` (size from the message or the KITTI mean car, alpha
+from the orientation bin (folded, so ambiguous by pi) or from the track's yaw; rows that are not
+finite are dropped). The raw 3D detections (left optical frame) are kept too, for re-running
 the tracker offline. Pure core: rosbags only, no rclpy.
 """
 
@@ -16,23 +16,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from detector_node.orientation import bin_to_alpha
-from kitti_player_node.bag_replay import BagError, open_reader
-from kitti_player_node.frame_messages import bbox_to_xyxy, kitti_objects_from_message, stamp_ns
-from kitti_player_node.kitti import (
-    MEAN_CAR_DIMENSIONS,
-    KittiObject,
-    alpha_from_rotation_y,
-    rotation_y_from_alpha,
-    wrap_angle,
-)
+from vehicle_common.bag_files import BagError, open_reader
+from vehicle_common.camera_frames import kitti_row_from_centre
+from vehicle_common.frame_messages import bbox_to_xyxy, kitti_objects_from_message, stamp_ns
+from vehicle_common.kitti import KittiObject
+from vehicle_common.orientation_bins import bin_to_alpha
 
-GT_TOPIC = "/kitti/ground_truth"
-DET2D_TOPIC = "/vehicles/detections_2d"
-DET3D_TOPIC = "/vehicles/detections_3d"
-TRACKS_TOPIC = "/vehicles/tracks"
-LEFT_IMAGE_TOPIC = "/stereo/left/image_rect"
-LEFT_INFO_TOPIC = "/stereo/left/camera_info"
+from vehicle_common import topics
+
+#: the graph's topics as recorded without a namespace (see :func:`bag_namespace`)
+GT_TOPIC = topics.resolve(topics.GROUND_TRUTH)
+DET2D_TOPIC = topics.resolve(topics.DETECTIONS_2D)
+DET3D_TOPIC = topics.resolve(topics.DETECTIONS_3D)
+TRACKS_TOPIC = topics.resolve(topics.TRACKS)
+LEFT_IMAGE_TOPIC = topics.resolve(topics.LEFT_IMAGE)
+LEFT_INFO_TOPIC = topics.resolve(topics.LEFT_INFO)
 #: Track states reported as tracker output (confirmed and coasting; tentative ones are not).
 OUTPUT_STATES = (1, 2)
 
@@ -70,56 +68,68 @@ class RecordedRun:
     unmatched_stamps: int = 0  # messages whose stamp has no ground-truth frame
 
 
-def det3d_to_object(det, offset: np.ndarray, frame: int) -> KittiObject:
-    """A VehicleDetection3D as a KITTI result row (camera 0, bottom centre, mean car size)."""
-    h, w, length = MEAN_CAR_DIMENSIONS  # message carries no size
-    x, y, z = np.array([det.position.x, det.position.y, det.position.z], dtype=float) - offset
-    alpha = bin_to_alpha(det.orientation_bin)
-    return KittiObject(
-        type="Car",
-        alpha=alpha,
-        bbox=bbox_to_xyxy(det.bbox),
-        dimensions=(h, w, length),
-        location=(float(x), float(y + h / 2.0), float(z)),
-        rotation_y=rotation_y_from_alpha(alpha, x, z),
+def det3d_to_object(det, offset: np.ndarray, frame: int) -> KittiObject | None:
+    """A VehicleDetection3D as a KITTI result row (camera 0, bottom centre, mean car size: the
+    message carries no size; alpha from the orientation bin); None when not finite."""
+    return kitti_row_from_centre(
+        (det.position.x, det.position.y, det.position.z),
+        None,
+        bbox_to_xyxy(det.bbox),
+        offset,
+        alpha=bin_to_alpha(det.orientation_bin),
         frame=frame,
         score=float(det.score),
     )
 
 
-def _track_object(v, offset: np.ndarray, frame: int) -> KittiObject:
-    length, w, h = float(v.size.x), float(v.size.y), float(v.size.z)
-    if not (length > 0 and w > 0 and h > 0):
-        h, w, length = MEAN_CAR_DIMENSIONS  # message carries no size
-    x, y, z = np.array([v.position.x, v.position.y, v.position.z], dtype=float) - offset
-    yaw = wrap_angle(float(v.yaw))
-    return KittiObject(
-        type="Car",
-        alpha=alpha_from_rotation_y(yaw, x, z),
-        bbox=bbox_to_xyxy(v.bbox),
-        dimensions=(h, w, length),
-        location=(float(x), float(y + h / 2.0), float(z)),
-        rotation_y=yaw,
+def _track_object(v, offset: np.ndarray, frame: int) -> KittiObject | None:
+    """A TrackedVehicle as a KITTI result row (mean car size when it has none); None when not
+    finite."""
+    return kitti_row_from_centre(
+        (v.position.x, v.position.y, v.position.z),
+        (v.size.x, v.size.y, v.size.z),
+        bbox_to_xyxy(v.bbox),
+        offset,
+        yaw=float(v.yaw),
         frame=frame,
         track_id=int(v.track_id),
         score=float(v.confidence),
     )
 
 
+def bag_namespace(topic_names) -> str:
+    """The namespace the recorded graph ran in, from a bag's topic names: the one in which
+    ``kitti/ground_truth`` (else ``vehicles/tracks``) appears; ``""`` when none or ambiguous."""
+    for topic in (topics.GROUND_TRUTH, topics.TRACKS):
+        ns = topics.namespace_of(topic_names, topic)
+        if ns is not None:
+            return ns
+    return ""
+
+
 def read_run(
     path: str | Path,
     track_states: tuple[int, ...] = OUTPUT_STATES,
     progress: bool = False,
+    namespace: str | None = None,
 ) -> RecordedRun:
     """Read a recorded run. Frames come from ``/kitti/ground_truth``; without it, every stamp
     of the pipeline's topics becomes a frame (index in stamp order, no ground truth).
-    Tracks whose state is not in ``track_states`` are dropped."""
+    Tracks whose state is not in ``track_states`` are dropped. ``namespace``: the namespace
+    the graph ran in (``/rig2``); None: detected from the bag's topics (:func:`bag_namespace`)."""
     reader = open_reader(path)
-    wanted = {GT_TOPIC, DET2D_TOPIC, DET3D_TOPIC, TRACKS_TOPIC, LEFT_INFO_TOPIC}
-    topics = {c.topic: c.msgcount for c in reader.connections}
+    counts = {c.topic: c.msgcount for c in reader.connections}
+    if namespace is None:
+        namespace = bag_namespace(counts)
+    name = {
+        t: topics.resolve(t.lstrip("/"), namespace)
+        for t in (GT_TOPIC, DET2D_TOPIC, DET3D_TOPIC, TRACKS_TOPIC, LEFT_INFO_TOPIC)
+    }
+    recorded = {v: k for k, v in name.items()}  # namespaced name -> the name used below
+    wanted = set(name.values())
     conns = [c for c in reader.connections if c.topic in wanted]
     gts: dict[int, object] = {}
-    msgs: dict[str, dict[int, tuple[object, int]]] = {t: {} for t in wanted}
+    msgs: dict[str, dict[int, tuple[object, int]]] = {t: {} for t in name}
     P_left, image_size, info_seen = None, None, None
     if not conns:
         reader.close()
@@ -136,13 +146,14 @@ def read_run(
                 msg = reader.deserialize(raw, conn.msgtype)
             except Exception as exc:
                 raise BagReadError(f"{path}: {conn.topic}: cannot deserialise ({exc})") from None
-            if conn.topic == LEFT_INFO_TOPIC:
+            topic = recorded[conn.topic]
+            if topic == LEFT_INFO_TOPIC:
                 info_seen = msg
                 continue
             stamp = stamp_ns(msg.header)
-            if conn.topic == GT_TOPIC:
+            if topic == GT_TOPIC:
                 gts[stamp] = msg
-            msgs[conn.topic][stamp] = (msg, int(t_ns))
+            msgs[topic][stamp] = (msg, int(t_ns))
     finally:
         reader.close()
 
@@ -189,12 +200,16 @@ def read_run(
                     )
             elif topic == DET3D_TOPIC:
                 f.det3d_msg = m
-                f.det3d = [det3d_to_object(d, f.offset, f.frame) for d in m.detections]
+                rows = (det3d_to_object(d, f.offset, f.frame) for d in m.detections)
+                f.det3d = [r for r in rows if r is not None]
             else:
                 for v in m.vehicles:
                     if int(v.state) not in track_states:
                         continue
-                    f.tracks.append(_track_object(v, f.offset, f.frame))
+                    row = _track_object(v, f.offset, f.frame)
+                    if row is None:
+                        continue
+                    f.tracks.append(row)
                     f.track_velocities.append(
                         np.array([v.velocity.x, v.velocity.y, v.velocity.z], dtype=float)
                     )
@@ -203,21 +218,27 @@ def read_run(
         path=Path(path),
         sequence=sequence,
         frames=ordered,
-        topics=topics,
+        topics=counts,
         P_left=P_left,
         image_size=image_size,
         unmatched_stamps=unmatched,
     )
 
 
-def read_left_images(path: str | Path, stamps: set[int] | None = None) -> dict[int, np.ndarray]:
-    """Left images of a bag as RGB arrays, keyed by stamp [ns] (only ``stamps`` when given)."""
-    from kitti_player_node.image_conversion import image_to_rgb
+def read_left_images(
+    path: str | Path, stamps: set[int] | None = None, namespace: str | None = None
+) -> dict[int, np.ndarray]:
+    """Left images of a bag as RGB arrays, keyed by stamp [ns] (only ``stamps`` when given;
+    ``namespace`` as in :func:`read_run`)."""
+    from vehicle_common.image_conversion import image_to_rgb
 
     reader = open_reader(path)
     out: dict[int, np.ndarray] = {}
     try:
-        conns = [c for c in reader.connections if c.topic == LEFT_IMAGE_TOPIC]
+        if namespace is None:
+            namespace = bag_namespace([c.topic for c in reader.connections])
+        left = topics.resolve(topics.LEFT_IMAGE, namespace)
+        conns = [c for c in reader.connections if c.topic == left]
         if not conns:  # (rosbags reads every connection when given none)
             return out
         for conn, _t, raw in reader.messages(connections=conns):

@@ -15,7 +15,7 @@ import math
 import sys
 from pathlib import Path
 
-from kitti_player_node.kitti import KittiFormatError
+from vehicle_common.kitti import KittiFormatError
 
 
 def _jsonable(obj):
@@ -82,6 +82,10 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--no-filters", action="store_true", help="skip the filter comparison")
     b.add_argument("--tracker-params", help="ROS params file for the re-run tracker")
     b.add_argument("--no-progress", action="store_true", help="no progress bars")
+    b.add_argument(
+        "--namespace",
+        help="namespace the graph ran in, e.g. /rig2 (default: detected from the bag's topics)",
+    )
     return p
 
 
@@ -111,10 +115,10 @@ def _run_bag(args) -> int:
         try:
             config = TrackerConfig.from_yaml(args.tracker_params)
         except (OSError, TrackerConfigError) as exc:
-            raise KittiFormatError(f"{args.tracker_params}: {exc}") from None
+            raise KittiFormatError(str(exc)) from None
     if args.calib and not Path(args.calib).is_dir():
         raise KittiFormatError(f"{args.calib}: calib folder not found")
-    run = read_run(args.bag, progress=not args.no_progress)
+    run = read_run(args.bag, progress=not args.no_progress, namespace=args.namespace)
     res = evaluate_bag(
         args.bag,
         run=run,

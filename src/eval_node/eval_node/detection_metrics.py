@@ -33,11 +33,11 @@ from collections.abc import Hashable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-from detector_node.orientation import alpha_to_bin
-from kitti_player_node.box2d import iou_2d as box_iou_2d
-from kitti_player_node.box2d import overlap_over_first as box_overlap_over_first
-from kitti_player_node.kitti import KittiObject
 from scipy.optimize import linear_sum_assignment
+from vehicle_common.box2d import iou_2d as box_iou_2d
+from vehicle_common.box2d import overlap_over_first as box_overlap_over_first
+from vehicle_common.kitti import KittiObject
+from vehicle_common.orientation_bins import alpha_to_bin
 
 from eval_node.difficulty import DIFFICULTIES, Difficulty, class_status, gt_within_difficulty
 

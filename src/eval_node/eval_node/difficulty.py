@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from kitti_player_node.kitti import KittiObject
+from vehicle_common.kitti import KittiObject
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,8 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from kitti_player_node.kitti import KittiObject, alpha_from_rotation_y, wrap_angle
+from vehicle_common.camera_frames import kitti_row_from_centre
+from vehicle_common.kitti import KittiObject
 
 from eval_node.bag_reader import OUTPUT_STATES, RecordedRun
 from eval_node.detection_metrics import precision_recall
@@ -21,38 +22,32 @@ LEVELS = ("easy", "moderate", "hard")
 
 def trackset_to_objects(tracks, offset: np.ndarray, frame: int, mean_hwl) -> list[KittiObject]:
     """A tracker TrackSet (left optical frame, centres) as KITTI result rows (camera 0, bottom
-    centre); tentative tracks are dropped."""
+    centre, :mod:`vehicle_common.camera_frames`); tentative tracks and rows that are not finite
+    are dropped."""
     out = []
     for i in range(len(tracks)):
         if int(tracks.state[i]) not in OUTPUT_STATES:
             continue
-        length, w, h = (float(v) for v in tracks.size[i])
-        if not (np.isfinite([length, w, h]).all() and min(length, w, h) > 0):
-            h, w, length = mean_hwl
-        x, y, z = np.asarray(tracks.position[i], float) - offset
-        yaw = float(tracks.yaw[i]) if np.isfinite(tracks.yaw[i]) else -np.pi / 2
-        yaw = wrap_angle(yaw)
-        bbox = tuple(float(v) for v in tracks.bbox[i])
-        out.append(
-            KittiObject(
-                type="Car",
-                alpha=alpha_from_rotation_y(yaw, x, z),
-                bbox=bbox if np.isfinite(bbox).all() else (0.0, 0.0, 0.0, 0.0),
-                dimensions=(h, w, length),
-                location=(float(x), float(y + h / 2.0), float(z)),
-                rotation_y=yaw,
-                frame=frame,
-                track_id=int(tracks.track_id[i]),
-                score=float(np.clip(tracks.score[i], 0.0, 1.0)),  # as vehicle_tracker publishes
-            )
+        row = kitti_row_from_centre(
+            tracks.position[i],
+            tracks.size[i],
+            tracks.bbox[i],
+            offset,
+            yaw=float(tracks.yaw[i]),
+            frame=frame,
+            track_id=int(tracks.track_id[i]),
+            score=float(np.clip(tracks.score[i], 0.0, 1.0)),  # as vehicle_tracker publishes
+            mean_hwl=mean_hwl,
         )
+        if row is not None:
+            out.append(row)
     return out
 
 
 def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, list[KittiObject]]:
     """Track the run's recorded 3D detections with ``config`` (a TrackerConfig):
     ``{frame: [KittiObject...]}`` of the reported (confirmed/coasting) tracks."""
-    from tracker_node.node import detections_from_msg
+    from tracker_node.conversions import detections_from_msg
     from tracker_node.tracker import DetectionBatch, Tracker
 
     tracker = Tracker(config)

@@ -17,7 +17,7 @@ import math
 from collections.abc import Iterable, Mapping
 
 import numpy as np
-from kitti_player_node.kitti import KittiObject
+from vehicle_common.kitti import KittiObject
 
 from eval_node.difficulty import class_status
 from eval_node.tracking_metrics import match_tracks

@@ -5,7 +5,8 @@ types are discovered from the ROS graph every ``discovery_period`` seconds (a to
 publisher appears late is picked up) unless given as ``topic:pkg/msg/Type``. Every message is
 written with its receive time (ns, as rosbag2 does) through :class:`eval_node.bag_writer.BagWriter`.
 SIGINT/SIGTERM stop the node cleanly: pending messages are taken and written, the bag is closed
-and the message count of each topic is logged.
+and the message count of each topic is logged. Topic names are relative: they are resolved in
+the node's namespace and recorded under their resolved names (``/rig2/vehicles/tracks``).
 """
 
 from __future__ import annotations
@@ -14,28 +15,62 @@ import importlib
 import signal
 import sys
 import time
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
+
+import rclpy
+import rclpy.executors
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from vehicle_common.node_parameters import (
+    EXIT_BAD_PARAMETER,
+    ParameterError,
+    declare_config,
+    param,
+    parameter_error_line,
+)
+
+from eval_node.bag_writer import COMPRESSION_MODES, BagWriter, BagWriterError
+from vehicle_common import topics as graph_topics
+
+NODE_NAME = "bag_recorder"
 
 #: The pipeline's topics (docs/ARCHITECTURE.md) recorded by default. Their types are given so
 #: that the recorder subscribes at start-up (before any publisher exists) and misses nothing.
 PIPELINE_TOPICS = [
-    "/stereo/left/camera_info:sensor_msgs/msg/CameraInfo",
-    "/stereo/right/camera_info:sensor_msgs/msg/CameraInfo",
-    "/kitti/ground_truth:stereo_vehicle_msgs/msg/KittiFrameLabels",
-    "/clock:rosgraph_msgs/msg/Clock",
-    "/vehicles/detections_2d:stereo_vehicle_msgs/msg/VehicleDetection2DArray",
-    "/vehicles/detections_3d:stereo_vehicle_msgs/msg/VehicleDetection3DArray",
-    "/vehicles/tracks:stereo_vehicle_msgs/msg/TrackedVehicleArray",
-    "/vehicles/track_markers:visualization_msgs/msg/MarkerArray",
+    f"{graph_topics.LEFT_INFO}:sensor_msgs/msg/CameraInfo",
+    f"{graph_topics.RIGHT_INFO}:sensor_msgs/msg/CameraInfo",
+    f"{graph_topics.GROUND_TRUTH}:stereo_vehicle_msgs/msg/KittiFrameLabels",
+    f"{graph_topics.CLOCK}:rosgraph_msgs/msg/Clock",
+    f"{graph_topics.DETECTIONS_2D}:stereo_vehicle_msgs/msg/VehicleDetection2DArray",
+    f"{graph_topics.DETECTIONS_3D}:stereo_vehicle_msgs/msg/VehicleDetection3DArray",
+    f"{graph_topics.TRACKS}:stereo_vehicle_msgs/msg/TrackedVehicleArray",
+    f"{graph_topics.TRACK_MARKERS}:visualization_msgs/msg/MarkerArray",
 ]
 #: Large image-like topics, recorded only with ``include_images``.
 IMAGE_TOPICS = [
-    "/stereo/left/image_rect:sensor_msgs/msg/Image",
-    "/stereo/right/image_rect:sensor_msgs/msg/Image",
-    "/stereo/disparity:stereo_msgs/msg/DisparityImage",
-    "/stereo/points:sensor_msgs/msg/PointCloud2",
+    f"{graph_topics.LEFT_IMAGE}:sensor_msgs/msg/Image",
+    f"{graph_topics.RIGHT_IMAGE}:sensor_msgs/msg/Image",
+    f"{graph_topics.DISPARITY}:stereo_msgs/msg/DisparityImage",
+    f"{graph_topics.POINTS}:sensor_msgs/msg/PointCloud2",
 ]
+
+
+@dataclass
+class RecorderParameters:
+    """The node's parameters (ROS names and defaults) with their allowed values."""
+
+    output: str = ""  # "" = output/bags/run_<time>
+    topics: list = param(PIPELINE_TOPICS)  # "topic" or "topic:pkg/msg/Type"
+    include_images: bool = False
+    compression: str = param("none", choices=("none", "zstd"))
+    compression_mode: str = param("storage", choices=tuple(COMPRESSION_MODES))
+    max_bag_size: int = param(0, low=0)  # bytes per .mcap file; 0 = no splitting
+    qos_depth: int = param(100, low=1)
+    discovery_period: float = param(0.5, low=0.0, low_open=True)  # [s]
+    flush_period: float = param(1.0, low=0.0, low_open=True)  # [s]
 
 
 def default_output() -> str:
@@ -44,7 +79,7 @@ def default_output() -> str:
 
 
 def parse_topics(entries: list[str], include_images: bool) -> dict[str, str | None]:
-    """``['/a', '/b:pkg/msg/T']`` -> ``{'/a': None, '/b': 'pkg/msg/T'}`` (None: discover)."""
+    """``['a', '/b:pkg/msg/T']`` -> ``{'a': None, '/b': 'pkg/msg/T'}`` (None: discover)."""
     topics: dict[str, str | None] = {}
     for entry in entries:
         entry = entry.strip()
@@ -64,74 +99,87 @@ def _message_class(msgtype: str):
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
-def main(args: list[str] | None = None) -> int:
-    """Run the recorder until SIGINT/SIGTERM."""
-    import rclpy
-    import rclpy.executors
-    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from rclpy.signals import SignalHandlerOptions
+class BagRecorderNode(Node):
+    """Raw subscriptions to the wanted topics (resolved in the node's namespace), each message
+    written with its receive time through :class:`BagWriter`; new topics' types are discovered
+    every ``discovery_period`` and the bag is flushed every ``flush_period``."""
 
-    from eval_node.bag_writer import BagWriter, BagWriterError
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        p = declare_config(self, RecorderParameters)
+        self.output = p.output or default_output()
+        self.writer = BagWriter(self.output, p.compression, p.compression_mode, p.max_bag_size)
+        self.wanted = {
+            self.resolve_topic_name(name): msgtype
+            for name, msgtype in parse_topics(p.topics, p.include_images).items()
+        }
+        self.qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=p.qos_depth,
+            reliability=ReliabilityPolicy.RELIABLE,
+        )
+        self.subs = {}
+        self._last_ns = 0
+        self.discover()
+        self.create_timer(p.discovery_period, self.discover)
+        self.create_timer(p.flush_period, self.writer.flush)
+        self.get_logger().info(f"bag {self.output}: waiting for {len(self.wanted)} topics")
 
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node("bag_recorder")
-    log = node.get_logger()
-    output = node.declare_parameter("output", "").value or default_output()
-    entries = list(node.declare_parameter("topics", PIPELINE_TOPICS).value)
-    include_images = bool(node.declare_parameter("include_images", False).value)
-    compression = str(node.declare_parameter("compression", "none").value)
-    compression_mode = str(node.declare_parameter("compression_mode", "storage").value)
-    max_bag_size = int(node.declare_parameter("max_bag_size", 0).value)
-    qos_depth = int(node.declare_parameter("qos_depth", 100).value)
-    discovery_period = float(node.declare_parameter("discovery_period", 0.5).value)
-    flush_period = float(node.declare_parameter("flush_period", 1.0).value)
-
-    try:
-        writer = BagWriter(output, compression, compression_mode, max_bag_size)
-    except (BagWriterError, OSError) as exc:
-        log.error(f"cannot record: {exc}")
-        node.destroy_node()
-        rclpy.try_shutdown()
-        return 2
-
-    wanted = parse_topics(entries, include_images)
-    qos = QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE
-    )
-    subs = {}
-    last_ns = [0]
-
-    def subscribe(topic: str, msgtype: str) -> None:
+    def subscribe(self, topic: str, msgtype: str) -> None:
         try:
             cls = _message_class(msgtype)
-            writer.add_topic(topic, msgtype)
+            self.writer.add_topic(topic, msgtype)
         except (ImportError, AttributeError, ValueError, BagWriterError) as exc:
-            log.warning(f"{topic}: cannot record type {msgtype}: {exc}")
-            wanted.pop(topic, None)
+            self.get_logger().warning(f"{topic}: cannot record type {msgtype}: {exc}")
+            self.wanted.pop(topic, None)
             return
 
         def callback(data: bytes, topic: str = topic) -> None:
-            now = max(time.time_ns(), last_ns[0])
-            last_ns[0] = now
-            writer.write(topic, data, now)
+            now = max(time.time_ns(), self._last_ns)
+            self._last_ns = now
+            self.writer.write(topic, data, now)
 
-        subs[topic] = node.create_subscription(cls, topic, callback, qos, raw=True)
-        log.info(f"recording {topic} [{msgtype}]")
+        self.subs[topic] = self.create_subscription(cls, topic, callback, self.qos, raw=True)
+        self.get_logger().info(f"recording {topic} [{msgtype}]")
 
-    def discover() -> None:
-        pending = [t for t in wanted if t not in subs]
+    def discover(self) -> None:
+        pending = [t for t in self.wanted if t not in self.subs]
         if not pending:
             return
-        graph = dict(node.get_topic_names_and_types())
+        graph = dict(self.get_topic_names_and_types())
         for topic in pending:
-            msgtype = wanted[topic] or (graph.get(topic) or [None])[0]
+            msgtype = self.wanted[topic] or (graph.get(topic) or [None])[0]
             if msgtype:
-                subscribe(topic, msgtype)
+                self.subscribe(topic, msgtype)
 
-    discover()
-    node.create_timer(discovery_period, discover)
-    node.create_timer(flush_period, writer.flush)
-    log.info(f"bag {output}: waiting for {len(wanted)} topics")
+    def message_count(self) -> int:
+        return sum(self.writer.counts.values())
+
+    def close(self) -> None:
+        """Close the bag and log the message count of each topic."""
+        log = self.get_logger()
+        counts = self.writer.close()
+        for topic in self.writer.types:
+            log.info(f"{topic}: {counts.get(topic, 0)} messages")
+        log.info(
+            f"bag {self.output} closed: {sum(counts.values())} messages in "
+            f"{len(self.writer.files)} file(s)"
+        )
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the recorder until SIGINT/SIGTERM; exit code 2 for a bad parameter or output."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        node = BagRecorderNode()
+    except ParameterError as exc:
+        print(parameter_error_line(NODE_NAME, exc), file=sys.stderr)
+        rclpy.try_shutdown()
+        return EXIT_BAD_PARAMETER
+    except (BagWriterError, OSError) as exc:
+        print(f"error: {NODE_NAME}: cannot record: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
 
     stop = []
 
@@ -147,19 +195,14 @@ def main(args: list[str] | None = None) -> int:
             executor.spin_once(timeout_sec=0.1)
         # Drain: take what is still queued in the subscriptions before closing.
         idle_since = time.monotonic()
-        before = sum(writer.counts.values())
+        before = node.message_count()
         while time.monotonic() - idle_since < 0.3:
             executor.spin_once(timeout_sec=0.05)
-            now = sum(writer.counts.values())
+            now = node.message_count()
             if now != before:
                 before, idle_since = now, time.monotonic()
     finally:
-        counts = writer.close()
-        for topic in writer.types:
-            log.info(f"{topic}: {counts.get(topic, 0)} messages")
-        log.info(
-            f"bag {output} closed: {sum(counts.values())} messages in {len(writer.files)} file(s)"
-        )
+        node.close()
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()

@@ -199,7 +199,7 @@ def draw_overlay(image: np.ndarray, gt, preds, P: np.ndarray | None) -> np.ndarr
     """Left image with ground-truth 2D boxes (red) and predictions (green: 2D box, id, projected
     3D box when ``P``, the camera-0-to-left-image matrix, is given)."""
     import cv2
-    from kitti_player_node.box3d import box_corners, box_edges, project_points
+    from vehicle_common.box3d import box_corners, box_edges, project_points
 
     img = np.ascontiguousarray(image.copy())
     for o in gt:
@@ -241,7 +241,7 @@ def write_gif(frames: list[np.ndarray], path: Path, fps: float = 5.0, max_width:
 
 
 def _overlay_frames(res: dict, run, images_dir, max_frames: int) -> list[np.ndarray]:
-    from kitti_player_node.kitti import read_calib, read_png
+    from vehicle_common.kitti import read_calib, read_png
 
     from eval_node.bag_reader import read_left_images
 

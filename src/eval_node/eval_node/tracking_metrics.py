@@ -49,10 +49,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from kitti_player_node.box3d import iou_3d as box3d_iou
-from kitti_player_node.box3d import projected_bbox
-from kitti_player_node.kitti import KittiFormatError, KittiObject, read_calib, read_tracking_labels
 from scipy.optimize import linear_sum_assignment
+from vehicle_common.box3d import iou_3d as box3d_iou
+from vehicle_common.box3d import projected_bbox
+from vehicle_common.kitti import KittiFormatError, KittiObject, read_calib, read_tracking_labels
 
 from eval_node.detection_metrics import (
     box_iou_2d,
@@ -78,7 +78,7 @@ _MAX_COST = 1e9
 
 
 def iou_3d(a: KittiObject, b: KittiObject) -> float:
-    """3D IoU of two KITTI objects (:func:`kitti_player_node.box3d.iou_3d`): 1 for identical
+    """3D IoU of two KITTI objects (:func:`vehicle_common.box3d.iou_3d`): 1 for identical
     boxes, 0 for invalid sizes."""
     return box3d_iou(
         (a.dimensions, a.location, a.rotation_y), (b.dimensions, b.location, b.rotation_y)

@@ -16,9 +16,9 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
+from vehicle_common.bag_files import BagError
 
 from .bag_replay import (
-    BagError,
     BagMessage,
     iter_bag,
     message_class,

@@ -3,7 +3,7 @@ stream of (topic, type name, timestamp, raw CDR bytes) with topic selection and 
 pace it.
 
 Used by the ``bag_player`` node (:mod:`.bag_player`), which publishes the bytes as they are, and
-by the evaluator, which opens recorded runs with :func:`open_reader`.
+by the evaluator; both open bags with :func:`vehicle_common.bag_files.open_reader`.
 """
 
 from __future__ import annotations
@@ -14,11 +14,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from .kitti import KittiFormatError
-
-
-class BagError(KittiFormatError):
-    """The bag cannot be read or an option does not fit it; the message names what."""
+from vehicle_common.bag_files import BagError, open_reader
 
 
 @dataclass(frozen=True)
@@ -47,31 +43,6 @@ def parse_topics(items: Iterable[str]) -> list[str] | None:
     """Comma-separated (and/or repeated) topic lists -> one list, or None for all topics."""
     topics = [t.strip() for item in items for t in item.split(",") if t.strip()]
     return topics or None
-
-
-def open_reader(path: str | Path):
-    """An opened ``rosbags`` AnyReader (the caller closes it) on a rosbag2 bag directory, a
-    folder without ``metadata.yaml`` that holds exactly one ``.mcap``, or a bare ``.mcap`` file.
-    Raises BagError naming the file when the bag is missing or unreadable."""
-    from rosbags.highlevel import AnyReader
-
-    path = Path(path)
-    if not path.exists():
-        raise BagError(f"{path}: bag not found")
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        mcaps = sorted(path.glob("*.mcap"))
-        if len(mcaps) != 1:
-            raise BagError(
-                f"{path}: not a rosbag2 directory (no metadata.yaml and "
-                f"{len(mcaps)} .mcap files instead of one)"
-            )
-        path = mcaps[0]
-    try:
-        reader = AnyReader([path])
-        reader.open()
-    except Exception as exc:  # rosbags raises several unrelated types for corrupt files
-        raise BagError(f"{path}: cannot read bag ({exc})") from None
-    return reader
 
 
 def _check_topics(available: Iterable[str], topics: Iterable[str] | None, path) -> None:

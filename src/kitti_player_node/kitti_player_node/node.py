@@ -7,9 +7,11 @@ decided by :mod:`kitti_player_node.playback`; KITTI files are read through :mod:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
+from dataclasses import dataclass
 
 import rclpy
 from rclpy.duration import Duration
@@ -18,8 +20,7 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, TrackedVehicleArray
-
-from .frame_messages import (
+from vehicle_common.frame_messages import (
     LEFT_FRAME,
     RIGHT_FRAME,
     ground_truth_message,
@@ -27,9 +28,18 @@ from .frame_messages import (
     stamp_ns,
     stereo_camera_infos,
 )
-from .image_conversion import numpy_to_image
-from .kitti import KittiFormatError, TrackingSequence
-from .node_parameters import declare_parameters
+from vehicle_common.image_conversion import numpy_to_image
+from vehicle_common.kitti import KittiFormatError, TrackingSequence
+from vehicle_common.node_parameters import (
+    EXIT_BAD_PARAMETER,
+    ParameterError,
+    declare_config,
+    param,
+    parameter_error_line,
+)
+
+from vehicle_common import topics
+
 from .playback import (
     FrameEvent,
     PlaybackScheduler,
@@ -39,27 +49,33 @@ from .playback import (
     snr_enabled,
 )
 
-PARAMETERS = {
-    "dataset_root": "",
-    "sequence": "0000",
-    "first_frame": 0,
-    "last_frame": -1,
-    "rate": 10.0,
-    "rate_multiplier": 1.0,
-    "loop": False,
-    "lockstep": False,
-    "lockstep_topic": "/vehicles/tracks",
-    "lockstep_timeout": 10.0,
-    "snr_db": 0.0,
-    "drop_probability": 0.0,
-    "seed": 0,
-    "start_time": 1.0,
-    "wait_for_subscribers": 0,
+NODE_NAME = "kitti_player"
+
+
+@dataclass
+class PlayerParameters:
+    """The node's parameters (ROS names and defaults) with their allowed values."""
+
+    dataset_root: str = ""  # KITTI tracking root (image_02, image_03, calib, label_02)
+    sequence: str = "0000"
+    first_frame: int = param(0, low=0)
+    last_frame: int = param(-1, low=-1)  # -1: to the end
+    rate: float = param(10.0, low=0.0, low_open=True)  # [Hz] of dataset time
+    rate_multiplier: float = 1.0  # <= 0: as fast as the graph allows
+    loop: bool = False
+    lockstep: bool = False
+    lockstep_topic: str = topics.TRACKS
+    lockstep_timeout: float = param(10.0, low=0.0, low_open=True)  # [s]
+    snr_db: float = 0.0  # additive Gaussian pixel noise; <= 0 disables
+    drop_probability: float = param(0.0, low=0.0, high=1.0)
+    seed: int = param(0, low=0)
+    start_time: float = param(1.0, low=0.0)  # [s] stamp of frame 0
+    wait_for_subscribers: int = param(0, low=0)  # subscriptions on the left image to wait for
     # "topic:N,topic:N": before the first frame, wait until each published topic has N matched
-    # subscriptions (the process launcher sets it from the graph description)
-    "wait_for_topics": "",
-    "exit_when_done": True,
-}
+    # subscriptions (the process launcher sets it from the graph description); relative topic
+    # names are resolved in the node's namespace
+    wait_for_topics: str = ""
+    exit_when_done: bool = True
 
 
 def parse_topic_counts(spec: str) -> dict[str, int]:
@@ -81,10 +97,10 @@ class KittiPlayerNode(Node):
     """Publishes a KITTI tracking sequence frame by frame (see module docstring)."""
 
     def __init__(self, **kwargs):
-        super().__init__("kitti_player", **kwargs)
-        self.params = p = self._read_parameters()
+        super().__init__(NODE_NAME, **kwargs)
+        self.params = p = dataclasses.asdict(declare_config(self, PlayerParameters))
         if not p["dataset_root"]:
-            raise PlayerError("dataset_root: parameter not set")
+            raise ParameterError("dataset_root", "not set")
         self.sequence = TrackingSequence.open(p["dataset_root"], p["sequence"])
         try:
             frames = select_frames(self.sequence.frame_ids, p["first_frame"], p["last_frame"])
@@ -105,12 +121,12 @@ class KittiPlayerNode(Node):
         except ValueError as exc:
             raise PlayerError(f"drop_probability: {exc}") from None
 
-        self.pub_left = self.create_publisher(Image, "/stereo/left/image_rect", 5)
-        self.pub_right = self.create_publisher(Image, "/stereo/right/image_rect", 5)
-        self.pub_left_info = self.create_publisher(CameraInfo, "/stereo/left/camera_info", 5)
-        self.pub_right_info = self.create_publisher(CameraInfo, "/stereo/right/camera_info", 5)
-        self.pub_gt = self.create_publisher(KittiFrameLabels, "/kitti/ground_truth", 10)
-        self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        self.pub_left = self.create_publisher(Image, topics.LEFT_IMAGE, 5)
+        self.pub_right = self.create_publisher(Image, topics.RIGHT_IMAGE, 5)
+        self.pub_left_info = self.create_publisher(CameraInfo, topics.LEFT_INFO, 5)
+        self.pub_right_info = self.create_publisher(CameraInfo, topics.RIGHT_INFO, 5)
+        self.pub_gt = self.create_publisher(KittiFrameLabels, topics.GROUND_TRUTH, 10)
+        self.pub_clock = self.create_publisher(Clock, topics.CLOCK, 10)
         if p["lockstep"]:
             self.create_subscription(
                 TrackedVehicleArray, p["lockstep_topic"], self._on_lockstep, 10
@@ -120,7 +136,10 @@ class KittiPlayerNode(Node):
         self._started = False
         self._summary_logged = False
         self._last_wait_log = 0.0
-        self._expected = parse_topic_counts(p["wait_for_topics"])
+        self._expected = {
+            self.resolve_topic_name(topic): n
+            for topic, n in parse_topic_counts(p["wait_for_topics"]).items()
+        }
         unknown = set(self._expected) - {pub.topic_name for pub in self.publishers_list}
         if unknown:
             raise PlayerError(f"wait_for_topics: not published by the player: {sorted(unknown)}")
@@ -131,14 +150,6 @@ class KittiPlayerNode(Node):
             f"{'unpaced' if period == 0 else f'{1 / period:.2f} Hz'}"
             f"{', lockstep on ' + p['lockstep_topic'] if p['lockstep'] else ''}"
         )
-
-    def _read_parameters(self) -> dict:
-        """Declare every parameter (dynamically typed, so ``sequence:=0005`` or ``rate:=10``
-        work) and coerce it to its default's type; a value that does not fit is a PlayerError."""
-        try:
-            return declare_parameters(self, PARAMETERS)
-        except ValueError as exc:
-            raise PlayerError(str(exc)) from None
 
     @property
     def publishers_list(self):
@@ -253,6 +264,9 @@ def main(args: list[str] | None = None) -> int:
     try:
         try:
             node = KittiPlayerNode()
+        except ParameterError as exc:
+            print(parameter_error_line(NODE_NAME, exc), file=sys.stderr)
+            return EXIT_BAD_PARAMETER
         except (KittiFormatError, PlayerError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2

@@ -12,8 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kitti import Calibration
-
 #: KITTI tracking sequences are recorded at 10 Hz.
 KITTI_FRAME_PERIOD_S = 0.1
 
@@ -43,16 +41,6 @@ def select_frames(frame_ids: list[int], first_frame: int = 0, last_frame: int = 
             else "sequence has no frames"
         )
     return chosen
-
-
-def stereo_projections(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
-    """ROS-convention projection matrices of the rectified pair in the left optical frame:
-    left ``[K | 0]``, right ``[K | (-fx * B, 0, 0)]`` with ``B = calib.baseline``."""
-    K = calib.K
-    left = np.hstack([K, np.zeros((3, 1))])
-    right = left.copy()
-    right[0, 3] = -calib.fx * calib.baseline
-    return left, right
 
 
 # ----------------------------------------------------------------------------- noise, drops

@@ -24,8 +24,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
-from .kitti import (
+from vehicle_common.kitti import (
     Calibration,
     KittiFormatError,
     stereo_calibration,
@@ -33,6 +32,7 @@ from .kitti import (
     write_png,
     write_tracking_labels,
 )
+
 from .synthetic_render import StereoRenderer
 from .synthetic_scene import random_scene
 

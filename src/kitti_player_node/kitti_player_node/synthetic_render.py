@@ -23,9 +23,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from vehicle_common.box3d import project_points, projected_bbox
+from vehicle_common.kitti import DONTCARE, Calibration, KittiObject, alpha_from_rotation_y
 
-from .box3d import project_points, projected_bbox
-from .kitti import DONTCARE, Calibration, KittiObject, alpha_from_rotation_y
 from .synthetic_scene import (
     BUILDING,
     CAMERA_HEIGHT,

@@ -28,7 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from detector_node.orientation import BIN_WIDTH, NUM_BINS
+from vehicle_common.orientation_bins import BIN_WIDTH, NUM_BINS
 
 from .reprojection import StereoGeometry
 

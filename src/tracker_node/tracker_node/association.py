@@ -8,8 +8,8 @@ Gated-out pairs (cost ``inf``) are never matched.
 from __future__ import annotations
 
 import numpy as np
-from kitti_player_node.box2d import iou_2d
 from scipy.optimize import linear_sum_assignment
+from vehicle_common.box2d import iou_2d
 
 from .kalman import inv3_sym
 from .overlap import giou_3d_matrix, shape_similarity

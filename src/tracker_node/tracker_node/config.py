@@ -1,8 +1,9 @@
 """The tracker's parameters: ONE definition shared by the node and the offline CLI.
 
-The node declares every field of :class:`TrackerConfig` as a ROS parameter with the default
-given here; ``tracker_offline --params FILE.yaml`` reads the same names from the
-``vehicle_tracker: ros__parameters:`` section of a ROS parameter file.
+The node declares every field of :class:`TrackerConfig` as a ROS parameter with the default and
+allowed values given here (:func:`vehicle_common.node_parameters.declare_config`);
+``tracker_offline --params FILE.yaml`` reads the same names from the
+``vehicle_tracker: ros__parameters:`` section of a ROS parameter file, with the same checks.
 """
 
 from __future__ import annotations
@@ -10,7 +11,13 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from kitti_player_node.kitti import MEAN_CAR_DIMENSIONS
+from vehicle_common.kitti import MEAN_CAR_DIMENSIONS
+from vehicle_common.node_parameters import (
+    ParameterError,
+    check_value,
+    config_from_values,
+    param,
+)
 
 FILTERS = ("kalman", "particle", "none")
 ASSOCIATIONS = ("hungarian", "nearest")
@@ -19,77 +26,72 @@ OUTPUT_COASTING = ("all", "refound")
 NODE_NAME = "vehicle_tracker"
 
 
-class TrackerConfigError(ValueError):
-    """A parameter has an invalid value or type; the message names the parameter."""
+#: a parameter has an invalid value or type; the message names the parameter
+TrackerConfigError = ParameterError
 
 
 @dataclass
 class TrackerConfig:
-    """Tracker parameters (units in the field comments). Defaults tuned on KITTI val seqs 1, 6
-    (see docs/tracker.md)."""
+    """Tracker parameters (units in the field comments; allowed values in ``param``). Defaults
+    tuned on KITTI val seqs 1, 6 (see docs/tracker.md)."""
 
-    filter: str = "kalman"  # kalman | particle | none
+    filter: str = param("kalman", choices=FILTERS)  # kalman | particle | none
     # nearest (the paper's greedy) | hungarian. Nearest is the default because it measured best
     # on the KITTI validation sequences (MOTA 84.94 vs 84.85, IDSW 0 vs 1, FRAG 8 vs 10 with
     # Kalman, docs/tracker.md); Hungarian + Mahalanobis keeps ids better in crossing scenes.
-    association: str = "nearest"
-    cost: str = "mahalanobis"  # mahalanobis | euclidean | iou2d | giou3d
-    dist_cap: float = 4.0  # [m] gate on the centre distance (all costs)
-    mahalanobis_gate: float = 25.0  # gate on the squared Mahalanobis distance (3 dof)
-    min_iou: float = 0.1  # gate of the iou2d cost: minimum IoU x shape similarity
-    min_giou: float = -0.2  # gate of the giou3d cost: minimum 3D GIoU (in [-1, 1])
-    process_noise: float = 8.0  # [m^2/s^3] white-acceleration spectral density
-    measurement_noise: float = 0.3  # [m] position std used when a detection has no covariance
-    init_position_var: float = 1.0  # [m^2] initial position variance (paper)
-    init_velocity_var: float = 50.0  # [(m/s)^2] initial velocity variance (paper)
-    max_staleness: int = 2  # [frames] a track unmatched for more frames is deleted
-    decay_rate: float = 0.8  # confidence factor per unmatched frame
-    restoration_conf_threshold: float = 0.5  # coasting tracks are reported while conf >= this
-    min_hits: int = 2  # matched frames before a track is confirmed
-    size_gain: float = 0.3  # smoothing gain of the box size (0..1, 1 = take the detection)
-    yaw_gain: float = 0.5  # smoothing gain of the yaw (0..1)
-    min_heading_speed: float = 2.0  # [m/s] above this the velocity resolves the 180 deg yaw
+    association: str = param("nearest", choices=ASSOCIATIONS)
+    cost: str = param("mahalanobis", choices=COSTS)  # mahalanobis | euclidean | iou2d | giou3d
+    dist_cap: float = param(4.0, low=0, low_open=True)  # [m] gate on the centre distance
+    # gate on the squared Mahalanobis distance (3 dof)
+    mahalanobis_gate: float = param(25.0, low=0, low_open=True)
+    # gate of the iou2d cost: minimum IoU x shape similarity
+    min_iou: float = param(0.1, low=0.0, high=1.0)
+    min_giou: float = param(-0.2, low=-1.0, high=1.0)  # gate of the giou3d cost: minimum 3D GIoU
+    # [m^2/s^3] white-acceleration spectral density
+    process_noise: float = param(8.0, low=0, low_open=True)
+    # [m] position std used when a detection has no covariance
+    measurement_noise: float = param(0.3, low=0, low_open=True)
+    init_position_var: float = param(1.0, low=0, low_open=True)  # [m^2] (paper)
+    init_velocity_var: float = param(50.0, low=0, low_open=True)  # [(m/s)^2] (paper)
+    max_staleness: int = param(2, low=0)  # [frames] a track unmatched for more is deleted
+    decay_rate: float = param(0.8, low=0.0, high=1.0)  # confidence factor per unmatched frame
+    # coasting tracks are reported while conf >= this
+    restoration_conf_threshold: float = param(0.5, low=0.0, high=1.0)
+    min_hits: int = param(2, low=1)  # matched frames before a track is confirmed
+    # smoothing gain of the box size (0..1, 1 = take the detection)
+    size_gain: float = param(0.3, low=0.0, high=1.0)
+    yaw_gain: float = param(0.5, low=0.0, high=1.0)  # smoothing gain of the yaw (0..1)
+    # [m/s] above this the velocity resolves the 180 deg yaw
+    min_heading_speed: float = param(2.0, low=0.0)
     # [m] car size used when detections have none (KITTI means)
-    mean_length: float = MEAN_CAR_DIMENSIONS[2]
-    mean_width: float = MEAN_CAR_DIMENSIONS[1]
-    mean_height: float = MEAN_CAR_DIMENSIONS[0]
-    num_particles: int = 100  # particle filter: particles per track (paper)
-    particle_init_radius: float = 1.0  # [m] particles drawn uniformly within this radius
-    particle_obs_var: float = 9.0  # [m^2] variance of the Gaussian weighting (paper)
-    particle_diffusion: float = 0.3  # [m] std of the random walk added at each prediction
-    velocity_history: int = 3  # velocities averaged by the particle motion model (paper)
-    seed: int = 0  # random seed of the particle filter
-    default_dt: float = 0.1  # [s] used for the first frame or non-increasing stamps
-    image_width: int = 1242  # [px] for clipping projected boxes (camera_info overrides)
-    image_height: int = 375  # [px]
+    mean_length: float = param(MEAN_CAR_DIMENSIONS[2], low=0, low_open=True)
+    mean_width: float = param(MEAN_CAR_DIMENSIONS[1], low=0, low_open=True)
+    mean_height: float = param(MEAN_CAR_DIMENSIONS[0], low=0, low_open=True)
+    num_particles: int = param(100, low=1)  # particle filter: particles per track (paper)
+    # [m] particles drawn uniformly within this radius
+    particle_init_radius: float = param(1.0, low=0.0)
+    # [m^2] variance of the Gaussian weighting (paper)
+    particle_obs_var: float = param(9.0, low=0, low_open=True)
+    # [m] std of the random walk added at each prediction
+    particle_diffusion: float = param(0.3, low=0.0)
+    velocity_history: int = param(3, low=1)  # velocities averaged by the particle motion model
+    seed: int = param(0, low=0)  # random seed of the particle filter
+    # [s] used for the first frame or non-increasing stamps
+    default_dt: float = param(0.1, low=0, low_open=True)
+    # [px] for clipping projected boxes (camera_info overrides)
+    image_width: int = param(1242, low=1)
+    image_height: int = param(375, low=1)  # [px]
     output_tentative: bool = False  # offline CLI: also write tentative tracks
     # offline CLI: coasting rows to write: "all" (as reported online) or "refound" (only those of
     # tracks matched again later: gaps filled with the prediction, no rows after a track's end;
     # output delayed by up to max_staleness frames)
-    output_coasting: str = "refound"
+    output_coasting: str = param("refound", choices=OUTPUT_COASTING)
 
     def validate(self) -> TrackerConfig:
-        """Check choices and ranges; raises TrackerConfigError naming the parameter."""
-        for name, choices in (
-            ("filter", FILTERS),
-            ("association", ASSOCIATIONS),
-            ("cost", COSTS),
-            ("output_coasting", OUTPUT_COASTING),
-        ):
-            if getattr(self, name) not in choices:
-                raise TrackerConfigError(
-                    f"{name}: {getattr(self, name)!r} is not one of {', '.join(choices)}"
-                )
-        for name in ("dist_cap", "measurement_noise", "init_position_var", "init_velocity_var"):
-            if not getattr(self, name) > 0:
-                raise TrackerConfigError(f"{name}: must be > 0")
-        for name in ("decay_rate", "size_gain", "yaw_gain"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise TrackerConfigError(f"{name}: must be within [0, 1]")
-        if self.num_particles < 1 or self.velocity_history < 1:
-            raise TrackerConfigError("num_particles/velocity_history: must be >= 1")
-        if self.min_hits < 1 or self.max_staleness < 0:
-            raise TrackerConfigError("min_hits must be >= 1 and max_staleness >= 0")
+        """Check every field's type, range and choices (see ``param``); raises
+        TrackerConfigError (ParameterError) naming the parameter."""
+        for f in fields(self):
+            check_value(f.name, getattr(self, f.name), f.default, dict(f.metadata))
         return self
 
     @property
@@ -98,17 +100,10 @@ class TrackerConfig:
         return (self.mean_length, self.mean_width, self.mean_height)
 
     @classmethod
-    def from_dict(cls, values: dict, source: str = "parameters") -> TrackerConfig:
-        """Build from a name -> value mapping; unknown names or wrong types raise
+    def from_dict(cls, values: dict, source: str | None = None) -> TrackerConfig:
+        """Build from a name -> value mapping; unknown names, wrong types or values raise
         TrackerConfigError naming ``source`` and the parameter."""
-        known = {f.name: f for f in fields(cls)}
-        kwargs = {}
-        for key, value in values.items():
-            if key not in known:
-                raise TrackerConfigError(f"{source}: unknown parameter {key!r}")
-            default = getattr(cls(), key)
-            kwargs[key] = _coerce(value, type(default), f"{source}: {key}")
-        return cls(**kwargs).validate()
+        return config_from_values(cls, values, source)
 
     @classmethod
     def from_yaml(cls, path: str | Path, node_name: str = NODE_NAME) -> TrackerConfig:
@@ -119,10 +114,10 @@ class TrackerConfig:
         try:
             data = yaml.safe_load(path.read_text())
         except OSError as exc:
-            raise TrackerConfigError(f"{path}: cannot read ({exc.strerror})") from None
+            raise TrackerConfigError(str(path), f"cannot read ({exc.strerror})") from None
         except yaml.YAMLError as exc:
             raise TrackerConfigError(
-                f"{path}: not valid YAML ({str(exc).splitlines()[0]})"
+                str(path), f"not valid YAML ({str(exc).splitlines()[0]})"
             ) from None
         section = None
         if isinstance(data, dict):
@@ -131,23 +126,5 @@ class TrackerConfig:
                     section = data[key]["ros__parameters"]
                     break
         if not isinstance(section, dict):
-            raise TrackerConfigError(f"{path}: no '{node_name}: ros__parameters:' section")
+            raise TrackerConfigError(str(path), f"no '{node_name}: ros__parameters:' section")
         return cls.from_dict(section, source=str(path))
-
-
-def _coerce(value, kind: type, where: str):
-    if kind is bool:
-        if isinstance(value, bool):
-            return value
-        raise TrackerConfigError(f"{where}: expected true/false, got {value!r}")
-    if kind is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise TrackerConfigError(f"{where}: expected an integer, got {value!r}")
-        return value
-    if kind is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise TrackerConfigError(f"{where}: expected a number, got {value!r}")
-        return float(value)
-    if not isinstance(value, str):
-        raise TrackerConfigError(f"{where}: expected a string, got {value!r}")
-    return value

@@ -4,7 +4,7 @@ One file per sequence, comma separated, one row per box:
 ``frame, type, x1, y1, x2, y2, score, h, w, l, x, y, z, rot_y, alpha`` with type 2 = Car (1 =
 Pedestrian, 3 = Cyclist), the 2D box in left-image pixels, (h, w, l) in metres, (x, y, z) KITTI's
 bottom centre in camera-0 coordinates and rot_y, alpha in radians. This format is not a KITTI
-dataset file (those are read by ``kitti_player_node.kitti``), so it is parsed here.
+dataset file (those are read by ``vehicle_common.kitti``), so it is parsed here.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from kitti_player_node.kitti import KittiFormatError
+from vehicle_common.kitti import KittiFormatError
 
 TYPE_NAMES = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}
 NUM_COLUMNS = 15

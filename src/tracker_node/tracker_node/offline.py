@@ -19,11 +19,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from kitti_player_node.kitti import (
+from vehicle_common.camera_frames import centre_from_kitti, kitti_row_from_centre
+from vehicle_common.kitti import (
     Calibration,
     KittiFormatError,
     KittiObject,
-    alpha_from_rotation_y,
     read_calib,
     write_tracking_labels,
 )
@@ -61,8 +61,7 @@ def track_sequence(
     for f in range(n_frames):
         sel = order[starts[f] : starts[f + 1]]
         hwl = rows.hwl[sel]
-        centre = rows.location[sel] + offset
-        centre[:, 1] -= hwl[:, 0] / 2.0  # bottom centre -> centre of mass (y down)
+        centre = centre_from_kitti(rows.location[sel], hwl[:, 0], offset)
         dets = DetectionBatch.create(
             centre,
             size=hwl[:, [2, 1, 0]],
@@ -78,24 +77,19 @@ def track_sequence(
         for i in range(len(ts)):
             if ts.state[i] == TENTATIVE and not config.output_tentative:
                 continue
-            l, w, h = (float(v) for v in ts.size[i])
-            x, y, z = ts.position[i] - offset
-            y += h / 2.0
-            yaw = float(ts.yaw[i])
-            bbox = ts.bbox[i]
-            if not np.isfinite(bbox).all():
-                continue
-            row = KittiObject(
-                type=type_name,
-                alpha=alpha_from_rotation_y(yaw, x, z),
-                bbox=tuple(float(v) for v in bbox),
-                dimensions=(h, w, l),
-                location=(float(x), float(y), float(z)),
-                rotation_y=yaw,
+            row = kitti_row_from_centre(
+                ts.position[i],
+                ts.size[i],
+                ts.bbox[i],
+                offset,
+                yaw=float(ts.yaw[i]),
                 frame=f,
                 track_id=int(ts.track_id[i]),
                 score=float(ts.score[i]),
+                type_name=type_name,
             )
+            if row is None:  # non-finite box: not representable in a KITTI file
+                continue
             tid = int(ts.track_id[i])
             if hold and ts.state[i] == COASTING:
                 pending.setdefault(tid, []).append(row)
@@ -150,7 +144,7 @@ def _parse_seqs(text: str | None) -> list[str] | None:
     for tok in text.split(","):
         tok = tok.strip()
         if not tok.isdigit():
-            raise TrackerConfigError(f"--seqs: {tok!r} is not a sequence number")
+            raise TrackerConfigError("--seqs", f"{tok!r} is not a sequence number")
         out.append(f"{int(tok):04d}")
     return out
 

@@ -4,15 +4,15 @@ The detector's 4 bins are of the KITTI observation angle alpha folded modulo 180
 0, 45, 90 and 135 deg, so a bin fixes the yaw only up to 180 deg:
 ``rotation_y = alpha + atan2(x, z)`` (camera frame, x right, z forward).
 A KITTI box at yaw ``ry`` has its length (front) along ``(cos ry, -sin ry)`` in the camera x-z
-plane (``kitti_player_node.box3d``), so a vehicle moving with velocity ``(vx, vz)`` heads at
+plane (``vehicle_common.box3d``), so a vehicle moving with velocity ``(vx, vz)`` heads at
 ``ry = atan2(-vz, vx)``.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from detector_node.orientation import bin_to_alpha
-from kitti_player_node.kitti import wrap_angle as wrap
+from vehicle_common.kitti import wrap_angle as wrap
+from vehicle_common.orientation_bins import bin_to_alpha
 
 
 def yaw_from_bin(orientation_bin, x, z):

@@ -1,5 +1,5 @@
 """Box overlaps used as association costs: 2D IoU with shape similarity, and 3D GIoU of boxes
-with size and yaw (the geometry is :mod:`kitti_player_node.box3d`'s).
+with size and yaw (the geometry is :mod:`vehicle_common.box3d`'s).
 
 3D boxes here are ``(cx, cy, cz, l, w, h, yaw)``: the centre of the box (camera frame, y down),
 length/width/height, yaw about the camera y axis (KITTI rotation_y; length along +x at yaw 0).
@@ -8,7 +8,8 @@ length/width/height, yaw about the camera y axis (KITTI rotation_y; length along
 from __future__ import annotations
 
 import numpy as np
-from kitti_player_node.box3d import giou_3d as box3d_giou
+from vehicle_common.box3d import giou_3d as box3d_giou
+from vehicle_common.camera_frames import kitti_from_centre
 
 
 def shape_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -25,14 +26,15 @@ def kitti_box(
     box: np.ndarray,
 ) -> tuple[tuple[float, float, float], tuple[float, float, float], float]:
     """A box ``(cx, cy, cz, l, w, h, yaw)`` as the KITTI ``(dimensions (h, w, l), bottom-centre
-    location, rotation_y)`` of :mod:`kitti_player_node.box3d` (y down: bottom = cy + h / 2)."""
+    location, rotation_y)`` of :mod:`vehicle_common.box3d` (y down: bottom = cy + h / 2)."""
     cx, cy, cz, l, w, h, yaw = (float(v) for v in box)
-    return (h, w, l), (cx, cy + h / 2.0, cz), yaw
+    x, y, z = (float(v) for v in kitti_from_centre((cx, cy, cz), h))
+    return (h, w, l), (x, y, z), yaw
 
 
 def giou_3d(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """(3D IoU, 3D GIoU) of two boxes ``(cx, cy, cz, l, w, h, yaw)``
-    (:func:`kitti_player_node.box3d.giou_3d`)."""
+    (:func:`vehicle_common.box3d.giou_3d`)."""
     return box3d_giou(kitti_box(a), kitti_box(b))
 
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from vehicle_common.box3d import projected_bbox
+from vehicle_common.camera_frames import kitti_from_centre
 
 from .association import (
     euclidean_cost,
@@ -317,10 +319,8 @@ class Tracker:
         return out
 
     def _project(self, centre, size, yaw):
-        from kitti_player_node.box3d import projected_bbox
-
         l, w, h = size
-        bottom = (centre[0], centre[1] + h / 2.0, centre[2])
+        bottom = kitti_from_centre(centre, h)
         return projected_bbox(self.projection, (h, w, l), bottom, float(yaw), self.image_size)
 
     def _keep(self, mask: np.ndarray) -> None:

@@ -1,46 +1,68 @@
 """Standard ROS 2 launch file of the stereo tracking graph (for a full ROS 2 install:
-``ros2 launch tracking_bringup stereo_tracking.launch.py [params_file:=FILE] [record:=false]``).
+``ros2 launch tracking_bringup stereo_tracking.launch.py [params_file:=FILE] [record:=false]
+[namespace:=/rig2]``).
 
-It is built from the same node list (``tracking_bringup.graph``) and parameter file as the
-project's own process launcher, ``stereo_tracking_launch``.
+It is built with the same plan (``tracking_bringup.graph.plan``: node list, the detector's
+subscriptions following its ``backend``, the player's ``wait_for_topics``) and parameter file as
+the project's own process launcher, ``stereo_tracking_launch``; a test keeps them in sync.
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
-from launch.conditions import IfCondition
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from tracking_bringup.environment import graph_environment
 
 from tracking_bringup import graph
+from vehicle_common import topics
 
 
-def generate_launch_description():
-    share = get_package_share_directory("tracking_bringup")
-    params = LaunchConfiguration("params_file")
-    actions = [
-        DeclareLaunchArgument(
-            "params_file",
-            default_value=os.path.join(share, "config", "pipeline.params.yaml"),
-            description="ROS parameter file of all nodes",
-        ),
-        DeclareLaunchArgument("record", default_value="true", description="run bag_recorder"),
-    ]
+def _environment(share: str) -> dict:
     env = {k: v for k, v in graph_environment({}).items() if k != "PYTHONUNBUFFERED"}
     env["FASTRTPS_DEFAULT_PROFILES_FILE"] = os.path.join(share, "config", "fastdds_profile.xml")
-    for spec in graph.PIPELINE:
+    return env
+
+
+def _graph_nodes(context, share: str):
+    """The graph's Node actions for the launch arguments' values."""
+    params_file = LaunchConfiguration("params_file").perform(context)
+    namespace = topics.normalise_namespace(LaunchConfiguration("namespace").perform(context))
+    record = LaunchConfiguration("record").perform(context).lower() in ("true", "1")
+    env = _environment(share)
+    actions = []
+    for spec, extra in graph.plan(list(graph.PIPELINE), params_file):
+        if spec.optional and not record:
+            continue
         actions.append(
             Node(
                 package=spec.package,
                 executable=spec.executable,
                 name=spec.name,
-                parameters=[params],
+                namespace=namespace,
+                parameters=[params_file, extra] if extra else [params_file],
                 additional_env=env,
                 output="screen",
-                condition=IfCondition(LaunchConfiguration("record")) if spec.optional else None,
             )
         )
-    return LaunchDescription(actions)
+    return actions
+
+
+def generate_launch_description():
+    share = get_package_share_directory("tracking_bringup")
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                "params_file",
+                default_value=os.path.join(share, "config", "pipeline.params.yaml"),
+                description="ROS parameter file of all nodes",
+            ),
+            DeclareLaunchArgument("record", default_value="true", description="run bag_recorder"),
+            DeclareLaunchArgument(
+                "namespace", default_value="", description="ROS namespace of the whole graph"
+            ),
+            OpaqueFunction(function=_graph_nodes, args=[share]),
+        ]
+    )

@@ -72,7 +72,7 @@ class TrackProgress:
 
 def _prepare_data(args) -> tuple[Path, str, int]:
     """(KITTI tracking root, sequence, number of frames to play)."""
-    from kitti_player_node.kitti import TrackingSequence
+    from vehicle_common.kitti import TrackingSequence
 
     if args.kitti_root:
         root, sequence = Path(args.kitti_root).resolve(), args.sequence or "0005"
@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     if not Path(args.params).is_file():
         return _error(f"{args.params}: parameter file not found")
 
-    from kitti_player_node.kitti import KittiFormatError
+    from vehicle_common.kitti import KittiFormatError
 
     out = Path(args.output or f"output/demo_{datetime.now():%Y%m%d_%H%M%S}").resolve()
     out.mkdir(parents=True, exist_ok=True)

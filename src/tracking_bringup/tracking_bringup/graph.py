@@ -2,12 +2,17 @@
 
 Both the project's process launcher (``stereo_tracking_launch``) and the standard ROS launch file
 (``launch/stereo_tracking.launch.py``, for users with a full ROS 2 install) build the graph from
-this description, so the two cannot drift apart.
+this description with :func:`plan` (the detector's subscriptions from its ``backend`` parameter,
+the player's ``wait_for_topics`` from the subscriptions of the other nodes), so the two cannot
+drift apart. Topic names are relative; both launchers take a namespace that moves the graph.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from vehicle_common import topics
 
 
 @dataclass(frozen=True)
@@ -33,17 +38,18 @@ class NodeSpec:
     wait_parameter: str | None = None
 
 
-LEFT_IMAGE = "/stereo/left/image_rect"
-RIGHT_IMAGE = "/stereo/right/image_rect"
-LEFT_INFO = "/stereo/left/camera_info"
-RIGHT_INFO = "/stereo/right/camera_info"
-GROUND_TRUTH = "/kitti/ground_truth"
-DETECTIONS_2D = "/vehicles/detections_2d"
-DETECTIONS_3D = "/vehicles/detections_3d"
-TRACKS = "/vehicles/tracks"
-TRACK_MARKERS = "/vehicles/track_markers"
-DISPARITY = "/stereo/disparity"
-CLOCK = "/clock"
+# topic names, relative: resolved in the graph's namespace (vehicle_common.topics)
+LEFT_IMAGE = topics.LEFT_IMAGE
+RIGHT_IMAGE = topics.RIGHT_IMAGE
+LEFT_INFO = topics.LEFT_INFO
+RIGHT_INFO = topics.RIGHT_INFO
+GROUND_TRUTH = topics.GROUND_TRUTH
+DETECTIONS_2D = topics.DETECTIONS_2D
+DETECTIONS_3D = topics.DETECTIONS_3D
+TRACKS = topics.TRACKS
+TRACK_MARKERS = topics.TRACK_MARKERS
+DISPARITY = topics.DISPARITY
+CLOCK = topics.CLOCK
 
 PLAYER = NodeSpec(
     name="kitti_player",
@@ -123,3 +129,44 @@ def expected_subscriptions(source: NodeSpec, nodes: list[NodeSpec]) -> dict[str,
         topic: sum(topic in n.subscribes for n in nodes if n.name != source.name)
         for topic in source.publishes
     }
+
+
+def wait_for_topics_value(source: NodeSpec, nodes: list[NodeSpec]) -> str:
+    """The ``wait_for_topics`` value of a source node: ``"topic:N,..."`` (relative names)."""
+    counts = expected_subscriptions(source, nodes)
+    return ",".join(f"{t}:{c}" for t, c in counts.items() if c)
+
+
+def parameter_value(params_file, overrides: list[str], node: str, name: str, default):
+    """A node parameter's value: the last ``name:=value`` in ``overrides`` (that node's
+    ``-p`` overrides), else the parameter file's value, else ``default``."""
+    for ov in reversed(overrides):
+        key, _, value = ov.partition(":=")
+        if key == name:
+            return value.strip("'\"")
+    if params_file and Path(params_file).is_file():
+        import yaml
+
+        data = yaml.safe_load(Path(params_file).read_text()) or {}
+        return data.get(node, {}).get("ros__parameters", {}).get(name, default)
+    return default
+
+
+def plan(
+    nodes: list[NodeSpec], params_file=None, overrides: dict[str, list[str]] | None = None
+) -> list[tuple[NodeSpec, dict[str, str]]]:
+    """The graph to start: each node (the detector's subscriptions following its ``backend``
+    parameter, from ``overrides[node]`` or the parameter file) with the parameters the
+    launchers set on it (a source's ``wait_for_topics``)."""
+    overrides = overrides or {}
+    backend = parameter_value(
+        params_file, overrides.get(DETECTOR.name, []), DETECTOR.name, "backend", "cnn"
+    )
+    nodes = with_detector_backend(list(nodes), str(backend))
+    out = []
+    for n in nodes:
+        extra = {}
+        if n.source and n.wait_parameter:
+            extra[n.wait_parameter] = wait_for_topics_value(n, nodes)
+        out.append((n, extra))
+    return out

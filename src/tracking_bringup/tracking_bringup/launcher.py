@@ -27,6 +27,7 @@ from pathlib import Path
 
 from tracking_bringup import graph
 from tracking_bringup.environment import PARAMS_FILE, graph_environment
+from vehicle_common import topics
 
 _PR_SET_PDEATHSIG = 1
 _CLEAN_EXIT_CODES = {0, -signal.SIGINT, 128 + signal.SIGINT, -signal.SIGTERM, 128 + signal.SIGTERM}
@@ -81,12 +82,18 @@ def resolve_executable(executable: str) -> str:
 
 
 def node_command(
-    spec: graph.NodeSpec, params_file: str | os.PathLike | None, overrides: Sequence[str] = ()
+    spec: graph.NodeSpec,
+    params_file: str | os.PathLike | None,
+    overrides: Sequence[str] = (),
+    namespace: str = "",
 ) -> list[str]:
-    """The command line of one graph node: executable + ``--ros-args`` (node name, parameter
-    file, ``-p name:=value`` overrides)."""
+    """The command line of one graph node: executable + ``--ros-args`` (node name, namespace,
+    parameter file, ``-p name:=value`` overrides)."""
     argv = [resolve_executable(spec.executable), *spec.extra_args, "--ros-args"]
     argv += ["-r", f"__node:={spec.name}"]
+    ns = topics.normalise_namespace(namespace)
+    if ns:
+        argv += ["-r", f"__ns:={ns}"]
     if params_file:
         argv += ["--params-file", str(params_file)]
     for ov in overrides:
@@ -298,11 +305,14 @@ def graph_processes(
     nodes: Sequence[graph.NodeSpec],
     params_file: str | os.PathLike | None = PARAMS_FILE,
     overrides: Sequence[str] = (),
+    namespace: str = "",
 ) -> list[ProcessSpec]:
     """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings.
 
     The detector's subscriptions follow its ``backend`` parameter (file or override), and each
-    source node is told how many subscriptions to wait for on each of its topics."""
+    source node is told how many subscriptions to wait for on each of its topics
+    (:func:`graph.plan`, as the ROS launch file). ``namespace`` moves the whole graph; the
+    specs' topics are the resolved names."""
     per_node: dict[str, list[str]] = {n.name: [] for n in nodes}
     for ov in overrides:
         target, sep, rest = ov.partition(".")
@@ -312,39 +322,20 @@ def graph_processes(
                 + ", ".join(per_node)
             )
         per_node[target].append(rest)
-    nodes = graph.with_detector_backend(
-        list(nodes), _parameter(params_file, per_node, graph.DETECTOR.name, "backend", "cnn")
-    )
-    for n in nodes:
-        if n.source and n.wait_parameter:
-            counts = graph.expected_subscriptions(n, nodes)
-            spec = ",".join(f"{t}:{c}" for t, c in counts.items() if c)
-            per_node[n.name].append(f"{n.wait_parameter}:={spec}")
-    return [
-        ProcessSpec(
-            name=n.name,
-            argv=node_command(n, params_file, per_node[n.name]),
-            subscribes=n.subscribes,
-            publishes=n.publishes,
-            source=n.source,
-            finishes=n.finishes,
+    out = []
+    for n, extra in graph.plan(list(nodes), params_file, per_node):
+        argv_overrides = per_node[n.name] + [f"{k}:={v}" for k, v in extra.items()]
+        out.append(
+            ProcessSpec(
+                name=n.name,
+                argv=node_command(n, params_file, argv_overrides, namespace),
+                subscribes=tuple(topics.resolve(t, namespace) for t in n.subscribes),
+                publishes=tuple(topics.resolve(t, namespace) for t in n.publishes),
+                source=n.source,
+                finishes=n.finishes,
+            )
         )
-        for n in nodes
-    ]
-
-
-def _parameter(params_file, per_node: dict[str, list[str]], node: str, name: str, default):
-    """A node parameter's value: the last ``-p`` override, else the parameter file's value."""
-    for ov in reversed(per_node.get(node, [])):
-        key, _, value = ov.partition(":=")
-        if key == name:
-            return value.strip("'\"")
-    if params_file and Path(params_file).is_file():
-        import yaml
-
-        data = yaml.safe_load(Path(params_file).read_text()) or {}
-        return data.get(node, {}).get("ros__parameters", {}).get(name, default)
-    return default
+    return out
 
 
 def run_graph(
@@ -402,6 +393,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         metavar="NODE.PARAM:=VALUE",
         help="override one node parameter (repeatable)",
     )
+    parser.add_argument(
+        "--namespace", default="", help="ROS namespace of the whole graph, e.g. /rig2"
+    )
     parser.add_argument("--log-dir", default="output/logs", help="folder for per-node logs")
     parser.add_argument("--ready-timeout", type=float, default=60.0)
     parser.add_argument(
@@ -416,7 +410,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         nodes = graph.by_name(args.nodes.split(",") if args.nodes else None)
-        processes = graph_processes(nodes, args.params, args.param)
+        processes = graph_processes(nodes, args.params, args.param, args.namespace)
     except (ValueError, LaunchError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -6,9 +6,10 @@ inverse conversion (:func:`kitti_objects_from_message`) serves consumers such as
 
 from __future__ import annotations
 
+import numpy as np
+
 from .image_conversion import camera_info_from_projection
 from .kitti import Calibration, KittiObject
-from .playback import stereo_projections
 
 LEFT_FRAME = "left_camera_optical_frame"
 RIGHT_FRAME = "right_camera_optical_frame"
@@ -45,6 +46,16 @@ def xyxy_to_bbox(box, bbox) -> None:
     x1, y1, x2, y2 = (float(v) for v in box)
     bbox.center_x, bbox.center_y = (x1 + x2) / 2.0, (y1 + y2) / 2.0
     bbox.size_x, bbox.size_y = max(0.0, x2 - x1), max(0.0, y2 - y1)
+
+
+def stereo_projections(calib: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """ROS-convention projection matrices of the rectified pair in the left optical frame:
+    left ``[K | 0]``, right ``[K | (-fx * B, 0, 0)]`` with ``B = calib.baseline``."""
+    K = calib.K
+    left = np.hstack([K, np.zeros((3, 1))])
+    right = left.copy()
+    right[0, 3] = -calib.fx * calib.baseline
+    return left, right
 
 
 def stereo_camera_infos(calib: Calibration, width: int, height: int, stamp_ns: int):

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from kitti_player_node.box2d import iou_2d, overlap_over_first
+from vehicle_common.box2d import iou_2d, overlap_over_first
 
 
 def test_iou_and_overlap_over_first():

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from kitti_player_node.box3d import project_points
-from kitti_player_node.kitti import KittiFormatError, KittiObject
+from vehicle_common.box3d import project_points
+from vehicle_common.kitti import KittiFormatError, KittiObject
 
-from kitti_player_node import kitti
+from vehicle_common import kitti
 
 
 def test_both_calib_spellings_parse(kitti_tracking_root):

@@ -1,4 +1,4 @@
-"""Box overlaps of kitti_player_node.box3d: footprint, clipping, area, hull, 3D IoU / GIoU."""
+"""Box overlaps of vehicle_common.box3d: footprint, clipping, area, hull, 3D IoU / GIoU."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from kitti_player_node.box3d import (
+from vehicle_common.box3d import (
     bev_corners,
     box_corners,
     clip_convex_polygon,

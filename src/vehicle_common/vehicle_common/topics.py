@@ -1,0 +1,60 @@
+"""The graph's topic names, written once, RELATIVE (no leading "/").
+
+A node resolves them in its namespace, so ``--ros-args -r __ns:=/rig2`` (or the launchers'
+``namespace``) moves a whole graph to ``/rig2/stereo/left/image_rect``, ...; without a namespace
+they resolve to ``/stereo/left/image_rect``, .... Tools that read recorded bags (which store
+resolved names) use :func:`resolve` and :func:`namespace_of`.
+"""
+
+from __future__ import annotations
+
+LEFT_IMAGE = "stereo/left/image_rect"
+RIGHT_IMAGE = "stereo/right/image_rect"
+LEFT_INFO = "stereo/left/camera_info"
+RIGHT_INFO = "stereo/right/camera_info"
+GROUND_TRUTH = "kitti/ground_truth"
+CLOCK = "clock"
+DETECTIONS_2D = "vehicles/detections_2d"
+DETECTIONS_3D = "vehicles/detections_3d"
+TRACKS = "vehicles/tracks"
+TRACK_MARKERS = "vehicles/track_markers"
+DISPARITY = "stereo/disparity"
+POINTS = "stereo/points"
+
+#: every topic of the graph
+ALL = (
+    LEFT_IMAGE,
+    RIGHT_IMAGE,
+    LEFT_INFO,
+    RIGHT_INFO,
+    GROUND_TRUTH,
+    CLOCK,
+    DETECTIONS_2D,
+    DETECTIONS_3D,
+    TRACKS,
+    TRACK_MARKERS,
+    DISPARITY,
+    POINTS,
+)
+
+
+def normalise_namespace(namespace: str | None) -> str:
+    """``"rig2"``, ``"/rig2/"`` -> ``"/rig2"``; ``""``, ``"/"``, None -> ``""``."""
+    ns = (namespace or "").strip().strip("/")
+    return f"/{ns}" if ns else ""
+
+
+def resolve(topic: str, namespace: str | None = "") -> str:
+    """The absolute name of ``topic`` in ``namespace`` (absolute topics are kept)."""
+    if topic.startswith("/"):
+        return topic
+    return f"{normalise_namespace(namespace)}/{topic}"
+
+
+def namespace_of(names, topic: str = GROUND_TRUTH) -> str | None:
+    """The namespace in which ``topic`` appears among the absolute ``names`` (e.g. a bag's
+    topics): ``""`` for ``/topic``, ``"/rig2"`` for ``/rig2/topic``, None when absent or when it
+    appears in several namespaces (ambiguous)."""
+    suffix = "/" + topic
+    found = sorted({n[: -len(suffix)] for n in names if n.endswith(suffix)})
+    return found[0] if len(found) == 1 else None

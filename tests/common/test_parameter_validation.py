@@ -1,0 +1,123 @@
+"""Every node's parameters are typed and validated at start-up: a bad value gives ONE line naming
+the node, the parameter and what is wrong, and exit code 2 (never a traceback)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from vehicle_common.node_parameters import (
+    ParameterError,
+    check_value,
+    coerce,
+    config_from_values,
+    param,
+)
+
+# (node module, node name, ROS arguments, words the error line must contain)
+BAD_STARTS = [
+    ("kitti_player_node.node", "kitti_player", ["-p", "rate:=.nan"], ["rate", "finite"]),
+    ("kitti_player_node.node", "kitti_player", ["-p", "first_frame:=-3"], ["first_frame", ">= 0"]),
+    ("detector_node.node", "vehicle_detector", ["-p", "input_width:=-32"], ["input_width"]),
+    ("detector_node.node", "vehicle_detector", ["-p", "nms_iou:=2.0"], ["nms_iou", "<= 1.0"]),
+    ("stereo_depth_node.node", "stereo_depth", ["-p", "wls_lambda:=-5.0"], ["wls_lambda"]),
+    ("stereo_depth_node.node", "stereo_depth", ["-p", "downscale:=8.7"], ["downscale"]),
+    (
+        "tracker_node.node",
+        "vehicle_tracker",
+        ["-p", "mahalanobis_gate:=.nan"],
+        ["mahalanobis_gate", "finite"],
+    ),
+    ("tracker_node.node", "vehicle_tracker", ["-p", "process_noise:=abc"], ["process_noise"]),
+    ("eval_node.recorder", "bag_recorder", ["-p", "qos_depth:=-1"], ["qos_depth", ">= 1"]),
+    ("eval_node.recorder", "bag_recorder", ["-p", "flush_period:=0"], ["flush_period", "> 0"]),
+]
+
+
+@pytest.mark.parametrize("module,node,ros_args,words", BAD_STARTS)
+def test_a_bad_parameter_stops_the_node_with_one_line_and_exit_2(
+    module, node, ros_args, words, tmp_path
+):
+    r = subprocess.run(
+        [sys.executable, "-m", module, "--ros-args", *ros_args, "-p", f"output:={tmp_path}/b"]
+        if module == "eval_node.recorder"
+        else [sys.executable, "-m", module, "--ros-args", *ros_args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
+    )
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert r.returncode == 2, r.stderr[-2000:]
+    assert "Traceback" not in r.stderr
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith(f"error: {node}: parameter ")
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+def test_yaml_integer_for_a_float_is_accepted_by_the_node(tmp_path, rclpy_context):
+    """``process_noise: 16`` in the parameter file and ``flush_period:=1`` on the command line."""
+    from rclpy.parameter import Parameter
+    from tracker_node.node import VehicleTrackerNode
+
+    node = VehicleTrackerNode(
+        context=rclpy_context, parameter_overrides=[Parameter("process_noise", value=16)]
+    )
+    try:
+        assert node.config.process_noise == 16.0 and isinstance(node.config.process_noise, float)
+    finally:
+        node.destroy_node()
+
+
+def test_every_node_config_refuses_out_of_range_values():
+    from detector_node.node import DetectorParameters
+    from eval_node.recorder import RecorderParameters
+    from kitti_player_node.node import PlayerParameters
+    from tracker_node.config import TrackerConfig
+
+    cases = [
+        (TrackerConfig, "process_noise", -1.0),
+        (TrackerConfig, "decay_rate", 1.5),
+        (TrackerConfig, "min_hits", 0),
+        (TrackerConfig, "dist_cap", float("inf")),
+        (DetectorParameters, "score_threshold", -1.0),
+        (DetectorParameters, "input_width", 33),
+        (DetectorParameters, "num_threads", -1),
+        (DetectorParameters, "oracle_drop_probability", 1.2),
+        (PlayerParameters, "lockstep_timeout", -1.0),
+        (PlayerParameters, "drop_probability", 2.0),
+        (RecorderParameters, "max_bag_size", -1),
+        (RecorderParameters, "compression", "lz4"),
+    ]
+    for cls, name, value in cases:
+        with pytest.raises(ParameterError) as err:
+            config_from_values(cls, {name: value})
+        assert err.value.name == name, (cls, name, err.value)
+    # and the defaults are valid
+    for cls in {c for c, _, _ in cases}:
+        config_from_values(cls, {})
+
+
+def test_types_integers_for_floats_strict_booleans_whole_integers():
+    assert coerce(8, 1.0) == 8.0 and isinstance(coerce(8, 1.0), float)
+    assert coerce(3.0, 1) == 3 and isinstance(coerce(3.0, 1), int)
+    assert coerce(("Car",), ["Car", "Van"]) == ["Car"]
+    assert coerce([0, 1], (0.0, 0.0)) == (0.0, 1.0)
+    for value, default in (
+        (8.7, 1),
+        ("true", False),
+        (1, False),
+        (True, 1.0),
+        ("8", 1.0),
+        ("Car", ["Car"]),
+        ([1], "x"),
+    ):
+        with pytest.raises(ValueError):
+            coerce(value, default)
+    rule = dict(param(1.0, low=0.0, low_open=True).metadata)
+    assert check_value("x", 2, 1.0, rule) == 2.0
+    for bad in (0.0, float("nan"), -1):
+        with pytest.raises(ParameterError, match="x"):
+            check_value("x", bad, 1.0, rule)

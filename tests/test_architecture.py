@@ -1,0 +1,133 @@
+"""The dependency rules of docs/ARCHITECTURE.md, checked on the source tree.
+
+1. Node packages do not import each other (eval_node may use the tracker CORE, never a node
+   module); vehicle_common imports no node package.
+2. Core modules (everything but the node modules, the recorder node and the bringup package)
+   do not import rclpy at import time; vehicle_common imports neither rclpy nor torch.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+NODE_PACKAGES = (
+    "kitti_player_node",
+    "detector_node",
+    "stereo_depth_node",
+    "tracker_node",
+    "eval_node",
+)
+COMMON = "vehicle_common"
+#: allowed imports between node packages: importer -> {package: modules it may import}
+ALLOWED = {"eval_node": {"tracker_node": {"config", "conversions", "offline", "tracker"}}}
+#: modules that ARE ROS nodes (may import rclpy at module level)
+NODE_MODULES = {
+    "kitti_player_node.node",
+    "kitti_player_node.bag_player",
+    "detector_node.node",
+    "stereo_depth_node.node",
+    "tracker_node.node",
+    "eval_node.recorder",
+}
+
+
+def _modules(package: str) -> list[tuple[str, Path]]:
+    root = SRC / package / package
+    return [
+        (f"{package}.{p.stem}" if p.stem != "__init__" else package, p)
+        for p in sorted(root.glob("*.py"))
+    ]
+
+
+def _imports(path: Path, package: str) -> list[tuple[str, int, bool]]:
+    """(absolute module name, line, at module level) of every import in a file."""
+    tree = ast.parse(path.read_text())
+    top = set(map(id, tree.body))
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [(a.name, node.lineno, id(node) in top) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:  # relative: inside the same package
+                base = package
+                out.append((f"{base}.{node.module}" if node.module else base, node.lineno, True))
+            else:
+                mods = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+                out += [(m, node.lineno, id(node) in top) for m in mods]
+    return out
+
+
+def test_node_packages_do_not_import_each_other():
+    bad = []
+    for package in (*NODE_PACKAGES, COMMON):
+        for _module, path in _modules(package):
+            for name, line, _ in _imports(path, package):
+                target = name.split(".")[0]
+                if target == package or target not in NODE_PACKAGES:
+                    continue
+                allowed = ALLOWED.get(package, {}).get(target, set())
+                sub = name.split(".")[1] if "." in name else None
+                if sub is None and name.count(".") == 0:
+                    continue  # "from tracker_node import x" is checked through its submodule
+                if sub not in allowed:
+                    bad.append(f"{path.relative_to(SRC)}:{line} imports {name}")
+    assert not bad, "node packages import each other:\n" + "\n".join(bad)
+
+
+def test_the_rule_checker_sees_a_forbidden_import(tmp_path):
+    f = tmp_path / "x.py"
+    f.write_text("from tracker_node.node import VehicleTrackerNode\nimport rclpy\n")
+    names = [n for n, _, _ in _imports(f, "eval_node")]
+    assert "tracker_node.node" in names and "rclpy" in names
+
+
+def _core_modules() -> list[str]:
+    return [
+        m
+        for package in (COMMON, *NODE_PACKAGES)
+        for m, _ in _modules(package)
+        if m not in NODE_MODULES
+    ]
+
+
+def test_core_modules_do_not_import_rclpy_at_import_time():
+    code = (
+        "import importlib, sys\n"
+        f"for m in {_core_modules()!r}:\n"
+        "    importlib.import_module(m)\n"
+        "    if 'rclpy' in sys.modules:\n"
+        "        print(m); sys.exit(1)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, f"importing {r.stdout.strip()} imports rclpy: {r.stderr[-2000:]}"
+
+
+def test_vehicle_common_imports_neither_rclpy_nor_torch():
+    mods = [m for m, _ in _modules(COMMON)]
+    code = (
+        "import importlib, sys\n"
+        f"for m in {mods!r}:\n"
+        "    importlib.import_module(m)\n"
+        "bad = [n for n in ('rclpy', 'torch') if n in sys.modules]\n"
+        "print(','.join(bad)); sys.exit(1 if bad else 0)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, f"vehicle_common imports {r.stdout.strip()} {r.stderr[-2000:]}"
+
+
+@pytest.mark.parametrize("module", sorted(NODE_MODULES))
+def test_node_modules_define_a_module_level_node_class(module):
+    package, name = module.split(".")
+    tree = ast.parse((SRC / package / package / f"{name}.py").read_text())
+    classes = [n for n in tree.body if isinstance(n, ast.ClassDef)]
+    assert any(any(getattr(b, "id", None) == "Node" for b in c.bases) for c in classes), (
+        f"{module} has no module-level rclpy Node subclass"
+    )
+    funcs = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
+    assert "_make_node_class" not in funcs
