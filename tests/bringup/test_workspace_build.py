@@ -40,12 +40,21 @@ class _Recorder:
         self.args, self.kwargs = args, kwargs
 
 
+class _LaunchConfiguration(_Recorder):
+    """Stands in for launch's LaunchConfiguration: ``perform`` reads the fake context."""
+
+    def perform(self, context):
+        return context[self.args[0]]
+
+
 def _load_launch_description():
     stubs = {
         "launch": {"LaunchDescription": _Recorder},
-        "launch.actions": {"DeclareLaunchArgument": _Recorder},
-        "launch.conditions": {"IfCondition": _Recorder},
-        "launch.substitutions": {"LaunchConfiguration": _Recorder},
+        "launch.actions": {
+            "DeclareLaunchArgument": _Recorder,
+            "OpaqueFunction": type("OpaqueFunction", (_Recorder,), {}),
+        },
+        "launch.substitutions": {"LaunchConfiguration": _LaunchConfiguration},
         "launch_ros.actions": {"Node": type("Node", (_Recorder,), {})},
         "launch_ros": {},
         "ament_index_python.packages": {
@@ -70,9 +79,23 @@ def _load_launch_description():
                 sys.modules[name] = mod
 
 
+def _launch_nodes(description, **arguments):
+    """The Node actions the launch file creates for the given launch arguments (defaults from
+    its DeclareLaunchArgument actions)."""
+    context = {}
+    for a in description.args[0]:
+        if type(a).__name__ == "_Recorder" and "default_value" in a.kwargs:
+            context[a.args[0]] = a.kwargs["default_value"]
+    context.update(arguments)
+    opaque = [a for a in description.args[0] if type(a).__name__ == "OpaqueFunction"]
+    assert len(opaque) == 1
+    fn = opaque[0].kwargs["function"]
+    return fn(context, *opaque[0].kwargs.get("args", []))
+
+
 def test_launch_file_matches_graph_entry_points_and_params():
     description = _load_launch_description()
-    nodes = [a for a in description.args[0] if type(a).__name__ == "Node"]
+    nodes = _launch_nodes(description)
     described = [(n.kwargs["name"], n.kwargs["package"], n.kwargs["executable"]) for n in nodes]
     assert described == [(s.name, s.package, s.executable) for s in graph.PIPELINE]
     params = yaml.safe_load(PARAMS_FILE.read_text())
@@ -81,6 +104,45 @@ def test_launch_file_matches_graph_entry_points_and_params():
         assert "ros__parameters" in params.get(name, {}), f"{PARAMS_FILE} lacks {name}"
     # every section of the parameter file belongs to a node of the graph
     assert set(params) == {s.name for s in graph.PIPELINE}
+    no_recorder = _launch_nodes(description, record="false")
+    assert [n.kwargs["name"] for n in no_recorder] == [s.name for s in graph.PIPELINE[:-1]]
+
+
+def _argv_parameters(argv: list[str]) -> dict[str, str]:
+    """The ``-p name:=value`` overrides of a command line."""
+    return dict(argv[i + 1].split(":=", 1) for i, a in enumerate(argv) if a == "-p")
+
+
+@pytest.mark.parametrize("backend", ["cnn", "oracle"])
+@pytest.mark.parametrize("namespace", ["", "/rig2"])
+def test_launch_file_and_launcher_agree_on_namespace_wait_for_topics_and_oracle(
+    tmp_path, backend, namespace
+):
+    """Same nodes, namespace and launcher-set parameters (the player's wait_for_topics, which
+    counts the oracle detector's ground-truth subscription) from both launchers."""
+    from tracking_bringup.launcher import graph_processes
+
+    params = yaml.safe_load(PARAMS_FILE.read_text())
+    params["vehicle_detector"]["ros__parameters"]["backend"] = backend
+    params_file = tmp_path / "params.yaml"
+    params_file.write_text(yaml.safe_dump(params))
+    nodes = _launch_nodes(
+        _load_launch_description(), params_file=str(params_file), namespace=namespace
+    )
+    processes = graph_processes(list(graph.PIPELINE), params_file, namespace=namespace)
+    assert [n.kwargs["name"] for n in nodes] == [p.name for p in processes]
+    for node, proc in zip(nodes, processes, strict=True):
+        assert node.kwargs["namespace"] == namespace
+        ns_args = [proc.argv[i + 1] for i, a in enumerate(proc.argv) if a == "-r"]
+        assert (f"__ns:={namespace}" in ns_args) == bool(namespace)
+        extra = {k: v for d in node.kwargs["parameters"][1:] for k, v in d.items()}
+        assert extra == _argv_parameters(proc.argv)
+        assert node.kwargs["parameters"][0] == str(params_file)
+        # the readiness check looks for the namespaced topics
+        assert all(t.startswith(namespace + "/") for t in (*proc.subscribes, *proc.publishes))
+    player = _argv_parameters(processes[0].argv)["wait_for_topics"]
+    gt = dict(e.rsplit(":", 1) for e in player.split(","))["kitti/ground_truth"]
+    assert gt == ("2" if backend == "oracle" else "1")  # recorder (+ oracle detector)
 
 
 @pytest.mark.slow

@@ -60,7 +60,7 @@ class PlayerParameters:
     sequence: str = "0000"
     first_frame: int = param(0, low=0)
     last_frame: int = param(-1, low=-1)  # -1: to the end
-    rate: float = param(10.0, low=0.0, low_open=True)  # [Hz] of dataset time
+    rate: float = param(10.0, low=0.0)  # [Hz] of dataset time; 0: as fast as the graph allows
     rate_multiplier: float = 1.0  # <= 0: as fast as the graph allows
     loop: bool = False
     lockstep: bool = False

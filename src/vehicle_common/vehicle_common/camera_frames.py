@@ -84,8 +84,8 @@ def kitti_row_from_centre(
     heading = yaw if yaw is not None else alpha
     if heading is None or not all(math.isfinite(v) for v in (x, y, z, heading, *box)):
         return None
-    if yaw is not None:
-        rotation_y = wrap_angle(float(yaw))
+    if yaw is not None:  # wrapped to (-pi, pi] only when outside (in range: kept exactly)
+        rotation_y = float(yaw) if -math.pi < yaw <= math.pi else wrap_angle(float(yaw))
         alpha = alpha_from_rotation_y(rotation_y, x, z)
     else:
         alpha = float(alpha)

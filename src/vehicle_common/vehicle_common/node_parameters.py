@@ -79,8 +79,8 @@ def _type_name(default) -> str:
 def coerce(value, default):
     """``value`` converted to the type of ``default`` (bool, int, float, str, list or tuple);
     raises ValueError when it does not fit: booleans only from booleans, integers from integers
-    or whole floats, floats from integers or floats, strings only from strings, lists item by
-    item with the type of the default's items."""
+    or whole floats, floats from integers or floats, strings from strings or integers (YAML reads
+    ``0005`` as 5), lists item by item with the type of the default's items."""
     if isinstance(default, bool):
         if isinstance(value, bool):
             return value
@@ -102,6 +102,8 @@ def coerce(value, default):
             raise ValueError(value)
         items = [coerce(v, default[0]) if default else v for v in value]
         return tuple(items) if isinstance(default, tuple) else items
+    if isinstance(value, int):  # "-p sequence:=0005" arrives as the integer 5
+        return str(value)
     if not isinstance(value, str):
         raise ValueError(value)
     return value
