@@ -158,7 +158,7 @@ def _image_size(path: Path) -> tuple[int, int]:
 
 
 def flip_sample(sample: Sample) -> Sample:
-    """Horizontal flip: boxes mirrored, orientation bins 45 <-> 135 (see orientation.py)."""
+    """Horizontal flip: boxes mirrored, orientation bins 45 <-> 135 (orientation_bins)."""
     w = sample.image.shape[1]
     b = sample.boxes.copy()
     b[:, [0, 2]] = w - sample.boxes[:, [2, 0]]
