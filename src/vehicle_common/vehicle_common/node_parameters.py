@@ -27,10 +27,12 @@ EXIT_BAD_PARAMETER = 2
 class ParameterError(ValueError):
     """A parameter has a wrong type or value; ``name`` is the parameter, the message says what."""
 
-    def __init__(self, name: str, problem: str):
+    def __init__(self, name: str, problem: str | None = None):
+        if problem is None:  # one "NAME: problem" message
+            name, _, problem = name.partition(": ")
         self.name = name
         self.problem = problem
-        super().__init__(f"{name}: {problem}")
+        super().__init__(f"{name}: {problem}" if problem else name)
 
 
 def param(
