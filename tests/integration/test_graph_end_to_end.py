@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+from vehicle_common.topics import resolve
 
 from tracking_bringup import demo, graph
 
@@ -52,7 +53,8 @@ def synthetic_run(tmp_path_factory):
 def test_every_frame_tracked_and_recorded(synthetic_run):
     counts = _counts(synthetic_run / "bag")
     # one message per frame on every pipeline stage: nothing dropped between nodes
-    for topic in (graph.GROUND_TRUTH, graph.DETECTIONS_2D, graph.DETECTIONS_3D, graph.TRACKS):
+    stages = (graph.GROUND_TRUTH, graph.DETECTIONS_2D, graph.DETECTIONS_3D, graph.TRACKS)
+    for topic in map(resolve, stages):
         assert counts.get(topic) == FRAMES, (topic, counts)
     results = json.loads((synthetic_run / "results.json").read_text())
     assert results["frames"] == FRAMES
@@ -93,7 +95,7 @@ def test_real_kitti_0005_with_oracle_detector(kitti_tracking_root, tmp_path):
     )
     assert code == 0
     counts = _counts(out / "bag")
-    assert counts.get(graph.TRACKS) == 16
+    assert counts.get(resolve(graph.TRACKS)) == 16
     results = json.loads((out / "results.json").read_text())
     assert results["gt_source"] == "labels"
     det = results["detections_3d"]
@@ -116,7 +118,7 @@ def _tracks_by_stamp(bag: Path) -> dict[int, list[tuple]]:
 
     out = {}
     with AnyReader([bag]) as reader:
-        conns = [c for c in reader.connections if c.topic == graph.TRACKS]
+        conns = [c for c in reader.connections if c.topic == resolve(graph.TRACKS)]
         for conn, _, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
             stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
@@ -143,8 +145,8 @@ def test_replayed_bag_reproduces_the_recorded_tracks(synthetic_run, tmp_path):
     tracker = ProcessSpec(
         name="vehicle_tracker",
         argv=node_command(graph.TRACKER, PARAMS_FILE),
-        subscribes=graph.TRACKER.subscribes,
-        publishes=graph.TRACKER.publishes,
+        subscribes=tuple(map(resolve, graph.TRACKER.subscribes)),
+        publishes=tuple(map(resolve, graph.TRACKER.publishes)),
     )
     recorder = ProcessSpec(
         name="bag_recorder",
@@ -156,7 +158,7 @@ def test_replayed_bag_reproduces_the_recorded_tracks(synthetic_run, tmp_path):
                 f"topics:=['{graph.TRACKS}:stereo_vehicle_msgs/msg/TrackedVehicleArray']",
             ],
         ),
-        subscribes=(graph.TRACKS,),
+        subscribes=(resolve(graph.TRACKS),),
     )
     player = ProcessSpec(
         name="bag_player",
@@ -164,13 +166,13 @@ def test_replayed_bag_reproduces_the_recorded_tracks(synthetic_run, tmp_path):
             str(Path(node_command(graph.TRACKER, None)[0]).with_name("bag_player")),
             str(synthetic_run / "bag"),
             "--topics",
-            f"{graph.DETECTIONS_3D},{graph.LEFT_INFO}",
+            f"{resolve(graph.DETECTIONS_3D)},{resolve(graph.LEFT_INFO)}",
             "--rate",
             "4",
             "--wait-for-subscribers",
             "1",
         ],
-        publishes=(graph.DETECTIONS_3D,),
+        publishes=(resolve(graph.DETECTIONS_3D),),
         source=True,
         finishes=True,
     )
@@ -225,7 +227,7 @@ def test_killed_node_is_named_and_bag_stays_readable(tmp_path, synthetic_run):
 
     with AnyReader([bag]) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-    assert 5 <= counts[graph.TRACKS] < FRAMES, counts
+    assert 5 <= counts[resolve(graph.TRACKS)] < FRAMES, counts
 
 
 def _pid_of_node(name: str, parent: int) -> int:
