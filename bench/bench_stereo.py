@@ -29,7 +29,8 @@ from stereo_depth_node.disparity import (
     d1_error,
     interpolate_background,
 )
-from stereo_depth_node.ranging import RangingParams, range_boxes
+from stereo_depth_node.ranging import RangingParams, range_boxes, robust_disparity
+from stereo_depth_node.region_matching import box_disparity, refine_shift, to_gray
 from stereo_depth_node.reprojection import StereoGeometry
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "kitti"
@@ -277,7 +278,10 @@ def centre_records(root: Path, sequence: str, dparams: DisparityParams, variants
         disp = compute_disparity(left, right, dparams)
         boxes = np.array([o.bbox for o in objs])
         bins = [alpha_to_bin(o.alpha) for o in objs]
-        res = {name: range_boxes(disp, boxes, geo, rp, bins) for name, rp in variants.items()}
+        images = (to_gray(left), to_gray(right))
+        res = {
+            name: range_boxes(disp, boxes, geo, rp, bins, images) for name, rp in variants.items()
+        }
         for i, o in enumerate(objs):
             com = seq.calib.cam0_to_left(np.asarray(o.centre_of_mass, float)[None])[0]
             out.append({"obj": o, "bin": bins[i], "com": com, **{k: v[i] for k, v in res.items()}})
@@ -404,6 +408,162 @@ def bench_centre(dparams: DisparityParams, synth: list[str]) -> None:
         centre_report(title, recs, variants, detail)
 
 
+FIT_PAIRS, REPORT_PAIRS = (0, 2, 4), (1, 3)  # KITTI 2015 pairs: bias fitted / reported
+D_BINS = ((0.0, 20.0), (20.0, 40.0), (40.0, 1e9))
+
+
+def surface_regions(gt: np.ndarray, margin: int = 100):
+    """Car-sized windows of a KITTI 2015 ground-truth map that lie on one surface: for a car
+    (3.2 x 1.4 m) at disparities 6..70 px, windows (half-overlapping, not in the leftmost
+    ``margin`` columns that the right image does not see) whose ground truth covers >= 30 % of
+    the pixels, has its median within 12 % of that disparity and >= 75 % of its pixels within
+    10 % of the median. Yields (box, mean ground-truth disparity)."""
+    h, w = gt.shape
+    for d in (6, 8, 10, 13, 16, 20, 25, 30, 36, 45, 55, 70):
+        bw, bh = int(3.2 * d / 0.54), int(1.4 * d / 0.54)
+        for y in range(0, h - bh, max(bh // 2, 4)):
+            for x in range(margin, w - bw, max(bw // 2, 4)):
+                g = gt[y : y + bh, x : x + bw]
+                v = g[g > 0]
+                if v.size < 0.3 * g.size:
+                    continue
+                m = float(np.median(v))
+                if abs(m - d) > 0.12 * d or np.mean(np.abs(v / m - 1) < 0.10) < 0.75:
+                    continue
+                yield (x, y, x + bw, y + bh), float(np.mean(v))
+
+
+REGION_ESTIMATORS = (
+    "a: robust on the default map",
+    "b: full-res SGBM on the region",
+    "c: (b) mask + box-level shift",
+)
+
+
+def region_records():
+    """Per surface region of the 5 KITTI 2015 pairs: (pair, gt, a, b, c estimates [px], time of
+    b and c [s]). The robust estimator runs without ground rejection and height prior (windows
+    are not cars); b and c start from a."""
+    geo = StereoGeometry(721.5, 721.5, 609.6, 172.9, 0.5327)  # KITTI colour pair (tracking 0005)
+    rp = replace(RangingParams(), reject_ground=False, prior_log_sigma=0.0)
+    rows = []
+    for i, (left, right, gt) in enumerate(stereo_pairs()):
+        disp = compute_disparity(left, right, DEFAULT)
+        lg, rg = to_gray(left), to_gray(right)
+        for box, g in surface_regions(gt):
+            da, _ = robust_disparity(disp, box, geo, rp)
+            t0 = time.perf_counter()
+            db, _ = box_disparity(lg, rg, box, da)
+            t1 = time.perf_counter()
+            dc, _ = refine_shift(lg, rg, box, da)
+            t2 = time.perf_counter()
+            rows.append((i, g, da, db, dc, t1 - t0, t2 - t1))
+    return np.array(rows)
+
+
+def bench_regions() -> dict[str, float]:
+    """Region-level bias and spread per disparity bin on the KITTI 2015 pairs; the far-bin bias
+    of each estimator fitted on FIT_PAIRS, reported (after correction) on REPORT_PAIRS. Returns
+    the fitted biases."""
+    rows = region_records()
+    print("\n## Region-level disparity error, KITTI Stereo 2015 training 000000..000004")
+    print("car-sized windows on one surface (bench_stereo.surface_regions); error = estimate -")
+    print(
+        "mean ground truth of the window; bias = median, spread = 1.4826 MAD; ok = share estimated"
+    )
+    fitted = {}
+    far = rows[:, 1] < 20
+    fit = np.isin(rows[:, 0], FIT_PAIRS)
+    for k, name in enumerate(REGION_ESTIMATORS):
+        e = rows[:, 2 + k] - rows[:, 1]
+        sel = fit & far & np.isfinite(e)
+        fitted[name] = float(np.median(e[sel]))
+    print(
+        f"far-bin bias fitted on pairs {FIT_PAIRS}: "
+        + ", ".join(f"{n[0]} {b:+.2f} px" for n, b in fitted.items())
+    )
+    print(
+        "| pairs | disparity bin | regions | estimator | ok | bias px | spread px | after fit px |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for label, pairs in (
+        ("all", range(5)),
+        (f"fit {FIT_PAIRS}", FIT_PAIRS),
+        (f"report {REPORT_PAIRS}", REPORT_PAIRS),
+    ):
+        for lo, hi in D_BINS:
+            sel = np.isin(rows[:, 0], pairs) & (rows[:, 1] >= lo) & (rows[:, 1] < hi)
+            bin_name = f"{lo:.0f}-{hi:.0f}" if hi < 1e8 else f">{lo:.0f}"
+            for k, name in enumerate(REGION_ESTIMATORS):
+                e = rows[sel, 2 + k] - rows[sel, 1]
+                ok = np.isfinite(e)
+                if not ok.any():
+                    continue
+                print(
+                    f"| {label} | {bin_name} | {int(sel.sum())} | {name} | {ok.mean():.2f} | "
+                    f"{np.median(e[ok]):+.2f} | {_robust_std(e[ok]):.2f} | "
+                    f"{np.median(e[ok]) - fitted[name]:+.2f} |"
+                )
+    small = rows[:, 1] < 40
+    print(
+        f"time per region (disparity < 40 px): b median {1000 * np.median(rows[small, 5]):.2f} ms, "
+        f"c median {1000 * np.median(rows[small, 6]):.2f} ms"
+    )
+    return fitted
+
+
+FAR_BUCKETS = ((0.0, 10.0), (10.0, 20.0), (20.0, 30.0), (30.0, 45.0), (45.0, 1e9))
+
+
+def far_variants(fitted: dict[str, float]) -> dict[str, RangingParams]:
+    """Ranging variants of the far-car table (centre correction on; biases from bench_regions)."""
+    base = RangingParams()
+    a, b, c = (fitted[n] for n in REGION_ESTIMATORS)
+    return {
+        "a: robust map, no bias correction (before)": replace(
+            base, refine="none", disparity_bias=0.0
+        ),
+        f"a: robust map, bias {a:+.2f}": replace(base, refine="none", disparity_bias=a),
+        f"b: full-res region SGBM, bias {b:+.2f}": replace(
+            base, refine="region_sgbm", disparity_bias=b
+        ),
+        "c: box-level shift, no bias correction": replace(base, disparity_bias=0.0),
+        f"c: box-level shift, bias {c:+.2f}": replace(base, disparity_bias=c),
+        "default RangingParams()": base,
+    }
+
+
+def bench_far(fitted: dict[str, float]) -> None:
+    """Signed depth error of each labelled Car of tracking 0005 per distance bin, per variant."""
+    variants = far_variants(fitted)
+    recs = [
+        r for r in centre_records(TRACKING, "0005", DEFAULT, variants) if r["obj"].type == "Car"
+    ]
+    print("\n## Far cars: labelled Cars of KITTI tracking 0005 (16 frames, oracle boxes)")
+    print(
+        "signed depth error (z_est - z_com) / z_com of the ranged centre vs the label's centre of"
+    )
+    print("mass (left frame), median per distance bin [%]; spread = 1.4826 MAD [%]; n = boxes")
+    print(
+        "| variant | " + " | ".join(_bucket_name(lo, hi) for lo, hi in FAR_BUCKETS) + " | > 30 m |"
+    )
+    print("|---|" + "---|" * (len(FAR_BUCKETS) + 1))
+    for name in variants:
+        cells = []
+        for lo, hi in (*FAR_BUCKETS, (30.0, 1e9)):
+            sel = [r for r in recs if lo <= r["com"][2] < hi and r[name] is not None]
+            if not sel:
+                cells.append("-")
+                continue
+            e = np.array([100 * (r[name].position[2] / r["com"][2] - 1) for r in sel])
+            cells.append(f"{np.median(e):+.1f} / {_robust_std(e):.1f} (n={len(e)})")
+        print(f"| {name} | " + " | ".join(cells) + " |")
+
+
+def _bucket_name(lo: float, hi: float) -> str:
+    return f"{lo:.0f}-{hi:.0f} m" if hi < 1e8 else f">= {lo:.0f} m"
+
+
 def bench_timing(variants: dict[str, DisparityParams], repeats: int) -> None:
     seq = TrackingSequence.open(TRACKING, "0005")
     geo = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
@@ -447,7 +607,7 @@ def main() -> int:
         "section",
         nargs="?",
         default="all",
-        choices=["disparity", "ranging", "centre", "timing", "all"],
+        choices=["disparity", "ranging", "regions", "far", "centre", "timing", "all"],
     )
     ap.add_argument("--synth", action="append", default=[], help="ROOT:SEQ of kitti_synth data")
     ap.add_argument("--repeats", type=int, default=3)
@@ -463,6 +623,11 @@ def main() -> int:
         bench_disparity({**VARIANTS, "default (DisparityParams())": DEFAULT})
     if args.section in ("ranging", "all"):
         bench_ranging(DEFAULT)
+    fitted = {}
+    if args.section in ("regions", "far", "all"):
+        fitted = bench_regions()
+    if args.section in ("far", "all"):
+        bench_far(fitted)
     if args.section in ("centre", "all"):
         bench_centre(DEFAULT, args.synth)
     if args.section in ("timing", "all"):

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from detector_node.orientation import BIN_WIDTH, NUM_BINS
 
+from .region_matching import REFINE_METHODS, RegionParams, box_disparity, refine_shift
 from .reprojection import StereoGeometry
 
 METHODS = ("robust", "median")
@@ -102,6 +103,9 @@ class RangingParams:
     depth_offset: tuple[float, float, float, float] = field(
         default_factory=lambda: (0.0, 0.0, 0.0, 0.0)
     )  # [m] per orientation bin (0, 45, 90, 135 deg), added after the centre correction
+    refine: str = "region_shift"  # none | region_sgbm | region_shift (region_matching.py)
+    refine_max_disparity: float = 20.0  # [px] boxes with a larger coarse disparity: not refined
+    disparity_bias: float = -0.77  # [px] bias of the estimate on KITTI 2015 (docs), subtracted
 
     def validate(self) -> None:
         """Raise ValueError for unusable settings."""
@@ -119,6 +123,8 @@ class RangingParams:
             raise ValueError("car_length, car_width: must be >= 0")
         if not 0.0 <= self.correction_bin_spread <= 1.0:
             raise ValueError(f"correction_bin_spread: {self.correction_bin_spread} not in [0, 1]")
+        if self.refine not in REFINE_METHODS:
+            raise ValueError(f"refine: {self.refine!r} not one of {REFINE_METHODS}")
 
 
 @dataclass(frozen=True)
@@ -255,12 +261,27 @@ def position_covariance(
     return J @ S @ J.T
 
 
+def refined_disparity(
+    d: float, box, images, params: RangingParams, region: RegionParams | None = None
+) -> float:
+    """The box's disparity after the full-resolution refinement ``params.refine`` on the
+    (left, right) gray ``images`` (d itself when off, not applicable or failing), minus
+    ``params.disparity_bias``."""
+    if params.refine != "none" and images is not None and 0 < d <= params.refine_max_disparity:
+        refine = refine_shift if params.refine == "region_shift" else box_disparity
+        d_fine, _ = refine(images[0], images[1], box, d, region)
+        if np.isfinite(d_fine) and d_fine > 0:
+            d = d_fine
+    return d - params.disparity_bias
+
+
 def range_boxes(
     disparity: np.ndarray,
     boxes,
     geometry: StereoGeometry,
     params: RangingParams | RangingSetup | None = None,
     orientation_bins=None,
+    images=None,
 ) -> list[RangeResult | None]:
     """Range each box (x1, y1, x2, y2) [px] of the left image in a disparity map [px].
 
@@ -269,6 +290,8 @@ def range_boxes(
     results, without re-validating and recomputing the offsets per call). ``orientation_bins``
     (0..3 per box) selects the per-bin centre correction and ``depth_offset``; without bins, and
     for a bin outside 0..3, the correction's mean over all angles and bin 0's offset.
+    ``images``: the (left, right) uint8 gray images of the pair, for ``params.refine`` (without
+    them the map's estimate is used, bias-corrected all the same).
     """
     setup = params if isinstance(params, RangingSetup) else RangingSetup.from_params(params)
     params, centre = setup.params, setup.centre_offsets
@@ -290,6 +313,8 @@ def range_boxes(
             d, _ = robust_disparity(disparity, box, geometry, params)
             if not np.isfinite(d):
                 d = d_med
+        if np.isfinite(d) and d > 0:
+            d = refined_disparity(d, box, images, params)
         if not (np.isfinite(d) and d > 0):
             results.append(None)
             continue
