@@ -30,10 +30,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from detector_node.orientation import BIN_WIDTH, NUM_BINS
 
+from .centre_fit import fit_lateral
 from .region_matching import REFINE_METHODS, RegionParams, box_disparity, refine_shift
 from .reprojection import StereoGeometry
 
 METHODS = ("robust", "median")
+TRUNCATION_BORDER = 2.0  # [px] a box edge this near the image border: cut by the border
 SURFACE_MODELS = ("visible", "nearest")
 
 
@@ -96,13 +98,15 @@ class RangingParams:
     prior_height: float = 1.5  # [m] typical car height for the depth prior from box height
     prior_log_sigma: float = 0.5  # log-depth std of that prior (0 disables the prior)
     centre_correction: bool = True  # move the surface estimate to the car's centre (geometry)
-    surface_model: str = "visible"  # centre_depth_behind_surface model: visible | nearest
+    surface_model: str = "nearest"  # centre_depth_behind_surface model: visible | nearest
+    truncated_surface_model: str = "visible"  # the same for boxes cut by the image border
     car_length: float = 3.9  # [m] mean car length of the centre correction
     car_width: float = 1.6  # [m] mean car width of the centre correction
     correction_bin_spread: float = 0.0  # share of the bin's +-22.5 deg averaged (0: centre)
     depth_offset: tuple[float, float, float, float] = field(
         default_factory=lambda: (0.0, 0.0, 0.0, 0.0)
     )  # [m] per orientation bin (0, 45, 90, 135 deg), added after the centre correction
+    lateral_fit: bool = True  # centre_fit.fit_lateral: footprint of the car spans the 2D box
     refine: str = "region_shift"  # none | region_sgbm | region_shift (region_matching.py)
     refine_max_disparity: float = 20.0  # [px] boxes with a larger coarse disparity: not refined
     disparity_bias: float = -0.77  # [px] bias of the estimate on KITTI 2015 (docs), subtracted
@@ -117,8 +121,9 @@ class RangingParams:
             raise ValueError("depth_offset: needs 4 values (one per orientation bin)")
         if self.sigma_d <= 0:
             raise ValueError(f"sigma_d: {self.sigma_d} must be > 0")
-        if self.surface_model not in SURFACE_MODELS:
-            raise ValueError(f"surface_model: {self.surface_model!r} not one of {SURFACE_MODELS}")
+        for name in ("surface_model", "truncated_surface_model"):
+            if getattr(self, name) not in SURFACE_MODELS:
+                raise ValueError(f"{name}: {getattr(self, name)!r} not one of {SURFACE_MODELS}")
         if self.car_length < 0 or self.car_width < 0:
             raise ValueError("car_length, car_width: must be >= 0")
         if not 0.0 <= self.correction_bin_spread <= 1.0:
@@ -141,11 +146,13 @@ class RangeResult:
 @dataclass(frozen=True, eq=False)
 class RangingSetup:
     """Validated :class:`RangingParams` with their per-bin centre offsets [m] (shape (5,), see
-    :func:`bin_centre_offsets`; zeros without ``centre_correction``): what depends only on the
-    settings, computed once and reused for every frame."""
+    :func:`bin_centre_offsets`; zeros without ``centre_correction``) and those of boxes cut by
+    the image border (``truncated_surface_model``): what depends only on the settings,
+    computed once and reused for every frame."""
 
     params: RangingParams
     centre_offsets: np.ndarray
+    truncated_offsets: np.ndarray
 
     @classmethod
     def from_params(cls, params: RangingParams | None = None) -> RangingSetup:
@@ -153,16 +160,16 @@ class RangingSetup:
         ValueError for unusable settings."""
         params = params or RangingParams()
         params.validate()
-        centre = np.zeros(NUM_BINS + 1)
-        if params.centre_correction:
-            centre = bin_centre_offsets(
-                params.car_length,
-                params.car_width,
-                params.surface_model,
-                params.correction_bin_spread,
-            )
-        centre.setflags(write=False)
-        return cls(params, centre)
+        offsets = []
+        for model in (params.surface_model, params.truncated_surface_model):
+            centre = np.zeros(NUM_BINS + 1)
+            if params.centre_correction:
+                centre = bin_centre_offsets(
+                    params.car_length, params.car_width, model, params.correction_bin_spread
+                )
+            centre.setflags(write=False)
+            offsets.append(centre)
+        return cls(params, *offsets)
 
 
 def _box_slice(box, width: int, height: int, fraction: float) -> tuple[slice, slice] | None:
@@ -294,7 +301,8 @@ def range_boxes(
     them the map's estimate is used, bias-corrected all the same).
     """
     setup = params if isinstance(params, RangingSetup) else RangingSetup.from_params(params)
-    params, centre = setup.params, setup.centre_offsets
+    params = setup.params
+    width = disparity.shape[1] if np.ndim(disparity) == 2 else 0
     disparity = np.asarray(disparity, np.float32)
     boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
     results: list[RangeResult | None] = []
@@ -321,12 +329,25 @@ def range_boxes(
         u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
         z_surface = float(geometry.fx * geometry.baseline / d)
         b = int(orientation_bins[i]) if orientation_bins is not None else NUM_BINS
+        cut = box[0] <= TRUNCATION_BORDER or box[2] >= width - 1 - TRUNCATION_BORDER
+        centre = setup.truncated_offsets if cut else setup.centre_offsets
         if 0 <= b < NUM_BINS:
             offset = float(centre[b] + params.depth_offset[b])
         else:  # no bin, or an invalid one: the mean correction over all angles
             offset = float(centre[NUM_BINS] + params.depth_offset[0])
         ray = geometry.backproject(u, v, 1.0)
         point = ray * z_surface + offset * ray / np.linalg.norm(ray)
+        if params.lateral_fit and 0 <= b < NUM_BINS:
+            point = fit_lateral(
+                point,
+                box,
+                b * BIN_WIDTH,
+                params.car_length,
+                params.car_width,
+                geometry,
+                width,
+                TRUNCATION_BORDER,
+            )
         cov = position_covariance(u, v, float(point[2]), geometry, params)
         results.append(RangeResult(point, cov, float(d), float(frac)))
     return results
