@@ -520,9 +520,7 @@ def far_variants(fitted: dict[str, float]) -> dict[str, RangingParams]:
     base = RangingParams()
     a, b, c = (fitted[n] for n in REGION_ESTIMATORS)
     return {
-        "a: robust map, no bias correction (before)": replace(
-            base, refine="none", disparity_bias=0.0
-        ),
+        "a: robust map, no bias correction": replace(base, refine="none", disparity_bias=0.0),
         f"a: robust map, bias {a:+.2f}": replace(base, refine="none", disparity_bias=a),
         f"b: full-res region SGBM, bias {b:+.2f}": replace(
             base, refine="region_sgbm", disparity_bias=b
@@ -723,17 +721,27 @@ def bench_timing(variants: dict[str, DisparityParams], repeats: int) -> None:
     print("| variant | median ms | p90 ms | ratio to L+R+WLS full res 128 |")
     print("|---|---|---|---|")
     times: dict[str, list[float]] = {name: [] for name in variants}
-    rtimes = []
+    rtimes, new_rtimes, frame_old, frame_new = [], [], [], []
+    old_ranging = replace(RangingParams(), refine="none")
     for _ in range(repeats):
         for name, p in variants.items():
             for left, right, boxes in frames:
                 t0 = time.perf_counter()
                 d = compute_disparity(left, right, p)
                 t1 = time.perf_counter()
-                range_boxes(d, np.array(boxes).reshape(-1, 4), geo)
+                range_boxes(d, np.array(boxes).reshape(-1, 4), geo, old_ranging)
                 t2 = time.perf_counter()
                 times[name].append(t2 - t0)
                 rtimes.append(t2 - t1)
+                if p is DEFAULT:  # new ranging path (refinement on the gray pair), same frame
+                    t3 = time.perf_counter()
+                    images = (to_gray(left), to_gray(right))
+                    range_boxes(
+                        d, np.array(boxes).reshape(-1, 4), geo, RangingParams(), None, images
+                    )
+                    new_rtimes.append(time.perf_counter() - t3)
+                    frame_old.append(t2 - t0)
+                    frame_new.append(t1 - t0 + new_rtimes[-1])
     ref = 1000 * np.median(times[next(iter(variants))])
     for name, ts in times.items():
         med = 1000 * np.median(ts)
@@ -741,7 +749,13 @@ def bench_timing(variants: dict[str, DisparityParams], repeats: int) -> None:
     n_boxes = np.mean([len(b) for _, _, b in frames])
     print(
         f"ranging step alone (range_boxes, {n_boxes:.1f} boxes/frame): median "
-        f"{1000 * np.median(rtimes):.2f} ms"
+        f"{1000 * np.median(rtimes):.2f} ms without refinement, {1000 * np.median(new_rtimes):.2f} "
+        "ms with the default refinement (incl. gray conversion)"
+    )
+    print(
+        f"default disparity + ranging per frame: old path (refine none) "
+        f"{1000 * np.median(frame_old):.1f} ms, new path {1000 * np.median(frame_new):.1f} ms, "
+        f"ratio new/old {np.median(frame_new) / np.median(frame_old):.3f}"
     )
 
 

@@ -37,3 +37,30 @@ def test_region_estimators_give_up_without_a_usable_start():
     left, right = textured_pair()
     assert np.isnan(box_disparity(left, right, CAR, float("nan"))[0])
     assert np.isnan(refine_shift(left, right, (5, 5, 6, 6), 8.0)[0])  # box too small
+
+
+def test_range_boxes_refines_far_boxes_on_the_pair_and_subtracts_the_bias():
+    from dataclasses import replace
+
+    from stereo_depth_node.ranging import RangingParams, range_boxes
+    from stereo_depth_node.reprojection import StereoGeometry
+
+    left, right = textured_pair()
+    geo = StereoGeometry(721.5, 721.5, 609.6, 172.9, 0.5327)
+    coarse = np.full(left.shape, 8.0, np.float32)  # a map 0.3 px off on the car
+    params = RangingParams(centre_correction=False, lateral_fit=False, reject_ground=False)
+    plain = range_boxes(coarse, [CAR], geo, replace(params, disparity_bias=0.0))[0]
+    refined = range_boxes(
+        coarse, [CAR], geo, replace(params, disparity_bias=0.0), None, (left, right)
+    )[0]
+    biased = range_boxes(
+        coarse, [CAR], geo, replace(params, disparity_bias=-0.5), None, (left, right)
+    )[0]
+    assert plain.disparity == pytest.approx(8.0, abs=1e-3)
+    assert refined.disparity == pytest.approx(8.3, abs=0.12)
+    assert biased.disparity == pytest.approx(refined.disparity + 0.5, abs=1e-6)
+    assert refined.position[2] == pytest.approx(geo.fx * geo.baseline / refined.disparity)
+    off = replace(params, refine="none", disparity_bias=0.0)
+    assert range_boxes(coarse, [CAR], geo, off, None, (left, right))[0].disparity == pytest.approx(
+        8.0, abs=1e-3
+    )
