@@ -73,6 +73,17 @@ VARIANTS = {
 }
 
 
+#: RangingParams defaults before issue #13 (for before/after figures)
+PREVIOUS_DEFAULTS = replace(
+    RangingParams(),
+    refine="none",
+    disparity_bias=0.0,
+    surface_model="visible",
+    truncated_surface_model="visible",
+    lateral_fit=False,
+)
+
+
 def stereo_pairs():
     for i in range(5):
         name = f"{i:06d}_10.png"
@@ -383,21 +394,20 @@ def centre_report(title: str, recs, variants: dict, detail: tuple[str, ...]) -> 
 
 def bench_centre(dparams: DisparityParams, synth: list[str]) -> None:
     base = RangingParams()
+    prev = PREVIOUS_DEFAULTS
     variants = {
-        "robust, no correction (before)": replace(base, centre_correction=False),
-        "robust + correction, nearest-point model": replace(base, surface_model="nearest"),
-        "robust + correction, visible model, bin-mean angle": replace(
-            base, correction_bin_spread=1.0
+        "robust, no correction": replace(prev, centre_correction=False),
+        "previous defaults (visible model, no refinement, no bias)": prev,
+        "previous + nearest model, lateral fit (new centre step only)": replace(
+            base, refine="none", disparity_bias=0.0
         ),
-        "median, no correction": replace(base, method="median", centre_correction=False),
-        "median + correction, visible model": replace(base, method="median"),
-        "default RangingParams() (robust + visible model at the bin's centre angle)": base,
-        "default with sigma_d 0.8 (previous covariance)": replace(base, sigma_d=0.8),
+        "default without disparity_bias (no real-camera offset)": replace(base, disparity_bias=0.0),
+        "default RangingParams()": base,
     }
     detail = (
-        "robust, no correction (before)",
-        "default RangingParams() (robust + visible model at the bin's centre angle)",
-        "default with sigma_d 0.8 (previous covariance)",
+        "previous defaults (visible model, no refinement, no bias)",
+        "default without disparity_bias (no real-camera offset)",
+        "default RangingParams()",
     )
     sets = [("KITTI tracking 0005 (16 frames, real)", TRACKING, "0005")]
     for spec in synth:
@@ -417,7 +427,8 @@ def surface_regions(gt: np.ndarray, margin: int = 100):
     (3.2 x 1.4 m) at disparities 6..70 px, windows (half-overlapping, not in the leftmost
     ``margin`` columns that the right image does not see) whose ground truth covers >= 30 % of
     the pixels, has its median within 12 % of that disparity and >= 75 % of its pixels within
-    10 % of the median. Yields (box, mean ground-truth disparity)."""
+    10 % of the median. Yields (box, truth = mean ground truth of that surface, i.e. of the
+    pixels within 10 % of the median)."""
     h, w = gt.shape
     for d in (6, 8, 10, 13, 16, 20, 25, 30, 36, 45, 55, 70):
         bw, bh = int(3.2 * d / 0.54), int(1.4 * d / 0.54)
@@ -428,9 +439,10 @@ def surface_regions(gt: np.ndarray, margin: int = 100):
                 if v.size < 0.3 * g.size:
                     continue
                 m = float(np.median(v))
-                if abs(m - d) > 0.12 * d or np.mean(np.abs(v / m - 1) < 0.10) < 0.75:
+                on_surface = np.abs(v / m - 1) < 0.10
+                if abs(m - d) > 0.12 * d or np.mean(on_surface) < 0.75:
                     continue
-                yield (x, y, x + bw, y + bh), float(np.mean(v))
+                yield (x, y, x + bw, y + bh), float(np.mean(v[on_surface]))
 
 
 REGION_ESTIMATORS = (
@@ -438,54 +450,97 @@ REGION_ESTIMATORS = (
     "b: full-res SGBM on the region",
     "c: (b) mask + box-level shift",
 )
+#: full-resolution left SGBM (no WLS): the matcher of estimators b and c, for the pixel-level fit
+FULL_LEFT = replace(DEFAULT, downscale=1, use_wls=False, block_size=5, num_disparities=128)
+KITTI_GEO = StereoGeometry(721.5, 721.5, 609.6, 172.9, 0.5327)  # colour pair of tracking 0005
+
+
+def column_x2(u) -> np.ndarray:
+    """((u - cx) / fx)^2 of image columns u (the regressor of the column-dependent bias)."""
+    return ((np.asarray(u, float) - KITTI_GEO.cx) / KITTI_GEO.fx) ** 2
 
 
 def region_records():
-    """Per surface region of the 5 KITTI 2015 pairs: (pair, gt, a, b, c estimates [px], time of
-    b and c [s]). The robust estimator runs without ground rejection and height prior (windows
-    are not cars); b and c start from a."""
-    geo = StereoGeometry(721.5, 721.5, 609.6, 172.9, 0.5327)  # KITTI colour pair (tracking 0005)
+    """Per surface region of the 5 KITTI 2015 pairs: (pair, truth, a, b, c estimates [px], time
+    of b and c [s], centre column); plus, per pair, the pixel errors (error, column regressor) of
+    the default map and of FULL_LEFT for pixels with ground truth < 20 px. The robust estimator
+    runs without ground rejection and height prior (windows are not cars); b, c start from a."""
     rp = replace(RangingParams(), reject_ground=False, prior_log_sigma=0.0)
-    rows = []
+    rows, pixels = [], []
     for i, (left, right, gt) in enumerate(stereo_pairs()):
         disp = compute_disparity(left, right, DEFAULT)
+        full = compute_disparity(left, right, FULL_LEFT)
         lg, rg = to_gray(left), to_gray(right)
         for box, g in surface_regions(gt):
-            da, _ = robust_disparity(disp, box, geo, rp)
+            da, _ = robust_disparity(disp, box, KITTI_GEO, rp)
             t0 = time.perf_counter()
             db, _ = box_disparity(lg, rg, box, da)
             t1 = time.perf_counter()
             dc, _ = refine_shift(lg, rg, box, da)
             t2 = time.perf_counter()
-            rows.append((i, g, da, db, dc, t1 - t0, t2 - t1))
-    return np.array(rows)
+            rows.append((i, g, da, db, dc, t1 - t0, t2 - t1, 0.5 * (box[0] + box[2])))
+        per = []
+        for m in (disp, full):
+            e = m - gt
+            ok = (gt > 0) & (m > 0) & (gt < 20) & (np.abs(e) < 3)
+            ok[:, :100] = False  # columns the right image does not see
+            per.append((e[ok], column_x2(np.nonzero(ok)[1])))
+        pixels.append(per)
+    return np.array(rows), pixels
 
 
-def bench_regions() -> dict[str, float]:
-    """Region-level bias and spread per disparity bin on the KITTI 2015 pairs; the far-bin bias
-    of each estimator fitted on FIT_PAIRS, reported (after correction) on REPORT_PAIRS. Returns
-    the fitted biases."""
-    rows = region_records()
+def pixel_column_fit(pixels, pairs, which: int) -> tuple[float, float]:
+    """(b0, b2) of error = b0 + b2 ((u - cx)/fx)^2, least squares through the medians of 10
+    equally populated bins of the regressor, pixels of ``pairs`` (which: 0 map, 1 full-res)."""
+    e = np.concatenate([pixels[i][which][0] for i in pairs])
+    x = np.concatenate([pixels[i][which][1] for i in pairs])
+    edges = np.quantile(x, np.linspace(0, 1, 11))
+    xs, ms = [], []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = (x >= lo) & (x <= hi)
+        xs.append(np.median(x[sel]))
+        ms.append(np.median(e[sel]))
+    b0, b2 = np.linalg.lstsq(np.c_[np.ones(len(xs)), xs], np.array(ms), rcond=None)[0]
+    return float(b0), float(b2)
+
+
+def bench_regions() -> dict[str, tuple[float, float]]:
+    """Region-level bias and spread per disparity bin on the KITTI 2015 pairs. Bias model per
+    estimator, fitted on FIT_PAIRS only: the column growth b2 from the pixels of its matcher,
+    the constant b0 from its far-bin regions given b2; reported on REPORT_PAIRS. Returns
+    {estimator: (b0, b2)} and {estimator + ' constant': (median far-bin error, 0)}."""
+    rows, pixels = region_records()
+    print("\n## Where the far-range offset comes from: pixel errors, ground truth < 20 px")
+    print("error = b0 + b2 ((u - cx) / fx)^2 (medians of 10 bins of the regressor, columns >= 100)")
+    print("| matcher | pairs | b0 px | b2 px |")
+    print("|---|---|---|---|")
+    b2_of = {}
+    for which, matcher in enumerate(("default map", "full-res left SGBM, no WLS")):
+        for label, pairs in (("fit", FIT_PAIRS), ("report", REPORT_PAIRS), ("all", range(5))):
+            b0, b2 = pixel_column_fit(pixels, pairs, which)
+            print(f"| {matcher} | {label} {tuple(pairs)} | {b0:+.2f} | {b2:+.2f} |")
+            if label == "fit":
+                b2_of[which] = b2
     print("\n## Region-level disparity error, KITTI Stereo 2015 training 000000..000004")
     print("car-sized windows on one surface (bench_stereo.surface_regions); error = estimate -")
-    print(
-        "mean ground truth of the window; bias = median, spread = 1.4826 MAD; ok = share estimated"
-    )
-    fitted = {}
+    print("the surface's mean ground truth; bias = median, spread = 1.4826 MAD; ok = share")
+    print("estimated; 'model': after subtracting the bias model fitted on the fit pairs")
+    fitted: dict[str, tuple[float, float]] = {}
     far = rows[:, 1] < 20
     fit = np.isin(rows[:, 0], FIT_PAIRS)
+    x2 = column_x2(rows[:, 7])
     for k, name in enumerate(REGION_ESTIMATORS):
         e = rows[:, 2 + k] - rows[:, 1]
         sel = fit & far & np.isfinite(e)
-        fitted[name] = float(np.median(e[sel]))
+        b2 = b2_of[0 if k == 0 else 1]
+        fitted[name] = (float(np.median(e[sel] - b2 * x2[sel])), b2)
+        fitted[name + " constant"] = (float(np.median(e[sel])), 0.0)
     print(
-        f"far-bin bias fitted on pairs {FIT_PAIRS}: "
-        + ", ".join(f"{n[0]} {b:+.2f} px" for n, b in fitted.items())
+        f"bias models fitted on pairs {FIT_PAIRS} (b0 + b2 x^2): "
+        + ", ".join(f"{n[0]} {b0:+.2f} {b2:+.2f}" for n, (b0, b2) in fitted.items() if len(n) > 9)
     )
-    print(
-        "| pairs | disparity bin | regions | estimator | ok | bias px | spread px | after fit px |"
-    )
-    print("|---|---|---|---|---|---|---|---|")
+    print("| pairs | bin px | n | estimator | ok | bias | spread | bias, model | spread, model |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for label, pairs in (
         ("all", range(5)),
         (f"fit {FIT_PAIRS}", FIT_PAIRS),
@@ -499,15 +554,17 @@ def bench_regions() -> dict[str, float]:
                 ok = np.isfinite(e)
                 if not ok.any():
                     continue
+                b0, b2 = fitted[name]
+                ec = e[ok] - (b0 + b2 * x2[sel][ok])
                 print(
                     f"| {label} | {bin_name} | {int(sel.sum())} | {name} | {ok.mean():.2f} | "
                     f"{np.median(e[ok]):+.2f} | {_robust_std(e[ok]):.2f} | "
-                    f"{np.median(e[ok]) - fitted[name]:+.2f} |"
+                    f"{np.median(ec):+.2f} | {_robust_std(ec):.2f} |"
                 )
     small = rows[:, 1] < 40
     print(
-        f"time per region (disparity < 40 px): b median {1000 * np.median(rows[small, 5]):.2f} ms, "
-        f"c median {1000 * np.median(rows[small, 6]):.2f} ms"
+        f"time per region (disparity < 40 px): b median {1000 * np.median(rows[small, 5]):.2f} "
+        f"ms, c median {1000 * np.median(rows[small, 6]):.2f} ms"
     )
     return fitted
 
@@ -515,26 +572,32 @@ def bench_regions() -> dict[str, float]:
 FAR_BUCKETS = ((0.0, 10.0), (10.0, 20.0), (20.0, 30.0), (30.0, 45.0), (45.0, 1e9))
 
 
-def far_variants(fitted: dict[str, float]) -> dict[str, RangingParams]:
-    """Ranging variants of the far-car table (centre correction on; biases from bench_regions)."""
+def far_variants(fitted: dict[str, tuple[float, float]]) -> dict[str, RangingParams]:
+    """Ranging variants of the far-car table (centre step: default; biases from bench_regions)."""
     base = RangingParams()
     a, b, c = (fitted[n] for n in REGION_ESTIMATORS)
+    c_const = fitted[REGION_ESTIMATORS[2] + " constant"]
+
+    def biased(p: RangingParams, model: tuple[float, float]) -> RangingParams:
+        return replace(p, disparity_bias=model[0], disparity_bias_column=model[1])
+
     return {
-        "a: robust map, no bias correction": replace(base, refine="none", disparity_bias=0.0),
-        f"a: robust map, bias {a:+.2f}": replace(base, refine="none", disparity_bias=a),
-        f"b: full-res region SGBM, bias {b:+.2f}": replace(
-            base, refine="region_sgbm", disparity_bias=b
+        "a: robust map, no bias correction": biased(replace(base, refine="none"), (0.0, 0.0)),
+        f"a: robust map, bias {a[0]:+.2f} {a[1]:+.2f} x^2": biased(replace(base, refine="none"), a),
+        f"b: full-res region SGBM, bias {b[0]:+.2f} {b[1]:+.2f} x^2": biased(
+            replace(base, refine="region_sgbm"), b
         ),
-        "c: box-level shift, no bias correction": replace(base, disparity_bias=0.0),
-        f"c: box-level shift, bias {c:+.2f}": replace(base, disparity_bias=c),
-        "c + bias, visible-face model, no lateral fit (before's centre step)": replace(
-            base, surface_model="visible", lateral_fit=False
+        "c: box-level shift, no bias correction": biased(base, (0.0, 0.0)),
+        f"c: box-level shift, constant bias {c_const[0]:+.2f}": biased(base, c_const),
+        f"c: box-level shift, bias {c[0]:+.2f} {c[1]:+.2f} x^2": biased(base, c),
+        "c + column bias, previous centre step (visible model, no lateral fit)": biased(
+            replace(base, surface_model="visible", lateral_fit=False), c
         ),
         "default RangingParams()": base,
     }
 
 
-def bench_far(fitted: dict[str, float]) -> None:
+def bench_far(fitted: dict[str, tuple[float, float]]) -> None:
     """Signed depth error of each labelled Car of tracking 0005 per distance bin, per variant."""
     variants = far_variants(fitted)
     recs = [

@@ -115,7 +115,13 @@ class Harness:
 def harness(rclpy_context):
     # synthetic pair shifted by an exact integer disparity: no real-camera bias to correct; the
     # centre stays on the box-centre ray (lateral_fit is tested in test_stereo_centre_fit.py)
-    h = Harness(rclpy_context, sync_cache_size=3, disparity_bias=0.0, lateral_fit=False)
+    h = Harness(
+        rclpy_context,
+        sync_cache_size=3,
+        disparity_bias=0.0,
+        disparity_bias_column=0.0,
+        lateral_fit=False,
+    )
     yield h
     h.close()
 

@@ -48,7 +48,9 @@ def test_range_boxes_refines_far_boxes_on_the_pair_and_subtracts_the_bias():
     left, right = textured_pair()
     geo = StereoGeometry(721.5, 721.5, 609.6, 172.9, 0.5327)
     coarse = np.full(left.shape, 8.0, np.float32)  # a map 0.3 px off on the car
-    params = RangingParams(centre_correction=False, lateral_fit=False, reject_ground=False)
+    params = RangingParams(
+        centre_correction=False, lateral_fit=False, reject_ground=False, disparity_bias_column=0.0
+    )
     plain = range_boxes(coarse, [CAR], geo, replace(params, disparity_bias=0.0))[0]
     refined = range_boxes(
         coarse, [CAR], geo, replace(params, disparity_bias=0.0), None, (left, right)
@@ -64,3 +66,13 @@ def test_range_boxes_refines_far_boxes_on_the_pair_and_subtracts_the_bias():
     assert range_boxes(coarse, [CAR], geo, off, None, (left, right))[0].disparity == pytest.approx(
         8.0, abs=1e-3
     )
+
+
+def test_disparity_bias_grows_toward_the_image_borders():
+    from stereo_depth_node.ranging import RangingParams, disparity_bias_at
+    from stereo_depth_node.reprojection import StereoGeometry
+
+    geo = StereoGeometry(700.0, 700.0, 600.0, 170.0, 0.54)
+    p = RangingParams(disparity_bias=-0.3, disparity_bias_column=-1.8)
+    assert disparity_bias_at(600.0, geo, p) == pytest.approx(-0.3)
+    assert disparity_bias_at([250.0, 950.0], geo, p) == pytest.approx([-0.75, -0.75])

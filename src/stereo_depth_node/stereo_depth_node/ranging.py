@@ -108,8 +108,9 @@ class RangingParams:
     )  # [m] per orientation bin (0, 45, 90, 135 deg), added after the centre correction
     lateral_fit: bool = True  # centre_fit.fit_lateral: footprint of the car spans the 2D box
     refine: str = "region_shift"  # none | region_sgbm | region_shift (region_matching.py)
-    refine_max_disparity: float = 20.0  # [px] boxes with a larger coarse disparity: not refined
-    disparity_bias: float = -0.77  # [px] bias of the estimate on KITTI 2015 (docs), subtracted
+    refine_max_disparity: float = 40.0  # [px] boxes with a larger coarse disparity: not refined
+    disparity_bias: float = -0.28  # [px] bias of the estimate on KITTI 2015 (docs), subtracted
+    disparity_bias_column: float = -1.80  # [px] its growth x ((u - cx) / fx)^2 to the borders
 
     def validate(self) -> None:
         """Raise ValueError for unusable settings."""
@@ -272,14 +273,21 @@ def refined_disparity(
     d: float, box, images, params: RangingParams, region: RegionParams | None = None
 ) -> float:
     """The box's disparity after the full-resolution refinement ``params.refine`` on the
-    (left, right) gray ``images`` (d itself when off, not applicable or failing), minus
-    ``params.disparity_bias``."""
+    (left, right) gray ``images`` (d itself when off, not applicable or failing); no bias
+    correction (:func:`disparity_bias_at`)."""
     if params.refine != "none" and images is not None and 0 < d <= params.refine_max_disparity:
         refine = refine_shift if params.refine == "region_shift" else box_disparity
         d_fine, _ = refine(images[0], images[1], box, d, region)
         if np.isfinite(d_fine) and d_fine > 0:
             d = d_fine
-    return d - params.disparity_bias
+    return d
+
+
+def disparity_bias_at(u, geometry: StereoGeometry, params: RangingParams):
+    """Measured disparity bias [px] at image column(s) ``u``: ``disparity_bias +
+    disparity_bias_column * ((u - cx) / fx)^2`` (it grows toward the image borders, docs)."""
+    x = (np.asarray(u, dtype=float) - geometry.cx) / geometry.fx
+    return params.disparity_bias + params.disparity_bias_column * x * x
 
 
 def range_boxes(
@@ -321,12 +329,13 @@ def range_boxes(
             d, _ = robust_disparity(disparity, box, geometry, params)
             if not np.isfinite(d):
                 d = d_med
+        u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
         if np.isfinite(d) and d > 0:
             d = refined_disparity(d, box, images, params)
+            d -= float(disparity_bias_at(u, geometry, params))
         if not (np.isfinite(d) and d > 0):
             results.append(None)
             continue
-        u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
         z_surface = float(geometry.fx * geometry.baseline / d)
         b = int(orientation_bins[i]) if orientation_bins is not None else NUM_BINS
         cut = box[0] <= TRUNCATION_BORDER or box[2] >= width - 1 - TRUNCATION_BORDER
