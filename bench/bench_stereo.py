@@ -78,6 +78,7 @@ PREVIOUS_DEFAULTS = replace(
     RangingParams(),
     refine="none",
     disparity_bias=0.0,
+    disparity_bias_column=0.0,
     surface_model="visible",
     truncated_surface_model="visible",
     lateral_fit=False,
@@ -198,7 +199,7 @@ def summarise(rows, level: str) -> str:
 
 def bench_ranging(dparams: DisparityParams) -> None:
     seq, geo, frames = tracking_frames(dparams)
-    base = replace(RangingParams(), centre_correction=False)  # the estimators alone
+    base = replace(PREVIOUS_DEFAULTS, centre_correction=False)  # the estimators alone
     geo_off = (0.8, 1.4, 2.0, 1.4)  # w/2, corner, l/2 of a 1.6 x 4 m car per orientation bin
     half_off = tuple(0.5 * v for v in geo_off)
     none = (0.0,) * 4
@@ -220,7 +221,7 @@ def bench_ranging(dparams: DisparityParams) -> None:
         "robust + car offset (0.8,1.4,2.0,1.4)": replace(base, depth_offset=geo_off),
         "robust + half car offset": replace(base, depth_offset=half_off),
         "robust without far weighting, no offset": replace(base, far_weight=0.0, depth_offset=none),
-        "default RangingParams()": RangingParams(),
+        "previous defaults (before issue #13)": PREVIOUS_DEFAULTS,
     }
     print("\n## Ranging, KITTI tracking 0005 (16 frames), labelled Car boxes as input")
     print(f"disparity: downscale={dparams.downscale} use_wls={dparams.use_wls}; error = |z - z_gt|")
@@ -241,7 +242,7 @@ def bench_ranging(dparams: DisparityParams) -> None:
     print("|---|---|---|---|---|---|")
     for share in (0.3, 0.5, 0.7):
         for ratio in (0.6, 0.8):
-            for name in ("median, no offset", "default RangingParams()"):
+            for name in ("median, no offset", "previous defaults (before issue #13)"):
                 rows = ranging_errors(seq, geo, frames, variants[name], occluder=(share, ratio))
                 c = [x.strip() for x in summarise(rows, "moderate").split("|")]
                 print(f"| {share:.0%} | {ratio} | {name} | {c[4]} | {c[5]} | {c[6]} |")
@@ -399,9 +400,11 @@ def bench_centre(dparams: DisparityParams, synth: list[str]) -> None:
         "robust, no correction": replace(prev, centre_correction=False),
         "previous defaults (visible model, no refinement, no bias)": prev,
         "previous + nearest model, lateral fit (new centre step only)": replace(
-            base, refine="none", disparity_bias=0.0
+            base, refine="none", disparity_bias=0.0, disparity_bias_column=0.0
         ),
-        "default without disparity_bias (no real-camera offset)": replace(base, disparity_bias=0.0),
+        "default without disparity_bias (no real-camera offset)": replace(
+            base, disparity_bias=0.0, disparity_bias_column=0.0
+        ),
         "default RangingParams()": base,
     }
     detail = (
@@ -703,7 +706,7 @@ def centre_step_records(variants: dict[str, RangingParams]):
 
 def bench_centre_real() -> None:
     """Error of the box-to-centre step on real labelled cars given their true visible surface."""
-    exact = replace(RangingParams(), refine="none", disparity_bias=0.0)
+    exact = replace(RangingParams(), refine="none", disparity_bias=0.0, disparity_bias_column=0.0)
     variants = {
         "no centre step (visible surface on the box-centre ray)": replace(
             exact, centre_correction=False, lateral_fit=False
