@@ -83,7 +83,7 @@ class RangingParams:
     """Settings of :func:`range_boxes` (defaults chosen on KITTI tracking 0005, see docs)."""
 
     method: str = "robust"
-    sigma_d: float = 0.6  # [px] disparity std of the stereo error model (measured, see docs)
+    sigma_d: float = 0.3  # [px] disparity std of the stereo error model (measured, see docs)
     sigma_pixel: float = 3.0  # [px] std of the box centre in the image
     depth_offset_std: float = 0.5  # [m] std added to z for the visible-surface -> centre offset
     min_valid_pixels: int = 20  # fewer valid pixels -> no estimate
