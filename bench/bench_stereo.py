@@ -485,18 +485,45 @@ def region_records():
         per = []
         for m in (disp, full):
             e = m - gt
-            ok = (gt > 0) & (m > 0) & (gt < 20) & (np.abs(e) < 3)
+            ok = (gt > 0) & (m > 0) & (np.abs(e) < 3)
             ok[:, :100] = False  # columns the right image does not see
-            per.append((e[ok], column_x2(np.nonzero(ok)[1])))
+            per.append((e[ok], gt[ok], np.nonzero(ok)[1].astype(float)))
         pixels.append(per)
     return np.array(rows), pixels
+
+
+def bench_offset(pixels) -> None:
+    """Print where the far-range offset comes from: pixel error per ground-truth bin, a linear
+    fit per pair (scale vs offset) and the error per image column, for both matchers."""
+    gt_bins = (0, 10, 20, 30, 40, 60, 1000)
+    col_bins = (100, 300, 450, 600, 750, 900, 1050, 1250)
+    print("\n## Where the far-range offset comes from (pixels with |error| < 3 px, columns >= 100)")
+    for which, matcher in enumerate(("default map", "full-res left SGBM, no WLS")):
+        e = np.concatenate([p[which][0] for p in pixels])
+        g = np.concatenate([p[which][1] for p in pixels])
+        u = np.concatenate([p[which][2] for p in pixels])
+        by_gt = [np.median(e[(g >= a) & (g < b)]) for a, b in zip(gt_bins[:-1], gt_bins[1:])]
+        print(f"{matcher}: median error per ground-truth bin {gt_bins} px: ", end="")
+        print(" ".join(f"{v:+.2f}" for v in by_gt))
+        fits = []
+        for p in pixels:
+            slope, icpt = np.polyfit(p[which][1], p[which][0], 1)
+            fits.append(f"{100 * slope:+.1f} % d {icpt:+.2f}")
+        print(f"  linear fit per pair (error = slope d + offset): {'; '.join(fits)}")
+        near = g < 40
+        by_col = [
+            np.median(e[near & (u >= a) & (u < b)]) for a, b in zip(col_bins[:-1], col_bins[1:])
+        ]
+        print(f"  median error per column bin {col_bins} (ground truth < 40 px): ", end="")
+        print(" ".join(f"{v:+.2f}" for v in by_col))
 
 
 def pixel_column_fit(pixels, pairs, which: int) -> tuple[float, float]:
     """(b0, b2) of error = b0 + b2 ((u - cx)/fx)^2, least squares through the medians of 10
     equally populated bins of the regressor, pixels of ``pairs`` (which: 0 map, 1 full-res)."""
-    e = np.concatenate([pixels[i][which][0] for i in pairs])
-    x = np.concatenate([pixels[i][which][1] for i in pairs])
+    far = [pixels[i][which][1] < 20 for i in pairs]
+    e = np.concatenate([pixels[i][which][0][f] for i, f in zip(pairs, far, strict=True)])
+    x = column_x2(np.concatenate([pixels[i][which][2][f] for i, f in zip(pairs, far, strict=True)]))
     edges = np.quantile(x, np.linspace(0, 1, 11))
     xs, ms = [], []
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
@@ -513,7 +540,8 @@ def bench_regions() -> dict[str, tuple[float, float]]:
     the constant b0 from its far-bin regions given b2; reported on REPORT_PAIRS. Returns
     {estimator: (b0, b2)} and {estimator + ' constant': (median far-bin error, 0)}."""
     rows, pixels = region_records()
-    print("\n## Where the far-range offset comes from: pixel errors, ground truth < 20 px")
+    bench_offset(pixels)
+    print("\n## Column model of the offset: pixel errors, ground truth < 20 px")
     print("error = b0 + b2 ((u - cx) / fx)^2 (medians of 10 bins of the regressor, columns >= 100)")
     print("| matcher | pairs | b0 px | b2 px |")
     print("|---|---|---|---|")
