@@ -502,7 +502,9 @@ def bench_offset(pixels) -> None:
         e = np.concatenate([p[which][0] for p in pixels])
         g = np.concatenate([p[which][1] for p in pixels])
         u = np.concatenate([p[which][2] for p in pixels])
-        by_gt = [np.median(e[(g >= a) & (g < b)]) for a, b in zip(gt_bins[:-1], gt_bins[1:])]
+        by_gt = [
+            np.median(e[(g >= a) & (g < b)]) for a, b in zip(gt_bins[:-1], gt_bins[1:], strict=True)
+        ]
         print(f"{matcher}: median error per ground-truth bin {gt_bins} px: ", end="")
         print(" ".join(f"{v:+.2f}" for v in by_gt))
         fits = []
@@ -512,7 +514,8 @@ def bench_offset(pixels) -> None:
         print(f"  linear fit per pair (error = slope d + offset): {'; '.join(fits)}")
         near = g < 40
         by_col = [
-            np.median(e[near & (u >= a) & (u < b)]) for a, b in zip(col_bins[:-1], col_bins[1:])
+            np.median(e[near & (u >= a) & (u < b)])
+            for a, b in zip(col_bins[:-1], col_bins[1:], strict=True)
         ]
         print(f"  median error per column bin {col_bins} (ground truth < 40 px): ", end="")
         print(" ".join(f"{v:+.2f}" for v in by_col))
