@@ -27,9 +27,10 @@ from stereo_depth_node.disparity import (
     d1_error,
     interpolate_background,
 )
-from stereo_depth_node.ranging import RangingParams, range_boxes
+from stereo_depth_node.ranging import RangingParams, range_boxes, robust_disparity
+from stereo_depth_node.region_matching import box_disparity, refine_shift, to_gray
 from stereo_depth_node.reprojection import StereoGeometry
-from vehicle_common.kitti import TrackingSequence, read_png
+from vehicle_common.kitti import TrackingSequence, list_object_frames, read_png
 from vehicle_common.orientation_bins import alpha_to_bin
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "kitti"
@@ -70,6 +71,18 @@ VARIANTS = {
         FULL, downscale=2, num_disparities=96, block_size=3, wls_full_res_guide=False
     ),
 }
+
+
+#: RangingParams defaults before issue #13 (for before/after figures)
+PREVIOUS_DEFAULTS = replace(
+    RangingParams(),
+    refine="none",
+    disparity_bias=0.0,
+    disparity_bias_column=0.0,
+    surface_model="visible",
+    truncated_surface_model="visible",
+    lateral_fit=False,
+)
 
 
 def stereo_pairs():
@@ -186,7 +199,7 @@ def summarise(rows, level: str) -> str:
 
 def bench_ranging(dparams: DisparityParams) -> None:
     seq, geo, frames = tracking_frames(dparams)
-    base = replace(RangingParams(), centre_correction=False)  # the estimators alone
+    base = replace(PREVIOUS_DEFAULTS, centre_correction=False)  # the estimators alone
     geo_off = (0.8, 1.4, 2.0, 1.4)  # w/2, corner, l/2 of a 1.6 x 4 m car per orientation bin
     half_off = tuple(0.5 * v for v in geo_off)
     none = (0.0,) * 4
@@ -208,7 +221,7 @@ def bench_ranging(dparams: DisparityParams) -> None:
         "robust + car offset (0.8,1.4,2.0,1.4)": replace(base, depth_offset=geo_off),
         "robust + half car offset": replace(base, depth_offset=half_off),
         "robust without far weighting, no offset": replace(base, far_weight=0.0, depth_offset=none),
-        "default RangingParams()": RangingParams(),
+        "previous defaults (before issue #13)": PREVIOUS_DEFAULTS,
     }
     print("\n## Ranging, KITTI tracking 0005 (16 frames), labelled Car boxes as input")
     print(f"disparity: downscale={dparams.downscale} use_wls={dparams.use_wls}; error = |z - z_gt|")
@@ -229,7 +242,7 @@ def bench_ranging(dparams: DisparityParams) -> None:
     print("|---|---|---|---|---|---|")
     for share in (0.3, 0.5, 0.7):
         for ratio in (0.6, 0.8):
-            for name in ("median, no offset", "default RangingParams()"):
+            for name in ("median, no offset", "previous defaults (before issue #13)"):
                 rows = ranging_errors(seq, geo, frames, variants[name], occluder=(share, ratio))
                 c = [x.strip() for x in summarise(rows, "moderate").split("|")]
                 print(f"| {share:.0%} | {ratio} | {name} | {c[4]} | {c[5]} | {c[6]} |")
@@ -277,7 +290,10 @@ def centre_records(root: Path, sequence: str, dparams: DisparityParams, variants
         disp = compute_disparity(left, right, dparams)
         boxes = np.array([o.bbox for o in objs])
         bins = [alpha_to_bin(o.alpha) for o in objs]
-        res = {name: range_boxes(disp, boxes, geo, rp, bins) for name, rp in variants.items()}
+        images = (to_gray(left), to_gray(right))
+        res = {
+            name: range_boxes(disp, boxes, geo, rp, bins, images) for name, rp in variants.items()
+        }
         for i, o in enumerate(objs):
             com = seq.calib.cam0_to_left(np.asarray(o.centre_of_mass, float)[None])[0]
             out.append({"obj": o, "bin": bins[i], "com": com, **{k: v[i] for k, v in res.items()}})
@@ -379,21 +395,22 @@ def centre_report(title: str, recs, variants: dict, detail: tuple[str, ...]) -> 
 
 def bench_centre(dparams: DisparityParams, synth: list[str]) -> None:
     base = RangingParams()
+    prev = PREVIOUS_DEFAULTS
     variants = {
-        "robust, no correction (before)": replace(base, centre_correction=False),
-        "robust + correction, nearest-point model": replace(base, surface_model="nearest"),
-        "robust + correction, visible model, bin-mean angle": replace(
-            base, correction_bin_spread=1.0
+        "robust, no correction": replace(prev, centre_correction=False),
+        "previous defaults (visible model, no refinement, no bias)": prev,
+        "previous + nearest model, lateral fit (new centre step only)": replace(
+            base, refine="none", disparity_bias=0.0, disparity_bias_column=0.0
         ),
-        "median, no correction": replace(base, method="median", centre_correction=False),
-        "median + correction, visible model": replace(base, method="median"),
-        "default RangingParams() (robust + visible model at the bin's centre angle)": base,
-        "default with sigma_d 0.8 (previous covariance)": replace(base, sigma_d=0.8),
+        "default without disparity_bias (no real-camera offset)": replace(
+            base, disparity_bias=0.0, disparity_bias_column=0.0
+        ),
+        "default RangingParams()": base,
     }
     detail = (
-        "robust, no correction (before)",
-        "default RangingParams() (robust + visible model at the bin's centre angle)",
-        "default with sigma_d 0.8 (previous covariance)",
+        "previous defaults (visible model, no refinement, no bias)",
+        "default without disparity_bias (no real-camera offset)",
+        "default RangingParams()",
     )
     sets = [("KITTI tracking 0005 (16 frames, real)", TRACKING, "0005")]
     for spec in synth:
@@ -402,6 +419,388 @@ def bench_centre(dparams: DisparityParams, synth: list[str]) -> None:
     for title, root, name in sets:
         recs = centre_records(root, name, dparams, variants)
         centre_report(title, recs, variants, detail)
+
+
+FIT_PAIRS, REPORT_PAIRS = (0, 2, 4), (1, 3)  # KITTI 2015 pairs: bias fitted / reported
+D_BINS = ((0.0, 20.0), (20.0, 40.0), (40.0, 1e9))
+
+
+def surface_regions(gt: np.ndarray, margin: int = 100):
+    """Car-sized windows of a KITTI 2015 ground-truth map that lie on one surface: for a car
+    (3.2 x 1.4 m) at disparities 6..70 px, windows (half-overlapping, not in the leftmost
+    ``margin`` columns that the right image does not see) whose ground truth covers >= 30 % of
+    the pixels, has its median within 12 % of that disparity and >= 75 % of its pixels within
+    10 % of the median. Yields (box, truth = mean ground truth of that surface, i.e. of the
+    pixels within 10 % of the median)."""
+    h, w = gt.shape
+    for d in (6, 8, 10, 13, 16, 20, 25, 30, 36, 45, 55, 70):
+        bw, bh = int(3.2 * d / 0.54), int(1.4 * d / 0.54)
+        for y in range(0, h - bh, max(bh // 2, 4)):
+            for x in range(margin, w - bw, max(bw // 2, 4)):
+                g = gt[y : y + bh, x : x + bw]
+                v = g[g > 0]
+                if v.size < 0.3 * g.size:
+                    continue
+                m = float(np.median(v))
+                on_surface = np.abs(v / m - 1) < 0.10
+                if abs(m - d) > 0.12 * d or np.mean(on_surface) < 0.75:
+                    continue
+                yield (x, y, x + bw, y + bh), float(np.mean(v[on_surface]))
+
+
+REGION_ESTIMATORS = (
+    "a: robust on the default map",
+    "b: full-res SGBM on the region",
+    "c: (b) mask + box-level shift",
+)
+#: full-resolution left SGBM (no WLS): the matcher of estimators b and c, for the pixel-level fit
+FULL_LEFT = replace(DEFAULT, downscale=1, use_wls=False, block_size=5, num_disparities=128)
+KITTI_GEO = StereoGeometry(721.5, 721.5, 609.6, 172.9, 0.5327)  # colour pair of tracking 0005
+
+
+def column_x2(u) -> np.ndarray:
+    """((u - cx) / fx)^2 of image columns u (the regressor of the column-dependent bias)."""
+    return ((np.asarray(u, float) - KITTI_GEO.cx) / KITTI_GEO.fx) ** 2
+
+
+def region_records():
+    """Per surface region of the 5 KITTI 2015 pairs: (pair, truth, a, b, c estimates [px], time
+    of b and c [s], centre column); plus, per pair, the pixel errors (error, column regressor) of
+    the default map and of FULL_LEFT for pixels with ground truth < 20 px. The robust estimator
+    runs without ground rejection and height prior (windows are not cars); b, c start from a."""
+    rp = replace(RangingParams(), reject_ground=False, prior_log_sigma=0.0)
+    rows, pixels = [], []
+    for i, (left, right, gt) in enumerate(stereo_pairs()):
+        disp = compute_disparity(left, right, DEFAULT)
+        full = compute_disparity(left, right, FULL_LEFT)
+        lg, rg = to_gray(left), to_gray(right)
+        for box, g in surface_regions(gt):
+            da, _ = robust_disparity(disp, box, KITTI_GEO, rp)
+            t0 = time.perf_counter()
+            db, _ = box_disparity(lg, rg, box, da)
+            t1 = time.perf_counter()
+            dc, _ = refine_shift(lg, rg, box, da)
+            t2 = time.perf_counter()
+            rows.append((i, g, da, db, dc, t1 - t0, t2 - t1, 0.5 * (box[0] + box[2])))
+        per = []
+        for m in (disp, full):
+            e = m - gt
+            ok = (gt > 0) & (m > 0) & (np.abs(e) < 3)
+            ok[:, :100] = False  # columns the right image does not see
+            per.append((e[ok], gt[ok], np.nonzero(ok)[1].astype(float)))
+        pixels.append(per)
+    return np.array(rows), pixels
+
+
+def bench_offset(pixels) -> None:
+    """Print where the far-range offset comes from: pixel error per ground-truth bin, a linear
+    fit per pair (scale vs offset) and the error per image column, for both matchers."""
+    gt_bins = (0, 10, 20, 30, 40, 60, 1000)
+    col_bins = (100, 300, 450, 600, 750, 900, 1050, 1250)
+    print("\n## Where the far-range offset comes from (pixels with |error| < 3 px, columns >= 100)")
+    for which, matcher in enumerate(("default map", "full-res left SGBM, no WLS")):
+        e = np.concatenate([p[which][0] for p in pixels])
+        g = np.concatenate([p[which][1] for p in pixels])
+        u = np.concatenate([p[which][2] for p in pixels])
+        by_gt = [
+            np.median(e[(g >= a) & (g < b)]) for a, b in zip(gt_bins[:-1], gt_bins[1:], strict=True)
+        ]
+        print(f"{matcher}: median error per ground-truth bin {gt_bins} px: ", end="")
+        print(" ".join(f"{v:+.2f}" for v in by_gt))
+        fits = []
+        for p in pixels:
+            slope, icpt = np.polyfit(p[which][1], p[which][0], 1)
+            fits.append(f"{100 * slope:+.1f} % d {icpt:+.2f}")
+        print(f"  linear fit per pair (error = slope d + offset): {'; '.join(fits)}")
+        near = g < 40
+        by_col = [
+            np.median(e[near & (u >= a) & (u < b)])
+            for a, b in zip(col_bins[:-1], col_bins[1:], strict=True)
+        ]
+        print(f"  median error per column bin {col_bins} (ground truth < 40 px): ", end="")
+        print(" ".join(f"{v:+.2f}" for v in by_col))
+
+
+def pixel_column_fit(pixels, pairs, which: int) -> tuple[float, float]:
+    """(b0, b2) of error = b0 + b2 ((u - cx)/fx)^2, least squares through the medians of 10
+    equally populated bins of the regressor, pixels of ``pairs`` (which: 0 map, 1 full-res)."""
+    far = [pixels[i][which][1] < 20 for i in pairs]
+    e = np.concatenate([pixels[i][which][0][f] for i, f in zip(pairs, far, strict=True)])
+    x = column_x2(np.concatenate([pixels[i][which][2][f] for i, f in zip(pairs, far, strict=True)]))
+    edges = np.quantile(x, np.linspace(0, 1, 11))
+    xs, ms = [], []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = (x >= lo) & (x <= hi)
+        xs.append(np.median(x[sel]))
+        ms.append(np.median(e[sel]))
+    b0, b2 = np.linalg.lstsq(np.c_[np.ones(len(xs)), xs], np.array(ms), rcond=None)[0]
+    return float(b0), float(b2)
+
+
+def bench_regions() -> dict[str, tuple[float, float]]:
+    """Region-level bias and spread per disparity bin on the KITTI 2015 pairs. Bias model per
+    estimator, fitted on FIT_PAIRS only: the column growth b2 from the pixels of its matcher,
+    the constant b0 from its far-bin regions given b2; reported on REPORT_PAIRS. Returns
+    {estimator: (b0, b2)} and {estimator + ' constant': (median far-bin error, 0)}."""
+    rows, pixels = region_records()
+    bench_offset(pixels)
+    print("\n## Column model of the offset: pixel errors, ground truth < 20 px")
+    print("error = b0 + b2 ((u - cx) / fx)^2 (medians of 10 bins of the regressor, columns >= 100)")
+    print("| matcher | pairs | b0 px | b2 px |")
+    print("|---|---|---|---|")
+    b2_of = {}
+    for which, matcher in enumerate(("default map", "full-res left SGBM, no WLS")):
+        for label, pairs in (("fit", FIT_PAIRS), ("report", REPORT_PAIRS), ("all", range(5))):
+            b0, b2 = pixel_column_fit(pixels, pairs, which)
+            print(f"| {matcher} | {label} {tuple(pairs)} | {b0:+.2f} | {b2:+.2f} |")
+            if label == "fit":
+                b2_of[which] = b2
+    print("\n## Region-level disparity error, KITTI Stereo 2015 training 000000..000004")
+    print("car-sized windows on one surface (bench_stereo.surface_regions); error = estimate -")
+    print("the surface's mean ground truth; bias = median, spread = 1.4826 MAD; ok = share")
+    print("estimated; 'model': after subtracting the bias model fitted on the fit pairs")
+    fitted: dict[str, tuple[float, float]] = {}
+    far = rows[:, 1] < 20
+    fit = np.isin(rows[:, 0], FIT_PAIRS)
+    x2 = column_x2(rows[:, 7])
+    for k, name in enumerate(REGION_ESTIMATORS):
+        e = rows[:, 2 + k] - rows[:, 1]
+        sel = fit & far & np.isfinite(e)
+        b2 = b2_of[0 if k == 0 else 1]
+        fitted[name] = (float(np.median(e[sel] - b2 * x2[sel])), b2)
+        fitted[name + " constant"] = (float(np.median(e[sel])), 0.0)
+    print(
+        f"bias models fitted on pairs {FIT_PAIRS} (b0 + b2 x^2): "
+        + ", ".join(f"{n[0]} {b0:+.2f} {b2:+.2f}" for n, (b0, b2) in fitted.items() if len(n) > 9)
+    )
+    print("| pairs | bin px | n | estimator | ok | bias | spread | bias, model | spread, model |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for label, pairs in (
+        ("all", range(5)),
+        (f"fit {FIT_PAIRS}", FIT_PAIRS),
+        (f"report {REPORT_PAIRS}", REPORT_PAIRS),
+    ):
+        for lo, hi in D_BINS:
+            sel = np.isin(rows[:, 0], pairs) & (rows[:, 1] >= lo) & (rows[:, 1] < hi)
+            bin_name = f"{lo:.0f}-{hi:.0f}" if hi < 1e8 else f">{lo:.0f}"
+            for k, name in enumerate(REGION_ESTIMATORS):
+                e = rows[sel, 2 + k] - rows[sel, 1]
+                ok = np.isfinite(e)
+                if not ok.any():
+                    continue
+                b0, b2 = fitted[name]
+                ec = e[ok] - (b0 + b2 * x2[sel][ok])
+                print(
+                    f"| {label} | {bin_name} | {int(sel.sum())} | {name} | {ok.mean():.2f} | "
+                    f"{np.median(e[ok]):+.2f} | {_robust_std(e[ok]):.2f} | "
+                    f"{np.median(ec):+.2f} | {_robust_std(ec):.2f} |"
+                )
+    small = rows[:, 1] < 40
+    print(
+        f"time per region (disparity < 40 px): b median {1000 * np.median(rows[small, 5]):.2f} "
+        f"ms, c median {1000 * np.median(rows[small, 6]):.2f} ms"
+    )
+    return fitted
+
+
+FAR_BUCKETS = ((0.0, 10.0), (10.0, 20.0), (20.0, 30.0), (30.0, 45.0), (45.0, 1e9))
+
+
+def far_variants(fitted: dict[str, tuple[float, float]]) -> dict[str, RangingParams]:
+    """Ranging variants of the far-car table (centre step: default; biases from bench_regions)."""
+    base = RangingParams()
+    a, b, c = (fitted[n] for n in REGION_ESTIMATORS)
+    c_const = fitted[REGION_ESTIMATORS[2] + " constant"]
+
+    def biased(p: RangingParams, model: tuple[float, float]) -> RangingParams:
+        return replace(p, disparity_bias=model[0], disparity_bias_column=model[1])
+
+    return {
+        "a: robust map, no bias correction": biased(replace(base, refine="none"), (0.0, 0.0)),
+        f"a: robust map, bias {a[0]:+.2f} {a[1]:+.2f} x^2": biased(replace(base, refine="none"), a),
+        f"b: full-res region SGBM, bias {b[0]:+.2f} {b[1]:+.2f} x^2": biased(
+            replace(base, refine="region_sgbm"), b
+        ),
+        "c: box-level shift, no bias correction": biased(base, (0.0, 0.0)),
+        f"c: box-level shift, constant bias {c_const[0]:+.2f}": biased(base, c_const),
+        f"c: box-level shift, bias {c[0]:+.2f} {c[1]:+.2f} x^2": biased(base, c),
+        "c + column bias, previous centre step (visible model, no lateral fit)": biased(
+            replace(base, surface_model="visible", lateral_fit=False), c
+        ),
+        "default RangingParams()": base,
+    }
+
+
+def bench_far(fitted: dict[str, tuple[float, float]]) -> None:
+    """Signed depth error of each labelled Car of tracking 0005 per distance bin, per variant."""
+    variants = far_variants(fitted)
+    recs = [
+        r for r in centre_records(TRACKING, "0005", DEFAULT, variants) if r["obj"].type == "Car"
+    ]
+    print("\n## Far cars: labelled Cars of KITTI tracking 0005 (16 frames, oracle boxes)")
+    print(
+        "signed depth error (z_est - z_com) / z_com of the ranged centre vs the label's centre of"
+    )
+    print("mass (left frame), median per distance bin [%]; spread = 1.4826 MAD [%]; n = boxes")
+    print(
+        "| variant | " + " | ".join(_bucket_name(lo, hi) for lo, hi in FAR_BUCKETS) + " | > 30 m |"
+    )
+    print("|---|" + "---|" * (len(FAR_BUCKETS) + 1))
+    for name in variants:
+        cells = []
+        for lo, hi in (*FAR_BUCKETS, (30.0, 1e9)):
+            sel = [r for r in recs if lo <= r["com"][2] < hi and r[name] is not None]
+            if not sel:
+                cells.append("-")
+                continue
+            e = np.array([100 * (r[name].position[2] / r["com"][2] - 1) for r in sel])
+            cells.append(f"{np.median(e):+.1f} / {_robust_std(e):.1f} (n={len(e)})")
+        print(f"| {name} | " + " | ".join(cells) + " |")
+
+
+def _bucket_name(lo: float, hi: float) -> str:
+    return f"{lo:.0f}-{hi:.0f} m" if hi < 1e8 else f">= {lo:.0f} m"
+
+
+OBJECT = SHARED / "object" / "training"
+
+
+def box_surface_depth(obj, calib, us: np.ndarray, vs: np.ndarray) -> np.ndarray:
+    """Depth z [m] (left optical frame) where the rays of pixels (us, vs) of the left image
+    enter the labelled 3D box of ``obj`` (slab test in the box frame); nan where they miss."""
+    h, w, l = (float(v) for v in obj.dimensions)
+    bottom = calib.cam0_to_left(np.asarray(obj.location, float))
+    c, s = np.cos(obj.rotation_y), np.sin(obj.rotation_y)
+    rot = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # box frame -> camera
+    d = np.stack([(us - calib.cx) / calib.fx, (vs - calib.cy) / calib.fy, np.ones_like(us)], -1)
+    o = rot.T @ -bottom  # camera origin in the box frame
+    db = d @ rot  # ray directions in the box frame (rows: rot.T @ d)
+    lo, hi = np.array([-l / 2, -h, -w / 2]), np.array([l / 2, 0.0, w / 2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - o) / db, (hi - o) / db
+    t_in = np.nanmax(np.minimum(t1, t2), axis=-1)
+    t_out = np.nanmin(np.maximum(t1, t2), axis=-1)
+    hit = (t_in <= t_out) & (t_in > 0)
+    return np.where(hit, t_in, np.nan)  # t is the depth (ray z component is 1)
+
+
+def real_car_views():
+    """Labelled Cars of tracking 0005 (16 frames) and of object training 000000..000100 (with
+    calib and 3D labels): (source, obj, calib, image width)."""
+    seq = TrackingSequence.open(TRACKING, "0005")
+    width = read_png(seq.left_path(seq.frame_ids[0])).shape[1]
+    for f in seq.frame_ids:
+        for o in seq.objects(f):
+            if o.type == "Car":
+                yield "0005", o, seq.calib, width
+    for fr in list_object_frames(OBJECT):
+        if not (fr.root / "calib" / f"{fr.frame_id}.txt").is_file():
+            continue
+        cars = [o for o in fr.objects() if o.type == "Car" and o.dimensions[0] > 0]
+        if not cars:
+            continue
+        width = cv2.imread(str(fr.left_path), cv2.IMREAD_GRAYSCALE).shape[1]
+        calib = fr.calib()
+        for o in cars:
+            yield "object", o, calib, width
+
+
+def centre_step_records(variants: dict[str, RangingParams]):
+    """Per real labelled car: the centre step of each variant applied to the car's TRUE visible
+    surface (a disparity map rendered from the labelled 3D box over the 2D box, other pixels
+    invalid; orientation bin from the label's alpha): dicts with case, distance and 3D error."""
+    out = []
+    for source, o, calib, width in real_car_views():
+        x1, y1, x2, y2 = (int(round(v)) for v in o.bbox)
+        x1, y1 = max(x1, 0), max(y1, 0)
+        if x2 - x1 < 4 or y2 - y1 < 4:
+            continue
+        vs, us = np.mgrid[y1 : y2 + 1, x1 : x2 + 1].astype(float)
+        z = box_surface_depth(o, calib, us, vs)
+        geo = StereoGeometry.from_projections(calib.P2, calib.P3)
+        disp = np.full((y2 + 2, max(width, x2 + 2)), -1.0, np.float32)
+        disp[y1 : y2 + 1, x1 : x2 + 1] = np.where(
+            np.isfinite(z), geo.fx * geo.baseline / np.where(np.isfinite(z), z, 1.0), -1.0
+        )
+        disp = disp[:, :width]
+        com = calib.cam0_to_left(o.centre_of_mass)
+        b = alpha_to_bin(o.alpha)
+        truncated = o.truncated > 0.05 or o.bbox[0] <= 2 or o.bbox[2] >= width - 3
+        view = ("side", "oblique", "rear", "oblique")[b]
+        rec = {"source": source, "case": "truncated" if truncated else view, "com": com}
+        for name, rp in variants.items():
+            r = range_boxes(disp, [o.bbox], geo, rp, [b])[0]
+            rec[name] = None if r is None else r.position
+        out.append(rec)
+    return out
+
+
+def bench_centre_real() -> None:
+    """Error of the box-to-centre step on real labelled cars given their true visible surface."""
+    exact = replace(RangingParams(), refine="none", disparity_bias=0.0, disparity_bias_column=0.0)
+    variants = {
+        "no centre step (visible surface on the box-centre ray)": replace(
+            exact, centre_correction=False, lateral_fit=False
+        ),
+        "depth step only (before)": replace(
+            exact, surface_model="visible", truncated_surface_model="visible", lateral_fit=False
+        ),
+        "visible-face depth step + lateral fit": replace(
+            exact, surface_model="visible", truncated_surface_model="visible"
+        ),
+        "nearest-corner depth step + lateral fit": replace(
+            exact, surface_model="nearest", truncated_surface_model="nearest"
+        ),
+        "default (RangingParams(), exact disparities)": exact,
+    }
+    recs = centre_step_records(variants)
+    print("\n## Box-to-centre step on real labelled Cars, given the TRUE visible surface")
+    print("tracking 0005 (16 frames) + object training 000000..000100; disparity rendered from")
+    print("the labelled 3D box over its 2D box; bin from the label's alpha (oracle detector).")
+    print("side = bin 0, rear/front = bin 2, oblique = bins 1/3; truncated = truncation > 0.05 or")
+    print("box at the image border. near < 20 m <= far (centre of mass). Cells: median 3D error m")
+    print(
+        "/ median signed error along the ray m (+ = too far) / median |lateral| m / share <= 1.5 m"
+    )
+    print("Model choice made on the object frames (tuning); 0005 reported apart.")
+    print("| data | case | range | n | " + " | ".join(variants) + " |")
+    print("|---|---|---|---|" + "---|" * len(variants))
+    for source in ("object", "0005"):
+        for case in ("side", "rear", "oblique", "truncated", "all"):
+            for rng_name, lo, hi in (("near", 0.0, 20.0), ("far", 20.0, 1e9), ("all", 0.0, 1e9)):
+                sel = [
+                    r
+                    for r in recs
+                    if r["source"] == source
+                    and (case == "all" or r["case"] == case)
+                    and lo <= np.linalg.norm(r["com"]) < hi
+                ]
+                if not sel:
+                    continue
+                cells = [_centre_cell(sel, name) for name in variants]
+                print(
+                    f"| {source} | {case} | {rng_name} | {len(sel)} | " + " | ".join(cells) + " |"
+                )
+
+
+def _centre_cell(recs, name: str) -> str:
+    errs = []
+    for r in recs:
+        p, c = r[name], r["com"]
+        if p is None:
+            continue
+        ray = c / np.linalg.norm(c)
+        lat = np.cross(ray, [0.0, 1.0, 0.0])
+        lat /= np.linalg.norm(lat)
+        errs.append((np.linalg.norm(p - c), (p - c) @ ray, abs((p - c) @ lat)))
+    if not errs:
+        return "-"
+    e = np.array(errs)
+    share = np.sum(e[:, 0] <= 1.5) / len(recs)
+    return (
+        f"{np.median(e[:, 0]):.2f} / {np.median(e[:, 1]):+.2f} / {np.median(e[:, 2]):.2f} / "
+        f"{share:.2f}"
+    )
 
 
 def bench_timing(variants: dict[str, DisparityParams], repeats: int) -> None:
@@ -419,17 +818,27 @@ def bench_timing(variants: dict[str, DisparityParams], repeats: int) -> None:
     print("| variant | median ms | p90 ms | ratio to L+R+WLS full res 128 |")
     print("|---|---|---|---|")
     times: dict[str, list[float]] = {name: [] for name in variants}
-    rtimes = []
+    rtimes, new_rtimes, frame_old, frame_new = [], [], [], []
+    old_ranging = replace(RangingParams(), refine="none")
     for _ in range(repeats):
         for name, p in variants.items():
             for left, right, boxes in frames:
                 t0 = time.perf_counter()
                 d = compute_disparity(left, right, p)
                 t1 = time.perf_counter()
-                range_boxes(d, np.array(boxes).reshape(-1, 4), geo)
+                range_boxes(d, np.array(boxes).reshape(-1, 4), geo, old_ranging)
                 t2 = time.perf_counter()
                 times[name].append(t2 - t0)
                 rtimes.append(t2 - t1)
+                if p is DEFAULT:  # new ranging path (refinement on the gray pair), same frame
+                    t3 = time.perf_counter()
+                    images = (to_gray(left), to_gray(right))
+                    range_boxes(
+                        d, np.array(boxes).reshape(-1, 4), geo, RangingParams(), None, images
+                    )
+                    new_rtimes.append(time.perf_counter() - t3)
+                    frame_old.append(t2 - t0)
+                    frame_new.append(t1 - t0 + new_rtimes[-1])
     ref = 1000 * np.median(times[next(iter(variants))])
     for name, ts in times.items():
         med = 1000 * np.median(ts)
@@ -437,7 +846,13 @@ def bench_timing(variants: dict[str, DisparityParams], repeats: int) -> None:
     n_boxes = np.mean([len(b) for _, _, b in frames])
     print(
         f"ranging step alone (range_boxes, {n_boxes:.1f} boxes/frame): median "
-        f"{1000 * np.median(rtimes):.2f} ms"
+        f"{1000 * np.median(rtimes):.2f} ms without refinement, {1000 * np.median(new_rtimes):.2f} "
+        "ms with the default refinement (incl. gray conversion)"
+    )
+    print(
+        f"default disparity + ranging per frame: old path (refine none) "
+        f"{1000 * np.median(frame_old):.1f} ms, new path {1000 * np.median(frame_new):.1f} ms, "
+        f"ratio new/old {np.median(frame_new) / np.median(frame_old):.3f}"
     )
 
 
@@ -447,7 +862,16 @@ def main() -> int:
         "section",
         nargs="?",
         default="all",
-        choices=["disparity", "ranging", "centre", "timing", "all"],
+        choices=[
+            "disparity",
+            "ranging",
+            "regions",
+            "far",
+            "centre",
+            "centre_real",
+            "timing",
+            "all",
+        ],
     )
     ap.add_argument("--synth", action="append", default=[], help="ROOT:SEQ of kitti_synth data")
     ap.add_argument("--repeats", type=int, default=3)
@@ -463,6 +887,13 @@ def main() -> int:
         bench_disparity({**VARIANTS, "default (DisparityParams())": DEFAULT})
     if args.section in ("ranging", "all"):
         bench_ranging(DEFAULT)
+    fitted = {}
+    if args.section in ("regions", "far", "all"):
+        fitted = bench_regions()
+    if args.section in ("far", "all"):
+        bench_far(fitted)
+    if args.section in ("centre_real", "all"):
+        bench_centre_real()
     if args.section in ("centre", "all"):
         bench_centre(DEFAULT, args.synth)
     if args.section in ("timing", "all"):

@@ -127,8 +127,10 @@ def test_corrected_estimate_is_nearer_the_centre_of_mass(alpha_deg, x, z, max_er
     )
     box = (*pts.min(axis=0), *pts.max(axis=0))
     b = alpha_to_bin(alpha)
-    on = range_boxes(disp, [box], GEO, RangingParams(), [b])[0]
-    off = range_boxes(disp, [box], GEO, replace(RangingParams(), centre_correction=False), [b])[0]
+    # rendered disparities: no real-camera bias
+    exact = RangingParams(disparity_bias=0.0, disparity_bias_column=0.0)
+    on = range_boxes(disp, [box], GEO, exact, [b])[0]
+    off = range_boxes(disp, [box], GEO, replace(exact, centre_correction=False), [b])[0]
     err_on = np.linalg.norm(on.position - centre)
     err_off = np.linalg.norm(off.position - centre)
     assert err_on < err_off - 0.5

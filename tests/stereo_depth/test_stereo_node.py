@@ -113,7 +113,15 @@ class Harness:
 
 @pytest.fixture
 def harness(rclpy_context):
-    h = Harness(rclpy_context, sync_cache_size=3)
+    # synthetic pair shifted by an exact integer disparity: no real-camera bias to correct; the
+    # centre stays on the box-centre ray (lateral_fit is tested in test_stereo_centre_fit.py)
+    h = Harness(
+        rclpy_context,
+        sync_cache_size=3,
+        disparity_bias=0.0,
+        disparity_bias_column=0.0,
+        lateral_fit=False,
+    )
     yield h
     h.close()
 
@@ -275,6 +283,7 @@ def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_track
     """offline == node: the node's 3D detections equal range_boxes on compute_disparity."""
     from stereo_depth_node.disparity import DisparityParams, compute_disparity
     from stereo_depth_node.ranging import RangingParams, range_boxes
+    from stereo_depth_node.region_matching import to_gray
     from stereo_depth_node.reprojection import StereoGeometry
     from vehicle_common.kitti import TrackingSequence
 
@@ -294,7 +303,9 @@ def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_track
         got = h.det3d[0].detections
         geo = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
         disp = compute_disparity(left, right, DisparityParams(num_disparities=48))
-        want = range_boxes(disp, [o.bbox for o in cars], geo, RangingParams(), [2] * len(cars))
+        images = (to_gray(left), to_gray(right))  # the node refines far boxes on them too
+        boxes = [o.bbox for o in cars]
+        want = range_boxes(disp, boxes, geo, RangingParams(), [2] * len(cars), images)
         assert len(got) == sum(w is not None for w in want) > 0
         for g, w in zip(got, [w for w in want if w is not None], strict=True):
             np.testing.assert_allclose(

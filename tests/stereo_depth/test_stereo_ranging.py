@@ -17,7 +17,10 @@ from stereo_depth_node.reprojection import StereoGeometry
 
 GEO = StereoGeometry(721.5377, 721.5377, 609.5593, 172.854, 0.5371)
 FB = GEO.fx * GEO.baseline
-SURFACE = RangingParams(centre_correction=False)  # the visible-surface estimate alone
+# the visible-surface estimate alone, on exact synthetic disparities (no real-camera bias)
+SURFACE = RangingParams(
+    centre_correction=False, disparity_bias=0.0, disparity_bias_column=0.0, lateral_fit=False
+)
 
 
 def scene_with_occluded_car():

@@ -37,6 +37,7 @@ from vehicle_common import topics
 from .conversions import build_point_cloud, detection_3d_message, disparity_message
 from .disparity import DisparityParams, compute_disparity
 from .ranging import RangingParams, RangingSetup, range_boxes
+from .region_matching import to_gray
 from .reprojection import StereoGeometry, decimated_points
 from .stamp_sync import ExactStampSync
 
@@ -112,6 +113,7 @@ class _Frame:
     header: object
     disparity: np.ndarray | None
     geometry: StereoGeometry | None
+    images: tuple[np.ndarray, np.ndarray] | None = None  # gray (left, right), for refinement
 
 
 class StereoDepthNode(Node):
@@ -252,6 +254,8 @@ class StereoDepthNode(Node):
                 )
             params = self._disparity_params_for(left.shape[0])
             frame.disparity = compute_disparity(left, right, params)
+            if self.ranging_params.refine != "none":
+                frame.images = (to_gray(left), to_gray(right))
         except (ImageConversionError, ValueError) as exc:
             self.frames_failed += 1
             # a bad calibration was reported when it arrived; a missing one is reported here
@@ -292,7 +296,9 @@ class StereoDepthNode(Node):
         if frame.disparity is not None and dets:
             boxes = [bbox_to_xyxy(d.bbox) for d in dets]
             bins = [int(d.orientation_bin) for d in dets]
-            results = range_boxes(frame.disparity, boxes, frame.geometry, self.ranging, bins)
+            results = range_boxes(
+                frame.disparity, boxes, frame.geometry, self.ranging, bins, frame.images
+            )
         else:
             results = [None] * len(dets)
         for d, r in zip(dets, results, strict=True):

@@ -30,9 +30,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from vehicle_common.orientation_bins import BIN_WIDTH, NUM_BINS
 
+from .centre_fit import fit_lateral
+from .region_matching import REFINE_METHODS, RegionParams, box_disparity, refine_shift
 from .reprojection import StereoGeometry
 
 METHODS = ("robust", "median")
+TRUNCATION_BORDER = 2.0  # [px] a box edge this near the image border: cut by the border
 SURFACE_MODELS = ("visible", "nearest")
 
 
@@ -80,7 +83,7 @@ class RangingParams:
     """Settings of :func:`range_boxes` (defaults chosen on KITTI tracking 0005, see docs)."""
 
     method: str = "robust"
-    sigma_d: float = 0.6  # [px] disparity std of the stereo error model (measured, see docs)
+    sigma_d: float = 0.3  # [px] disparity std of the stereo error model (measured, see docs)
     sigma_pixel: float = 3.0  # [px] std of the box centre in the image
     depth_offset_std: float = 0.5  # [m] std added to z for the visible-surface -> centre offset
     min_valid_pixels: int = 20  # fewer valid pixels -> no estimate
@@ -95,13 +98,19 @@ class RangingParams:
     prior_height: float = 1.5  # [m] typical car height for the depth prior from box height
     prior_log_sigma: float = 0.5  # log-depth std of that prior (0 disables the prior)
     centre_correction: bool = True  # move the surface estimate to the car's centre (geometry)
-    surface_model: str = "visible"  # centre_depth_behind_surface model: visible | nearest
+    surface_model: str = "nearest"  # centre_depth_behind_surface model: visible | nearest
+    truncated_surface_model: str = "visible"  # the same for boxes cut by the image border
     car_length: float = 3.9  # [m] mean car length of the centre correction
     car_width: float = 1.6  # [m] mean car width of the centre correction
     correction_bin_spread: float = 0.0  # share of the bin's +-22.5 deg averaged (0: centre)
     depth_offset: tuple[float, float, float, float] = field(
         default_factory=lambda: (0.0, 0.0, 0.0, 0.0)
     )  # [m] per orientation bin (0, 45, 90, 135 deg), added after the centre correction
+    lateral_fit: bool = True  # centre_fit.fit_lateral: footprint of the car spans the 2D box
+    refine: str = "region_shift"  # none | region_sgbm | region_shift (region_matching.py)
+    refine_max_disparity: float = 40.0  # [px] boxes with a larger coarse disparity: not refined
+    disparity_bias: float = -0.28  # [px] bias of the estimate on KITTI 2015 (docs), subtracted
+    disparity_bias_column: float = -1.80  # [px] its growth x ((u - cx) / fx)^2 to the borders
 
     def validate(self) -> None:
         """Raise ValueError for unusable settings."""
@@ -113,12 +122,15 @@ class RangingParams:
             raise ValueError("depth_offset: needs 4 values (one per orientation bin)")
         if self.sigma_d <= 0:
             raise ValueError(f"sigma_d: {self.sigma_d} must be > 0")
-        if self.surface_model not in SURFACE_MODELS:
-            raise ValueError(f"surface_model: {self.surface_model!r} not one of {SURFACE_MODELS}")
+        for name in ("surface_model", "truncated_surface_model"):
+            if getattr(self, name) not in SURFACE_MODELS:
+                raise ValueError(f"{name}: {getattr(self, name)!r} not one of {SURFACE_MODELS}")
         if self.car_length < 0 or self.car_width < 0:
             raise ValueError("car_length, car_width: must be >= 0")
         if not 0.0 <= self.correction_bin_spread <= 1.0:
             raise ValueError(f"correction_bin_spread: {self.correction_bin_spread} not in [0, 1]")
+        if self.refine not in REFINE_METHODS:
+            raise ValueError(f"refine: {self.refine!r} not one of {REFINE_METHODS}")
 
 
 @dataclass(frozen=True)
@@ -135,11 +147,13 @@ class RangeResult:
 @dataclass(frozen=True, eq=False)
 class RangingSetup:
     """Validated :class:`RangingParams` with their per-bin centre offsets [m] (shape (5,), see
-    :func:`bin_centre_offsets`; zeros without ``centre_correction``): what depends only on the
-    settings, computed once and reused for every frame."""
+    :func:`bin_centre_offsets`; zeros without ``centre_correction``) and those of boxes cut by
+    the image border (``truncated_surface_model``): what depends only on the settings,
+    computed once and reused for every frame."""
 
     params: RangingParams
     centre_offsets: np.ndarray
+    truncated_offsets: np.ndarray
 
     @classmethod
     def from_params(cls, params: RangingParams | None = None) -> RangingSetup:
@@ -147,16 +161,16 @@ class RangingSetup:
         ValueError for unusable settings."""
         params = params or RangingParams()
         params.validate()
-        centre = np.zeros(NUM_BINS + 1)
-        if params.centre_correction:
-            centre = bin_centre_offsets(
-                params.car_length,
-                params.car_width,
-                params.surface_model,
-                params.correction_bin_spread,
-            )
-        centre.setflags(write=False)
-        return cls(params, centre)
+        offsets = []
+        for model in (params.surface_model, params.truncated_surface_model):
+            centre = np.zeros(NUM_BINS + 1)
+            if params.centre_correction:
+                centre = bin_centre_offsets(
+                    params.car_length, params.car_width, model, params.correction_bin_spread
+                )
+            centre.setflags(write=False)
+            offsets.append(centre)
+        return cls(params, *offsets)
 
 
 def _box_slice(box, width: int, height: int, fraction: float) -> tuple[slice, slice] | None:
@@ -255,12 +269,34 @@ def position_covariance(
     return J @ S @ J.T
 
 
+def refined_disparity(
+    d: float, box, images, params: RangingParams, region: RegionParams | None = None
+) -> float:
+    """The box's disparity after the full-resolution refinement ``params.refine`` on the
+    (left, right) gray ``images`` (d itself when off, not applicable or failing); no bias
+    correction (:func:`disparity_bias_at`)."""
+    if params.refine != "none" and images is not None and 0 < d <= params.refine_max_disparity:
+        refine = refine_shift if params.refine == "region_shift" else box_disparity
+        d_fine, _ = refine(images[0], images[1], box, d, region)
+        if np.isfinite(d_fine) and d_fine > 0:
+            d = d_fine
+    return d
+
+
+def disparity_bias_at(u, geometry: StereoGeometry, params: RangingParams):
+    """Measured disparity bias [px] at image column(s) ``u``: ``disparity_bias +
+    disparity_bias_column * ((u - cx) / fx)^2`` (it grows toward the image borders, docs)."""
+    x = (np.asarray(u, dtype=float) - geometry.cx) / geometry.fx
+    return params.disparity_bias + params.disparity_bias_column * x * x
+
+
 def range_boxes(
     disparity: np.ndarray,
     boxes,
     geometry: StereoGeometry,
     params: RangingParams | RangingSetup | None = None,
     orientation_bins=None,
+    images=None,
 ) -> list[RangeResult | None]:
     """Range each box (x1, y1, x2, y2) [px] of the left image in a disparity map [px].
 
@@ -269,9 +305,12 @@ def range_boxes(
     results, without re-validating and recomputing the offsets per call). ``orientation_bins``
     (0..3 per box) selects the per-bin centre correction and ``depth_offset``; without bins, and
     for a bin outside 0..3, the correction's mean over all angles and bin 0's offset.
+    ``images``: the (left, right) uint8 gray images of the pair, for ``params.refine`` (without
+    them the map's estimate is used, bias-corrected all the same).
     """
     setup = params if isinstance(params, RangingSetup) else RangingSetup.from_params(params)
-    params, centre = setup.params, setup.centre_offsets
+    params = setup.params
+    width = disparity.shape[1] if np.ndim(disparity) == 2 else 0
     disparity = np.asarray(disparity, np.float32)
     boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
     results: list[RangeResult | None] = []
@@ -290,18 +329,34 @@ def range_boxes(
             d, _ = robust_disparity(disparity, box, geometry, params)
             if not np.isfinite(d):
                 d = d_med
+        u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
+        if np.isfinite(d) and d > 0:
+            d = refined_disparity(d, box, images, params)
+            d -= float(disparity_bias_at(u, geometry, params))
         if not (np.isfinite(d) and d > 0):
             results.append(None)
             continue
-        u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
         z_surface = float(geometry.fx * geometry.baseline / d)
         b = int(orientation_bins[i]) if orientation_bins is not None else NUM_BINS
+        cut = box[0] <= TRUNCATION_BORDER or box[2] >= width - 1 - TRUNCATION_BORDER
+        centre = setup.truncated_offsets if cut else setup.centre_offsets
         if 0 <= b < NUM_BINS:
             offset = float(centre[b] + params.depth_offset[b])
         else:  # no bin, or an invalid one: the mean correction over all angles
             offset = float(centre[NUM_BINS] + params.depth_offset[0])
         ray = geometry.backproject(u, v, 1.0)
         point = ray * z_surface + offset * ray / np.linalg.norm(ray)
+        if params.lateral_fit and 0 <= b < NUM_BINS:
+            point = fit_lateral(
+                point,
+                box,
+                b * BIN_WIDTH,
+                params.car_length,
+                params.car_width,
+                geometry,
+                width,
+                TRUNCATION_BORDER,
+            )
         cov = position_covariance(u, v, float(point[2]), geometry, params)
         results.append(RangeResult(point, cov, float(d), float(frac)))
     return results

@@ -23,6 +23,13 @@ from tracking_bringup.environment import PARAMS_FILE, apply_graph_environment
 from tracking_bringup.launcher import GraphLauncher, LaunchError, graph_processes
 
 
+#: parameters that describe the real KITTI cameras, reset for the synthetic renderer's exact ones
+SYNTHETIC_CAMERA_OVERRIDES = (
+    "stereo_depth.disparity_bias:=0.0",
+    "stereo_depth.disparity_bias_column:=0.0",
+)
+
+
 def _error(msg: str) -> int:
     print(f"error: {msg}", file=sys.stderr)
     return 2
@@ -129,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
         "kitti_player.exit_when_done:=true",
         f"vehicle_detector.backend:={args.detector}",
         f"bag_recorder.output:={bag}",
+        # the stereo bias model describes KITTI's cameras; the synthetic renderer's are exact
+        *([] if args.kitti_root else SYNTHETIC_CAMERA_OVERRIDES),
         *args.param,
     ]
     apply_graph_environment()
