@@ -22,7 +22,6 @@ from tracking_bringup import graph
 from tracking_bringup.environment import PARAMS_FILE, apply_graph_environment
 from tracking_bringup.launcher import GraphLauncher, LaunchError, graph_processes
 
-
 #: parameters that describe the real KITTI cameras, reset for the synthetic renderer's exact ones
 SYNTHETIC_CAMERA_OVERRIDES = (
     "stereo_depth.disparity_bias:=0.0",
