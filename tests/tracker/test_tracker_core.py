@@ -49,7 +49,7 @@ def test_constant_velocity_target_coasts_through_three_missed_frames():
         out = trk.step(dets, stamp=100.0 + 0.1 * k)
         if k in (15, 16, 17):
             assert len(out) == 1 or k == 17  # reported while confidence allows
-            assert trk.misses[0] == k - 14
+            assert trk.tracks.misses[0] == k - 14
             err = np.linalg.norm(trk.filter.position[0] - pos[0])
             assert err < 0.2, (k, err)
             if len(out):
@@ -242,3 +242,18 @@ def test_config_from_yaml(tmp_path):
     p.write_text("vehicle_tracker:\n  ros__parameters:\n    filter: magic\n")
     with pytest.raises(TrackerConfigError, match="filter"):
         TrackerConfig.from_yaml(p)
+
+
+def test_track_table_appends_and_keeps_every_column_in_step():
+    from tracker_node.track_table import COLUMNS, TrackTable
+
+    trk = Tracker(TrackerConfig(min_hits=1))
+    trk.step(DetectionBatch.create([[0.0, 1.0, 10.0], [5.0, 1.0, 20.0], [-5.0, 1.0, 30.0]]), 0.0)
+    t = trk.tracks
+    assert all(len(getattr(t, name)) == 3 for name in COLUMNS)
+    assert list(t.ids) == [1, 2, 3] and list(t.det_index) == [0, 1, 2]
+    t.keep(np.array([True, False, True]))
+    assert all(len(getattr(t, name)) == 2 for name in COLUMNS)
+    assert list(t.ids) == [1, 3]
+    with pytest.raises(ValueError, match="missing columns"):
+        TrackTable().append(ids=[1])

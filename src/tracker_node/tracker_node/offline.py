@@ -73,7 +73,7 @@ def track_sequence(
         )
         ts = tracker.step(dets, f * FRAME_PERIOD)
         if hold:  # tracks gone from the tracker (deleted) never come back: drop their rows
-            alive = set(tracker.ids.tolist())
+            alive = set(tracker.tracks.ids.tolist())
             pending = {k: v for k, v in pending.items() if k in alive}
         for i in range(len(ts)):
             if ts.state[i] == TENTATIVE and not config.output_tentative:
