@@ -37,11 +37,13 @@ VAL = ["0001", "0006", "0008", "0010", "0012", "0013"]
 KEYS = ("mota", "motp", "idsw", "frag", "fp", "fn", "samota")
 
 
-def evaluate(cfg: TrackerConfig, seqs: list[str], similarities=("iou3d", "iou2d")) -> dict:
+def evaluate(
+    cfg: TrackerConfig, seqs: list[str], similarities=("iou3d", "iou2d"), lookahead: int = 0
+) -> dict:
     from eval_node.tracking_metrics import evaluate_tracking_dirs
 
     with tempfile.TemporaryDirectory() as tmp:
-        run(DETS, Path(tmp), seqs, cfg, find_calib_dir(DETS))
+        run(DETS, Path(tmp), seqs, cfg, find_calib_dir(DETS), lookahead)
         return {
             sim: evaluate_tracking_dirs(tmp, LABELS, seqs=seqs, similarity=sim, hota=False)
             for sim in similarities
@@ -70,8 +72,9 @@ def cmd_mot(args) -> None:
     print("  IDSW 0, FRAG 7, FP 246, FN 511")
     for flt, assoc, cost in combos:
         cfg = replace(base, filter=flt, association=assoc, cost=cost)
-        res = evaluate(cfg, seqs)
-        print(f"\n== filter={flt} association={assoc} cost={cost}")
+        res = evaluate(cfg, seqs, lookahead=args.lookahead)
+        mode = f"LOOK-AHEAD {args.lookahead} frames" if args.lookahead else "online"
+        print(f"\n== filter={flt} association={assoc} cost={cost} ({mode})")
         for sim in ("iou3d", "iou2d"):
             r = res[sim]
             print(f"  {sim} total: {fmt(r['total'])}")
@@ -224,6 +227,7 @@ def main() -> None:
     m.add_argument("--seqs", default=",".join(VAL))
     m.add_argument("--quick", action="store_true", help="only the default configuration")
     m.add_argument("--per-seq", action="store_true")
+    m.add_argument("--lookahead", type=int, default=0, help="look-ahead frames (0 = online)")
     m.add_argument("--filters", default="none,kalman,particle")
     m.add_argument("--associations", default="nearest,hungarian")
     m.add_argument("--costs", default="mahalanobis", help="e.g. mahalanobis,euclidean,iou2d,giou3d")

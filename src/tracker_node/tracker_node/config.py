@@ -15,7 +15,6 @@ from kitti_player_node.kitti import MEAN_CAR_DIMENSIONS
 FILTERS = ("kalman", "particle", "none")
 ASSOCIATIONS = ("hungarian", "nearest")
 COSTS = ("mahalanobis", "euclidean", "iou2d", "giou3d")
-OUTPUT_COASTING = ("all", "refound")
 NODE_NAME = "vehicle_tracker"
 
 
@@ -63,10 +62,6 @@ class TrackerConfig:
     image_width: int = 1242  # [px] for clipping projected boxes (camera_info overrides)
     image_height: int = 375  # [px]
     output_tentative: bool = False  # offline CLI: also write tentative tracks
-    # offline CLI: coasting rows to write: "all" (as reported online) or "refound" (only those of
-    # tracks matched again later: gaps filled with the prediction, no rows after a track's end;
-    # output delayed by up to max_staleness frames)
-    output_coasting: str = "refound"
 
     def validate(self) -> TrackerConfig:
         """Check choices and ranges; raises TrackerConfigError naming the parameter."""
@@ -74,7 +69,6 @@ class TrackerConfig:
             ("filter", FILTERS),
             ("association", ASSOCIATIONS),
             ("cost", COSTS),
-            ("output_coasting", OUTPUT_COASTING),
         ):
             if getattr(self, name) not in choices:
                 raise TrackerConfigError(
