@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -120,31 +121,24 @@ class LookaheadBuffer:
         return out
 
 
-def track_sequence(
-    rows: DetectionRows,
+def track_frames(
+    batches: Iterable[DetectionBatch],
     config: TrackerConfig,
-    calib: Calibration | None = None,
+    projection: np.ndarray | None = None,
+    offset: np.ndarray | None = None,
     lookahead: int = 0,
 ) -> list[KittiObject]:
-    """Track one sequence's car detections (``type_id`` 2); returns KITTI result rows (camera 0,
-    bottom-centre locations, track ids, scores). ``lookahead`` 0 (default): online, each
-    frame's rows are the tracks the node would publish for it; N > 0: :class:`LookaheadBuffer`
-    (uses up to N later frames)."""
+    """Track frames 0, 1, ... (one DetectionBatch each, ``FRAME_PERIOD`` apart); returns the
+    KITTI result rows (:func:`result_rows`; ``offset``: tracking frame -> camera 0).
+    ``lookahead`` 0: online, frame f's rows are the tracks reported for it (what the node
+    publishes); N > 0: :class:`LookaheadBuffer` (uses up to N later frames)."""
     if lookahead < 0:
         raise TrackerConfigError(f"--lookahead: must be >= 0, got {lookahead}")
-    rows = rows.select(rows.type_id == CAR_TYPE_ID)
-    offset = np.zeros(3) if calib is None else calib.left_camera_offset
-    projection = None
-    if calib is not None:
-        projection = np.hstack([calib.K, np.zeros((3, 1))])
+    offset = np.zeros(3) if offset is None else offset
     tracker = Tracker(config, projection=projection)
-    n_frames = int(rows.frame.max()) + 1 if len(rows) else 0
-    order = np.argsort(rows.frame, kind="stable")
-    starts = np.searchsorted(rows.frame[order], np.arange(n_frames + 1))
     buffer = LookaheadBuffer(lookahead) if lookahead else None
     out: list[KittiObject] = []
-    for f in range(n_frames):
-        dets = detections_for_frame(rows, order[starts[f] : starts[f + 1]], offset)
+    for f, dets in enumerate(batches):
         ts = tracker.step(dets, f * FRAME_PERIOD)
         frame_rows = result_rows(ts, f, offset, config.output_tentative)
         if buffer is not None:
@@ -153,6 +147,29 @@ def track_sequence(
         out.extend(frame_rows)
     out.sort(key=lambda o: o.frame)
     return out
+
+
+def track_sequence(
+    rows: DetectionRows,
+    config: TrackerConfig,
+    calib: Calibration | None = None,
+    lookahead: int = 0,
+) -> list[KittiObject]:
+    """Track one sequence's car detections (``type_id`` 2) with :func:`track_frames`; returns
+    KITTI result rows (camera 0, bottom-centre locations, track ids, scores)."""
+    rows = rows.select(rows.type_id == CAR_TYPE_ID)
+    offset = np.zeros(3) if calib is None else calib.left_camera_offset
+    projection = None
+    if calib is not None:
+        projection = np.hstack([calib.K, np.zeros((3, 1))])
+    n_frames = int(rows.frame.max()) + 1 if len(rows) else 0
+    order = np.argsort(rows.frame, kind="stable")
+    starts = np.searchsorted(rows.frame[order], np.arange(n_frames + 1))
+    batches = (
+        detections_for_frame(rows, order[starts[f] : starts[f + 1]], offset)
+        for f in range(n_frames)
+    )
+    return track_frames(batches, config, projection, offset, lookahead)
 
 
 def find_calib_dir(detections: Path) -> Path | None:
