@@ -62,6 +62,14 @@ class TrackerConfig:
     image_width: int = 1242  # [px] for clipping projected boxes (camera_info overrides)
     image_height: int = 375  # [px]
     output_tentative: bool = False  # offline CLI: also write tentative tracks
+    # Score-aware lifecycle and two-stage association (docs/tracker.md; the defaults leave it
+    # off for detections scoring in [0, 1], i.e. the stereo graph's):
+    birth_score: float = 0.0  # detections scoring below this start no track; they are matched
+    # only in a second stage, to the tracks the first stage (detections >= birth_score) left
+    confirm_score: float = float("inf")  # a track whose detection scores sum to >= this is
+    # confirmed (also before min_hits matches)
+    coast_min_hits: int = 0  # coasting tracks are reported only after this many matches
+    score_ramp_hits: int = 1  # reported score x min(1, hits / this): young tracks score lower
 
     def validate(self) -> TrackerConfig:
         """Check choices and ranges; raises TrackerConfigError naming the parameter."""
@@ -82,6 +90,10 @@ class TrackerConfig:
                 raise TrackerConfigError(f"{name}: must be within [0, 1]")
         if self.num_particles < 1 or self.velocity_history < 1:
             raise TrackerConfigError("num_particles/velocity_history: must be >= 1")
+        if self.coast_min_hits < 0:
+            raise TrackerConfigError("coast_min_hits: must be >= 0")
+        if self.score_ramp_hits < 1:
+            raise TrackerConfigError("score_ramp_hits: must be >= 1")
         if self.min_hits < 1 or self.max_staleness < 0:
             raise TrackerConfigError("min_hits must be >= 1 and max_staleness >= 0")
         return self

@@ -1,9 +1,12 @@
 """Track lifecycle: confirmation, coasting, deletion and what is reported (no motion, no costs).
 
-A new track is tentative until matched ``min_hits`` times (a tentative track that misses a frame
-is deleted); a confirmed track that misses frames coasts on the filter's prediction with its
-confidence multiplied by ``decay_rate`` per missed frame, is reported while confidence >=
-``restoration_conf_threshold``, and is deleted after ``max_staleness`` missed frames.
+A new track is tentative until matched ``min_hits`` times or until its matched detections'
+scores sum to >= ``confirm_score`` (a tentative track that misses a frame is deleted); a
+confirmed track that misses frames coasts on the filter's prediction with its confidence
+multiplied by ``decay_rate`` per missed frame, is reported while confidence >=
+``restoration_conf_threshold`` (and it has been matched >= ``coast_min_hits`` times), and is
+deleted after ``max_staleness`` missed frames. (Births below ``birth_score`` are refused by the
+tracker's spawn step.)
 """
 
 from __future__ import annotations
@@ -28,7 +31,10 @@ class TrackLifecycle:
         table.misses[rows] = 0
         table.conf[rows] = 1.0
         table.score[rows] = score
-        table.confirmed |= table.hits >= self.cfg.min_hits
+        table.score_sum[rows] += score
+        table.confirmed |= (table.hits >= self.cfg.min_hits) | (
+            table.score_sum >= self.cfg.confirm_score
+        )
 
     def missed(self, table: TrackTable, missed: np.ndarray) -> np.ndarray:
         """Tracks where ``missed`` (bool) were not matched; returns which of them end now."""
@@ -36,9 +42,10 @@ class TrackLifecycle:
         table.conf[missed] *= self.cfg.decay_rate
         return missed & (~table.confirmed | (table.misses > self.cfg.max_staleness))
 
-    def born_confirmed(self, k: int) -> np.ndarray:
-        """Whether ``k`` new tracks start confirmed (``min_hits`` <= 1)."""
-        return np.full(k, self.cfg.min_hits <= 1)
+    def born_confirmed(self, score: np.ndarray) -> np.ndarray:
+        """Whether new tracks born from detections with ``score`` start confirmed
+        (``min_hits`` <= 1, or a score >= ``confirm_score``)."""
+        return (score >= self.cfg.confirm_score) | (self.cfg.min_hits <= 1)
 
     def states(self, table: TrackTable) -> np.ndarray:
         """TENTATIVE / CONFIRMED / COASTING per track (uint8)."""
@@ -48,11 +55,16 @@ class TrackLifecycle:
 
     def reported(self, table: TrackTable, state: np.ndarray) -> np.ndarray:
         """Which tracks are reported this frame (bool)."""
-        return (state != COASTING) | (table.conf >= self.cfg.restoration_conf_threshold)
+        cfg = self.cfg
+        coast_ok = (table.conf >= cfg.restoration_conf_threshold) & (
+            table.hits >= cfg.coast_min_hits
+        )
+        return (state != COASTING) | coast_ok
 
-    @staticmethod
-    def row_score(table: TrackTable, idx: np.ndarray) -> np.ndarray:
-        """Reported score: the last detection's score scaled by the track confidence (a
-        negative score is divided by it, so it still falls while coasting)."""
-        s, c = table.score[idx], table.conf[idx]
+    def row_score(self, table: TrackTable, idx: np.ndarray) -> np.ndarray:
+        """Reported score: the last detection's score scaled by the track confidence and by
+        ``min(1, hits / score_ramp_hits)`` (young tracks, most of them false, score lower); a
+        negative score is divided by the factor instead, so it still falls."""
+        s = table.score[idx]
+        c = table.conf[idx] * np.minimum(1.0, table.hits[idx] / self.cfg.score_ramp_hits)
         return np.where(s >= 0, s * c, s / np.maximum(c, 1e-6))

@@ -23,6 +23,7 @@ COLUMNS: dict[str, tuple[type, tuple[int, ...]]] = {
     "bin": (np.int64, ()),  # last orientation bin
     "bbox": (float, (4,)),  # [px] last matched detection's 2D box
     "score": (float, ()),  # last matched detection's score
+    "score_sum": (float, ()),  # sum of the matched detections' scores (evidence)
     "cls": (object, ()),  # class id string
     "det_index": (np.int64, ()),  # detection matched this frame, -1 when unmatched
 }

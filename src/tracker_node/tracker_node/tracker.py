@@ -168,7 +168,7 @@ class Tracker:
         det_yaw = self._det_yaw(dets)
         self._predict(self._dt(stamp))
         cost = self._cost(dets, R, det_yaw, shared_R)
-        rows, cols = self._assign(cost)
+        rows, cols = self._assign(cost, dets.score >= self.cfg.birth_score)
         self._update(dets, rows, cols, R, det_yaw)
         self._prune(rows)
         self._spawn(dets, cols, R, det_yaw)
@@ -187,9 +187,17 @@ class Tracker:
         self.tracks.age += 1
         self.tracks.det_index[:] = -1
 
-    def _assign(self, cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Matched (track rows, detection columns)."""
-        return solve(cost, self.cfg.association)
+    def _assign(self, cost: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Matched (track rows, detection columns): the ``high`` detections (score >=
+        ``birth_score``) first, then the others to the tracks still unmatched."""
+        method = self.cfg.association
+        if high.all():
+            return solve(cost, method)
+        rows, cols = solve(np.where(high, cost, np.inf), method)
+        free = np.ones(len(cost), bool)
+        free[rows] = False
+        rows2, cols2 = solve(np.where(free[:, None] & ~high, cost, np.inf), method)
+        return np.concatenate([rows, rows2]), np.concatenate([cols, cols2])
 
     def _update(self, dets: DetectionBatch, rows, cols, R: np.ndarray, det_yaw) -> None:
         """Matched tracks take their detections: filter, lifecycle, size, yaw, box, class."""
@@ -223,8 +231,8 @@ class Tracker:
             self.tracks.keep(~dead)
 
     def _spawn(self, dets: DetectionBatch, matched_cols, R: np.ndarray, det_yaw) -> None:
-        """New tracks from the detections no track took."""
-        new = np.ones(len(dets), bool)
+        """New tracks from the detections no track took that score >= ``birth_score``."""
+        new = dets.score >= self.cfg.birth_score
         new[matched_cols] = False
         idx = np.nonzero(new)[0]
         k = len(idx)
@@ -239,13 +247,14 @@ class Tracker:
             age=np.ones(k),
             misses=np.zeros(k),
             conf=np.ones(k),
-            confirmed=self.lifecycle.born_confirmed(k),
+            confirmed=self.lifecycle.born_confirmed(dets.score[idx]),
             size=np.where(np.isfinite(size), size, np.array(self.cfg.mean_size)),
             yaw=wrap(np.where(np.isfinite(yaw), yaw, DEFAULT_YAW)),
             yaw_amb=~np.isfinite(dets.yaw[idx]),
             bin=np.maximum(dets.orientation_bin[idx], 0),
             bbox=dets.bbox[idx],
             score=dets.score[idx],
+            score_sum=dets.score[idx],
             cls=[dets.class_id[i] for i in idx],
             det_index=idx,
         )
