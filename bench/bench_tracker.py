@@ -252,26 +252,33 @@ def cmd_speed(args) -> None:
         frames = [_synthetic_frame(n, k, rng) for k in range(200)]
         base = _filterpy_ms(n)
         print(f"{n:3d} vehicles  filterpy per-track predict+update only: {base:6.3f} ms/frame")
-        for flt, cost in (
-            ("kalman", "mahalanobis"),
-            ("kalman", "euclidean"),
-            ("none", "euclidean"),
-            ("particle", "mahalanobis"),
-            ("kalman", "giou3d"),
+        # two-stage: the tracker_pointrcnn profile's lifecycle, every third detection scoring
+        # below birth_score after the tracks are born (so both association stages run)
+        low = [replace(f, score=np.where(np.arange(n) % 3 == 0, 0.5, 8.0)) for f in frames]
+        two_stage = {"restoration_conf_threshold": 0.9, "birth_score": 1.0, "score_ramp_hits": 7}
+        for flt, cost, extra in (
+            ("kalman", "mahalanobis", {}),
+            ("kalman", "mahalanobis", two_stage),
+            ("kalman", "euclidean", {}),
+            ("none", "euclidean", {}),
+            ("particle", "mahalanobis", {}),
+            ("kalman", "giou3d", {}),
         ):
             if cost == "giou3d" and n == 100:
                 continue
+            seq = [*frames[:20], *low[20:]] if extra else frames
             best = np.inf
             for _ in range(1 if flt == "particle" or cost == "giou3d" else 3):
-                trk = Tracker(TrackerConfig(filter=flt, cost=cost))
+                trk = Tracker(TrackerConfig(filter=flt, cost=cost, **extra))
                 for k in range(20):
-                    trk.step(frames[k], 0.1 * k)
+                    trk.step(seq[k], 0.1 * k)
                 t0 = time.perf_counter()
                 for k in range(20, 200):
-                    trk.step(frames[k], 0.1 * k)
+                    trk.step(seq[k], 0.1 * k)
                 best = min(best, (time.perf_counter() - t0) / 180)
+            name = f"{cost}{' two-stage' if extra else ''}"
             print(
-                f"{n:3d} vehicles  filter={flt:8s} cost={cost:11s}: {1e3 * best:6.3f} ms/frame "
+                f"{n:3d} vehicles  filter={flt:8s} cost={name:21s}: {1e3 * best:6.3f} ms/frame "
                 f"= {1 / best:7.0f} frames/s  ({base / (1e3 * best):5.2f}x filterpy)  "
                 f"(tracks {len(trk)})"
             )
