@@ -1,14 +1,17 @@
 """Tracker benchmarks: CLEAR-MOT on real KITTI detections, update speed, simulated filtering.
 
-    python bench/bench_tracker.py mot    [--seqs 1,6,8,10,12,13] [--quick]
-    python bench/bench_tracker.py tune   [--seqs 1,6]
+    python bench/bench_tracker.py mot     [--seqs 1,6,8,10,12,13] [--quick] [--lookahead N]
+    python bench/bench_tracker.py compare [NAME=PARAMS.yaml[@LOOKAHEAD] ...] [--only DEV|TUNE]
+    python bench/bench_tracker.py tune    [--params START.yaml] [--seqs 0,2,...] [--rounds 1]
     python bench/bench_tracker.py speed
     python bench/bench_tracker.py sim
 
 ``mot``: tracker_offline's core over ../shared/kitti/detections/pointrcnn_Car_val, scored with
 eval_node.tracking_metrics (KITTI devkit rules; 3D IoU 0.25 and 2D IoU 0.5), per filter x
-association x cost, per sequence and total. ``tune``: a small grid over the lifecycle and noise
-parameters on the tuning sequences only. ``speed``: Tracker.step time with 20 and 100 vehicles.
+association x cost, per sequence and total. ``compare``: the issue #14 table (best-threshold,
+fixed-threshold and no-threshold CLEAR-MOT, HOTA, sAMOTA; one evaluator) on DEV and TUNE.
+``tune``: coordinate descent over TUNE_GRID on the tuning sequences only (DEV refused).
+``speed``: Tracker.step time with 20 and 100 vehicles.
 ``sim``: noisy stereo detections of the labelled cars (sigma_z = z^2 sigma_d / (f B), dropped
 detections): mean position error of unfiltered / kalman / particle tracks.
 """

@@ -14,6 +14,8 @@ projection of their 3D box with P2; otherwise in camera 0 with the last detectio
 Online by default: the rows of frame f depend only on frames 0..f and are exactly the tracks the
 ``vehicle_tracker`` node publishes for that frame (tentative tracks and tracks without a 2D box
 left out). ``--lookahead N`` is look-ahead smoothing (not online, see :class:`LookaheadBuffer`).
+For PointRCNN-scored LiDAR detections use ``--params
+src/tracking_bringup/config/tracker_pointrcnn.yaml`` (docs/tracker.md).
 """
 
 from __future__ import annotations
