@@ -20,7 +20,7 @@ from .association import (
     giou_cost,
     iou_shape_cost,
     mahalanobis_cost_gated,
-    solve,
+    solve_two_stage,
 )
 from .config import TrackerConfig
 from .filters import make_filter
@@ -190,14 +190,7 @@ class Tracker:
     def _assign(self, cost: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Matched (track rows, detection columns): the ``high`` detections (score >=
         ``birth_score``) first, then the others to the tracks still unmatched."""
-        method = self.cfg.association
-        if high.all():
-            return solve(cost, method)
-        rows, cols = solve(np.where(high, cost, np.inf), method)
-        free = np.ones(len(cost), bool)
-        free[rows] = False
-        rows2, cols2 = solve(np.where(free[:, None] & ~high, cost, np.inf), method)
-        return np.concatenate([rows, rows2]), np.concatenate([cols, cols2])
+        return solve_two_stage(cost, high, self.cfg.association)
 
     def _update(self, dets: DetectionBatch, rows, cols, R: np.ndarray, det_yaw) -> None:
         """Matched tracks take their detections: filter, lifecycle, size, yaw, box, class."""
