@@ -49,7 +49,7 @@ def test_constant_velocity_target_coasts_through_three_missed_frames():
         out = trk.step(dets, stamp=100.0 + 0.1 * k)
         if k in (15, 16, 17):
             assert len(out) == 1 or k == 17  # reported while confidence allows
-            assert trk.misses[0] == k - 14
+            assert trk.tracks.misses[0] == k - 14
             err = np.linalg.norm(trk.filter.position[0] - pos[0])
             assert err < 0.2, (k, err)
             if len(out):
@@ -242,3 +242,59 @@ def test_config_from_yaml(tmp_path):
     p.write_text("vehicle_tracker:\n  ros__parameters:\n    filter: magic\n")
     with pytest.raises(TrackerConfigError, match="filter"):
         TrackerConfig.from_yaml(p)
+
+
+def test_track_table_appends_and_keeps_every_column_in_step():
+    from tracker_node.track_table import COLUMNS, TrackTable
+
+    trk = Tracker(TrackerConfig(min_hits=1))
+    trk.step(DetectionBatch.create([[0.0, 1.0, 10.0], [5.0, 1.0, 20.0], [-5.0, 1.0, 30.0]]), 0.0)
+    t = trk.tracks
+    assert all(len(getattr(t, name)) == 3 for name in COLUMNS)
+    assert list(t.ids) == [1, 2, 3] and list(t.det_index) == [0, 1, 2]
+    t.keep(np.array([True, False, True]))
+    assert all(len(getattr(t, name)) == 2 for name in COLUMNS)
+    assert list(t.ids) == [1, 3]
+    with pytest.raises(ValueError, match="missing columns"):
+        TrackTable().append(ids=[1])
+
+
+def test_low_score_detections_only_keep_tracks_alive_in_a_second_stage():
+    cfg = TrackerConfig(birth_score=2.0, min_hits=1, measurement_noise=0.3)
+    trk = Tracker(cfg)
+    out = trk.step(DetectionBatch.create([[0.0, 1.0, 20.0], [6.0, 1.0, 30.0]], score=[5.0, 1.0]))
+    assert list(out.track_id) == [1]  # the 1.0 detection starts no track
+    # next frame: a low-score detection 0.2 m away and a high one 0.8 m away from track 1:
+    # the first stage (high scores) takes the high one although the low one is nearer
+    dets = DetectionBatch.create([[0.2, 1.0, 20.0], [0.8, 1.0, 20.0]], score=[1.0, 5.0])
+    out = trk.step(dets, 0.1)
+    assert list(out.track_id) == [1] and list(out.det_index) == [1]
+    # a low-score detection alone keeps the track matched (second stage), spawning nothing
+    out = trk.step(DetectionBatch.create([[1.0, 1.0, 20.0]], score=[0.5]), 0.2)
+    assert list(out.track_id) == [1] and out.state[0] == CONFIRMED and out.det_index[0] == 0
+    # without a birth threshold the nearer (low-score) detection wins
+    trk = Tracker(TrackerConfig(birth_score=-np.inf, min_hits=1))
+    trk.step(DetectionBatch.create([[0.0, 1.0, 20.0]], score=[5.0]))
+    assert list(trk.step(dets, 0.1).det_index) == [0, 1]  # track 1 took det 0; det 1 spawned
+
+
+def test_score_aware_confirmation_ramp_and_coasting_rules():
+    cfg = TrackerConfig(
+        min_hits=4, confirm_score=10.0, score_ramp_hits=4, coast_min_hits=3, max_staleness=3
+    )
+    trk = Tracker(cfg)
+    a, b = [0.0, 1.0, 20.0], [8.0, 1.0, 40.0]
+    out = trk.step(DetectionBatch.create([a, b], score=[12.0, 4.0]), 0.0)
+    assert list(out.state) == [CONFIRMED, TENTATIVE]  # 12 >= confirm_score at birth
+    np.testing.assert_allclose(out.score, [12.0 * 1 / 4, 4.0 * 1 / 4])  # ramp: hits / 4
+    out = trk.step(DetectionBatch.create([a, b], score=[12.0, 4.0]), 0.1)
+    assert list(out.state) == [CONFIRMED, TENTATIVE]  # 4 + 4 < 10
+    np.testing.assert_allclose(out.score, [6.0, 2.0])
+    out = trk.step(DetectionBatch.create([a, b], score=[12.0, 4.0]), 0.2)
+    assert list(out.state) == [CONFIRMED, CONFIRMED]  # 4 + 4 + 4 >= 10
+    out = trk.step(DetectionBatch.create([b], score=[4.0]), 0.3)
+    assert list(out.track_id) == [1, 2] and out.state[0] == COASTING  # 3 hits: reported
+    trk = Tracker(cfg)
+    trk.step(DetectionBatch.create([a], score=[12.0]), 0.0)
+    assert len(trk.step(DetectionBatch.empty(), 0.1)) == 0  # 1 hit < coast_min_hits
+    assert len(trk) == 1  # still alive, only not reported

@@ -1,7 +1,8 @@
 """Data association: cost matrices (tracks x detections) with gating, and the two solvers.
 
 Solvers: ``hungarian`` (globally optimal, ``scipy.optimize.linear_sum_assignment``) and
-``nearest`` (the paper's greedy: repeatedly take the cheapest remaining track/detection pair).
+``nearest`` (the paper's greedy: repeatedly take the cheapest remaining track/detection pair);
+:func:`solve_two_stage` runs one of them first on high-score detections, then on the rest.
 Gated-out pairs (cost ``inf``) are never matched.
 """
 
@@ -85,3 +86,17 @@ def solve(cost: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray]:
                 out_c.append(j)
         return np.array(out_r, int), np.array(out_c, int)
     raise ValueError(f"association: unknown method {method!r}")
+
+
+def solve_two_stage(
+    cost: np.ndarray, first: np.ndarray, method: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Two-stage association: the detections where ``first`` (bool (M,)) are matched first; the
+    others only to the tracks the first stage left unmatched. Returns (rows, columns)."""
+    if first.all():
+        return solve(cost, method)
+    rows, cols = solve(np.where(first, cost, np.inf), method)
+    free = np.ones(len(cost), bool)
+    free[rows] = False
+    rows2, cols2 = solve(np.where(free[:, None] & ~first, cost, np.inf), method)
+    return np.concatenate([rows, rows2]), np.concatenate([cols, cols2])

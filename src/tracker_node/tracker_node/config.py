@@ -22,7 +22,6 @@ from vehicle_common.node_parameters import (
 FILTERS = ("kalman", "particle", "none")
 ASSOCIATIONS = ("hungarian", "nearest")
 COSTS = ("mahalanobis", "euclidean", "iou2d", "giou3d")
-OUTPUT_COASTING = ("all", "refound")
 NODE_NAME = "vehicle_tracker"
 
 
@@ -82,10 +81,17 @@ class TrackerConfig:
     image_width: int = param(1242, low=1)
     image_height: int = param(375, low=1)  # [px]
     output_tentative: bool = False  # offline CLI: also write tentative tracks
-    # offline CLI: coasting rows to write: "all" (as reported online) or "refound" (only those of
-    # tracks matched again later: gaps filled with the prediction, no rows after a track's end;
-    # output delayed by up to max_staleness frames)
-    output_coasting: str = param("refound", choices=OUTPUT_COASTING)
+    # Score-aware lifecycle and two-stage association (docs/tracker.md; the defaults leave it
+    # off for detections scoring in [0, 1], i.e. the stereo graph's):
+    birth_score: float = param(
+        0.0, finite=False
+    )  # -inf: no threshold; detections scoring below this start no track; they are
+    # matched only in a second stage, to the tracks the first stage (>= birth_score) left
+    confirm_score: float = param(float("inf"), finite=False)  # a track whose detection scores
+    # sum to >= this is confirmed (also before min_hits matches)
+    coast_min_hits: int = param(0, low=0)  # coasting tracks are reported only after this many
+    # matches
+    score_ramp_hits: int = param(1, low=1)  # reported score x min(1, hits / this)
 
     def validate(self) -> TrackerConfig:
         """Check every field's type, range and choices (see ``param``); raises

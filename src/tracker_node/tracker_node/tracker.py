@@ -4,11 +4,9 @@ Positions are vehicle centres (centre of mass) in one camera frame (x right, y d
 the node uses the left optical frame). Each :meth:`Tracker.step` takes one frame's detections and
 its stamp (seconds; dt comes from successive stamps) and returns the reported tracks.
 
-Lifecycle: a new track is tentative until matched ``min_hits`` times (a tentative track that
-misses a frame is deleted); a confirmed track that misses frames coasts on the filter's
-prediction with its confidence multiplied by ``decay_rate`` per missed frame, is reported while
-confidence >= ``restoration_conf_threshold``, and is deleted after ``max_staleness`` missed
-frames. Track ids start at 1 and are never reused within a Tracker's life.
+The parts, as in Autoware's multi_object_tracker: motion model (:mod:`.filters`), association
+(:mod:`.association`), track lifecycle (:mod:`.lifecycle`) over the track table
+(:mod:`.track_table`). Track ids start at 1 and are never reused within a Tracker's life.
 """
 
 from __future__ import annotations
@@ -24,13 +22,15 @@ from .association import (
     giou_cost,
     iou_shape_cost,
     mahalanobis_cost_gated,
-    solve,
+    solve_two_stage,
 )
 from .config import TrackerConfig
 from .filters import make_filter
+from .lifecycle import COASTING, CONFIRMED, TENTATIVE, TrackLifecycle
 from .orientation import align_to, resolve_heading, wrap, yaw_from_bin
+from .track_table import TrackTable
 
-TENTATIVE, CONFIRMED, COASTING = 0, 1, 2  # = TrackedVehicle.STATE_*
+__all__ = ["COASTING", "CONFIRMED", "TENTATIVE", "DetectionBatch", "Tracker", "TrackSet"]
 DEFAULT_YAW = -np.pi / 2.0  # a car aligned with the optical axis, heading away
 
 
@@ -125,30 +125,16 @@ class TrackSet:
         return len(self.track_id)
 
 
-_META = (
-    "ids",
-    "hits",
-    "age",
-    "misses",
-    "conf",
-    "confirmed",
-    "size",
-    "yaw",
-    "yaw_amb",
-    "bin",
-    "bbox",
-    "score",
-    "cls",
-    "det_index",
-)
-
-
 class Tracker:
     """Multi-vehicle tracker configured by a :class:`TrackerConfig`.
 
     ``projection``: optional 3x4 camera matrix acting on the tracker's frame (the left optical
     frame: ``[K | 0]``), used to give coasting tracks the 2D box of their projected 3D box;
     ``image_size`` (width, height) clips it.
+
+    State: ``tracks`` (:class:`.track_table.TrackTable`, one row per live track) and ``filter``
+    (the motion filter, same rows). Each :meth:`step` runs predict -> cost -> assign -> update
+    -> prune -> spawn -> report.
     """
 
     def __init__(
@@ -159,28 +145,16 @@ class Tracker:
     ):
         self.cfg = (config or TrackerConfig()).validate()
         self.filter = make_filter(self.cfg)
+        self.lifecycle = TrackLifecycle(self.cfg)
+        self.tracks = TrackTable()
         self.projection = None if projection is None else np.asarray(projection, float)
         self.image_size = image_size or (self.cfg.image_width, self.cfg.image_height)
         self.next_id = 1
         self.last_stamp: float | None = None
         self._R0 = np.eye(3) * self.cfg.measurement_noise**2
-        self.ids = np.zeros(0, np.int64)
-        self.hits = np.zeros(0, np.int64)
-        self.age = np.zeros(0, np.int64)
-        self.misses = np.zeros(0, np.int64)
-        self.conf = np.zeros(0)
-        self.confirmed = np.zeros(0, bool)
-        self.size = np.zeros((0, 3))
-        self.yaw = np.zeros(0)
-        self.yaw_amb = np.zeros(0, bool)  # yaw known only up to 180 deg (bins or default)
-        self.bin = np.zeros(0, np.int64)
-        self.bbox = np.zeros((0, 4))
-        self.score = np.zeros(0)
-        self.cls = np.zeros(0, dtype=object)
-        self.det_index = np.zeros(0, np.int64)
 
     def __len__(self) -> int:
-        return len(self.ids)
+        return len(self.tracks)
 
     def set_projection(self, projection, image_size=None) -> None:
         """Set (or replace) the camera matrix used to project coasting tracks' boxes."""
@@ -192,68 +166,94 @@ class Tracker:
 
     def step(self, dets: DetectionBatch, stamp: float | None = None) -> TrackSet:
         """Process one frame. ``stamp`` in seconds; None or non-increasing -> ``default_dt``."""
-        cfg = self.cfg
-        dt = cfg.default_dt
+        R, shared_R = self._det_covariances(dets)
+        det_yaw = self._det_yaw(dets)
+        self._predict(self._dt(stamp))
+        cost = self._cost(dets, R, det_yaw, shared_R)
+        rows, cols = self._assign(cost, dets.score >= self.cfg.birth_score)
+        self._update(dets, rows, cols, R, det_yaw)
+        self._prune(rows)
+        self._spawn(dets, cols, R, det_yaw)
+        return self._report()
+
+    def _dt(self, stamp: float | None) -> float:
+        dt = self.cfg.default_dt
         if stamp is not None:
             if self.last_stamp is not None and stamp > self.last_stamp:
                 dt = float(stamp - self.last_stamp)
             self.last_stamp = float(stamp)
+        return dt
 
-        R, shared_R = self._det_covariances(dets)
-        det_yaw = self._det_yaw(dets)
+    def _predict(self, dt: float) -> None:
         self.filter.predict(dt)
-        self.age += 1
-        self.det_index[:] = -1
+        self.tracks.age += 1
+        self.tracks.det_index[:] = -1
 
-        rows, cols = solve(self._cost(dets, R, det_yaw, shared_R), cfg.association)
+    def _assign(self, cost: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Matched (track rows, detection columns): the ``high`` detections (score >=
+        ``birth_score``) first, then the others to the tracks still unmatched."""
+        return solve_two_stage(cost, high, self.cfg.association)
 
-        # matched tracks
+    def _update(self, dets: DetectionBatch, rows, cols, R: np.ndarray, det_yaw) -> None:
+        """Matched tracks take their detections: filter, lifecycle, size, yaw, box, class."""
+        cfg, t = self.cfg, self.tracks
         self.filter.update(rows, dets.position[cols], R[cols])
-        self.hits[rows] += 1
-        self.misses[rows] = 0
-        self.conf[rows] = 1.0
-        self.score[rows] = dets.score[cols]
-        self.det_index[rows] = cols
+        self.lifecycle.matched(t, rows, dets.score[cols])
+        t.det_index[rows] = cols
         dsize = dets.size[cols]
         has_size = np.isfinite(dsize).all(axis=1)
-        g = cfg.size_gain
-        self.size[rows[has_size]] += g * (dsize[has_size] - self.size[rows[has_size]])
+        r_s = rows[has_size]
+        t.size[r_s] += cfg.size_gain * (dsize[has_size] - t.size[r_s])
         dyaw = det_yaw[cols]
         has_yaw = np.isfinite(dyaw)
         r_y = rows[has_yaw]
-        obs = align_to(dyaw[has_yaw], self.yaw[r_y])
-        self.yaw[r_y] = wrap(self.yaw[r_y] + cfg.yaw_gain * wrap(obs - self.yaw[r_y]))
-        self.yaw_amb[rows] &= ~np.isfinite(dets.yaw[cols])  # a full detected yaw resolves it
+        obs = align_to(dyaw[has_yaw], t.yaw[r_y])
+        t.yaw[r_y] = wrap(t.yaw[r_y] + cfg.yaw_gain * wrap(obs - t.yaw[r_y]))
+        t.yaw_amb[rows] &= ~np.isfinite(dets.yaw[cols])  # a full detected yaw resolves it
         dbin = dets.orientation_bin[cols]
-        self.bin[rows[dbin >= 0]] = dbin[dbin >= 0]
-        self.bbox[rows] = dets.bbox[cols]
+        t.bin[rows[dbin >= 0]] = dbin[dbin >= 0]
+        t.bbox[rows] = dets.bbox[cols]
         if len(rows):
-            self.cls[rows] = np.array(dets.class_id, dtype=object)[cols]
-        self.confirmed |= self.hits >= cfg.min_hits
+            t.cls[rows] = np.array(dets.class_id, dtype=object)[cols]
 
-        # unmatched tracks
-        missed = np.ones(len(self.ids), bool)
-        missed[rows] = False
-        self.misses[missed] += 1
-        self.conf[missed] *= cfg.decay_rate
-        dead = missed & (~self.confirmed | (self.misses > cfg.max_staleness))
+    def _prune(self, matched_rows: np.ndarray) -> None:
+        """Unmatched tracks miss a frame; those the lifecycle ends are removed."""
+        missed = np.ones(len(self.tracks), bool)
+        missed[matched_rows] = False
+        dead = self.lifecycle.missed(self.tracks, missed)
         if dead.any():
-            self._keep(~dead)
+            self.filter.keep(~dead)
+            self.tracks.keep(~dead)
 
-        # new tracks from unmatched detections
-        new = np.ones(len(dets), bool)
-        new[cols] = False
-        if new.any():
-            self._add(dets, np.nonzero(new)[0], R, det_yaw)
-
-        amb = self.yaw_amb
-        if amb.any():
-            self.yaw[amb] = resolve_heading(
-                self.yaw[amb], self.filter.velocity[amb], cfg.min_heading_speed
-            )
-        return self._report()
-
-    # ------------------------------------------------------------------ helpers
+    def _spawn(self, dets: DetectionBatch, matched_cols, R: np.ndarray, det_yaw) -> None:
+        """New tracks from the detections no track took that score >= ``birth_score``."""
+        new = dets.score >= self.cfg.birth_score
+        new[matched_cols] = False
+        idx = np.nonzero(new)[0]
+        k = len(idx)
+        if not k:
+            return
+        self.filter.add(dets.position[idx], R[idx])
+        size = dets.size[idx]
+        yaw = det_yaw[idx]
+        self.tracks.append(
+            ids=np.arange(self.next_id, self.next_id + k),
+            hits=np.ones(k),
+            age=np.ones(k),
+            misses=np.zeros(k),
+            conf=np.ones(k),
+            confirmed=self.lifecycle.born_confirmed(dets.score[idx]),
+            size=np.where(np.isfinite(size), size, np.array(self.cfg.mean_size)),
+            yaw=wrap(np.where(np.isfinite(yaw), yaw, DEFAULT_YAW)),
+            yaw_amb=~np.isfinite(dets.yaw[idx]),
+            bin=np.maximum(dets.orientation_bin[idx], 0),
+            bbox=dets.bbox[idx],
+            score=dets.score[idx],
+            score_sum=dets.score[idx],
+            cls=[dets.class_id[i] for i in idx],
+            det_index=idx,
+        )
+        self.next_id += k
 
     def _det_covariances(self, dets: DetectionBatch) -> tuple[np.ndarray, bool]:
         """Per-detection covariances (M, 3, 3) and whether they all are the configured one."""
@@ -280,7 +280,7 @@ class Tracker:
         self, dets: DetectionBatch, R: np.ndarray, det_yaw: np.ndarray, shared_R: bool = False
     ) -> np.ndarray:
         cfg = self.cfg
-        n, m = len(self.ids), len(dets)
+        n, m = len(self.tracks), len(dets)
         if n == 0 or m == 0:
             return np.zeros((n, m))
         tpos = self.filter.position
@@ -301,7 +301,7 @@ class Tracker:
             dsize = np.where(np.isfinite(dets.size), dets.size, np.array(cfg.mean_size))
             dyaw = np.where(np.isfinite(det_yaw), det_yaw, DEFAULT_YAW)
             cost = giou_cost(
-                np.column_stack([tpos, self.size, self.yaw]),
+                np.column_stack([tpos, self.tracks.size, self.tracks.yaw]),
                 np.column_stack([dets.position, dsize, dyaw]),
                 near,
             )
@@ -309,11 +309,12 @@ class Tracker:
         return np.where(near, cost, np.inf)
 
     def _predicted_bboxes(self) -> np.ndarray:
+        t = self.tracks
+        out = t.bbox.copy()
         if self.projection is None:
-            return self.bbox.copy()
-        out = self.bbox.copy()
-        for i in range(len(self.ids)):
-            b = self._project(self.filter.position[i], self.size[i], self.yaw[i])
+            return out
+        for i in range(len(t)):
+            b = self._project(self.filter.position[i], t.size[i], t.yaw[i])
             if b is not None:
                 out[i] = b
         return out
@@ -323,73 +324,37 @@ class Tracker:
         bottom = kitti_from_centre(centre, h)
         return projected_bbox(self.projection, (h, w, l), bottom, float(yaw), self.image_size)
 
-    def _keep(self, mask: np.ndarray) -> None:
-        self.filter.keep(mask)
-        for name in _META:
-            setattr(self, name, getattr(self, name)[mask])
-
-    def _add(self, dets: DetectionBatch, idx: np.ndarray, R: np.ndarray, det_yaw) -> None:
-        k = len(idx)
-        pos = dets.position[idx]
-        self.filter.add(pos, R[idx])
-        size = dets.size[idx]
-        size = np.where(np.isfinite(size), size, np.array(self.cfg.mean_size))
-        yaw = det_yaw[idx]
-        yaw = np.where(np.isfinite(yaw), yaw, DEFAULT_YAW)
-        new = {
-            "ids": np.arange(self.next_id, self.next_id + k, dtype=np.int64),
-            "hits": np.ones(k, np.int64),
-            "age": np.ones(k, np.int64),
-            "misses": np.zeros(k, np.int64),
-            "conf": np.ones(k),
-            "confirmed": np.full(k, self.cfg.min_hits <= 1),
-            "size": size,
-            "yaw": wrap(yaw),
-            "yaw_amb": ~np.isfinite(dets.yaw[idx]),
-            "bin": np.maximum(dets.orientation_bin[idx], 0),
-            "bbox": dets.bbox[idx],
-            "score": dets.score[idx],
-            "cls": np.array([dets.class_id[i] for i in idx], dtype=object),
-            "det_index": idx.astype(np.int64),
-        }
-        self.next_id += k
-        for name in _META:
-            setattr(self, name, np.concatenate([getattr(self, name), new[name]]))
-
     def _report(self) -> TrackSet:
-        cfg = self.cfg
-        matched = self.misses == 0
-        state = np.where(~self.confirmed, TENTATIVE, np.where(matched, CONFIRMED, COASTING)).astype(
-            np.uint8
-        )
-        report = (state != COASTING) | (self.conf >= cfg.restoration_conf_threshold)
-        idx = np.nonzero(report)[0]
-        bbox = self.bbox[idx].copy()
-        need = idx[(~matched[idx]) | ~np.isfinite(self.bbox[idx]).all(axis=1)]
+        t = self.tracks
+        amb = t.yaw_amb
+        if amb.any():  # bin or default yaws: the velocity resolves the 180-degree ambiguity
+            t.yaw[amb] = resolve_heading(
+                t.yaw[amb], self.filter.velocity[amb], self.cfg.min_heading_speed
+            )
+        state = self.lifecycle.states(t)
+        idx = np.nonzero(self.lifecycle.reported(t, state))[0]
+        bbox = t.bbox[idx].copy()
+        need = idx[(t.misses[idx] > 0) | ~np.isfinite(t.bbox[idx]).all(axis=1)]
         if self.projection is not None:
             for i in need:
-                b = self._project(self.filter.position[i], self.size[i], self.yaw[i])
+                b = self._project(self.filter.position[i], t.size[i], t.yaw[i])
                 if b is not None:
                     bbox[np.searchsorted(idx, i)] = b
         return TrackSet(
-            track_id=self.ids[idx],
+            track_id=t.ids[idx],
             state=state[idx],
-            confidence=self.conf[idx],
+            confidence=t.conf[idx],
             position=self.filter.position[idx].copy(),
             position_cov=self.filter.position_cov[idx],
             velocity=self.filter.velocity[idx].copy(),
             velocity_cov=self.filter.velocity_cov[idx],
-            size=self.size[idx].copy(),
-            yaw=self.yaw[idx].copy(),
-            orientation_bin=self.bin[idx].copy(),
+            size=t.size[idx].copy(),
+            yaw=t.yaw[idx].copy(),
+            orientation_bin=t.bin[idx].copy(),
             bbox=bbox,
-            age=self.age[idx].copy(),
-            frames_since_update=self.misses[idx].copy(),
-            score=np.where(
-                self.score[idx] >= 0,
-                self.score[idx] * self.conf[idx],
-                self.score[idx] / np.maximum(self.conf[idx], 1e-6),
-            ),
-            class_id=[str(c) for c in self.cls[idx]],
-            det_index=self.det_index[idx].copy(),
+            age=t.age[idx].copy(),
+            frames_since_update=t.misses[idx].copy(),
+            score=self.lifecycle.row_score(t, idx),
+            class_id=[str(c) for c in t.cls[idx]],
+            det_index=t.det_index[idx].copy(),
         )

@@ -1,0 +1,70 @@
+"""Track lifecycle: confirmation, coasting, deletion and what is reported (no motion, no costs).
+
+A new track is tentative until matched ``min_hits`` times or until its matched detections'
+scores sum to >= ``confirm_score`` (a tentative track that misses a frame is deleted); a
+confirmed track that misses frames coasts on the filter's prediction with its confidence
+multiplied by ``decay_rate`` per missed frame, is reported while confidence >=
+``restoration_conf_threshold`` (and it has been matched >= ``coast_min_hits`` times), and is
+deleted after ``max_staleness`` missed frames. (Births below ``birth_score`` are refused by the
+tracker's spawn step.)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .config import TrackerConfig
+from .track_table import TrackTable
+
+TENTATIVE, CONFIRMED, COASTING = 0, 1, 2  # = TrackedVehicle.STATE_*
+
+
+class TrackLifecycle:
+    """The lifecycle rules of :class:`TrackerConfig` applied to a :class:`TrackTable`."""
+
+    def __init__(self, cfg: TrackerConfig):
+        self.cfg = cfg
+
+    def matched(self, table: TrackTable, rows: np.ndarray, score: np.ndarray) -> None:
+        """Tracks ``rows`` were matched to detections with ``score``."""
+        table.hits[rows] += 1
+        table.misses[rows] = 0
+        table.conf[rows] = 1.0
+        table.score[rows] = score
+        table.score_sum[rows] += score
+        table.confirmed |= (table.hits >= self.cfg.min_hits) | (
+            table.score_sum >= self.cfg.confirm_score
+        )
+
+    def missed(self, table: TrackTable, missed: np.ndarray) -> np.ndarray:
+        """Tracks where ``missed`` (bool) were not matched; returns which of them end now."""
+        table.misses[missed] += 1
+        table.conf[missed] *= self.cfg.decay_rate
+        return missed & (~table.confirmed | (table.misses > self.cfg.max_staleness))
+
+    def born_confirmed(self, score: np.ndarray) -> np.ndarray:
+        """Whether new tracks born from detections with ``score`` start confirmed
+        (``min_hits`` <= 1, or a score >= ``confirm_score``)."""
+        return (score >= self.cfg.confirm_score) | (self.cfg.min_hits <= 1)
+
+    def states(self, table: TrackTable) -> np.ndarray:
+        """TENTATIVE / CONFIRMED / COASTING per track (uint8)."""
+        matched = table.misses == 0
+        state = np.where(matched, CONFIRMED, COASTING)
+        return np.where(~table.confirmed, TENTATIVE, state).astype(np.uint8)
+
+    def reported(self, table: TrackTable, state: np.ndarray) -> np.ndarray:
+        """Which tracks are reported this frame (bool)."""
+        cfg = self.cfg
+        coast_ok = (table.conf >= cfg.restoration_conf_threshold) & (
+            table.hits >= cfg.coast_min_hits
+        )
+        return (state != COASTING) | coast_ok
+
+    def row_score(self, table: TrackTable, idx: np.ndarray) -> np.ndarray:
+        """Reported score: the last detection's score scaled by the track confidence and by
+        ``min(1, hits / score_ramp_hits)`` (young tracks, most of them false, score lower); a
+        negative score is divided by the factor instead, so it still falls."""
+        s = table.score[idx]
+        c = table.conf[idx] * np.minimum(1.0, table.hits[idx] / self.cfg.score_ramp_hits)
+        return np.where(s >= 0, s * c, s / np.maximum(c, 1e-6))
