@@ -29,7 +29,8 @@ def _record(tmp_path, rclpy_context, sig, extra_params):
 
     bag = tmp_path / "bag"
     node = rclpy.create_node("recorder_test_pub", context=rclpy_context)
-    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    # deep enough for the burst: a KEEP_LAST 10 publisher drops unacknowledged samples itself
+    qos = QoSProfile(depth=N, reliability=ReliabilityPolicy.RELIABLE)
     pub_tracks = node.create_publisher(TrackedVehicleArray, "/vehicles/tracks", qos)
     pub_det = node.create_publisher(VehicleDetection3DArray, "/vehicles/detections_3d", qos)
     topics = (

@@ -145,9 +145,15 @@ def test_folder_with_one_mcap_and_no_metadata_opens(tmp_path):
         assert {c.topic for c in reader.connections} == {m.topic for m in msgs}
     finally:
         reader.close()
+    # two files named as rosbag2 splits of this bag (an interrupted recording): one bag
     _write_bare_mcap(folder / "run_1.mcap", msgs)
+    assert sorted(m.data for m in iter_bag(folder)) == sorted(m.data for m in msgs * 2)
+    other = tmp_path / "other"
+    other.mkdir()
+    _write_bare_mcap(other / "a.mcap", msgs)
+    _write_bare_mcap(other / "b.mcap", msgs)
     with pytest.raises(BagError, match="no metadata.yaml and 2 .mcap files") as err:
-        open_reader(folder)
+        open_reader(other)
     assert isinstance(err.value, KittiFormatError)
 
 

@@ -8,7 +8,11 @@ by the evaluator, which opens recorded runs with :func:`open_reader`.
 
 from __future__ import annotations
 
+import atexit
 import importlib
+import shutil
+import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -49,25 +53,70 @@ def parse_topics(items: Iterable[str]) -> list[str] | None:
     return topics or None
 
 
-def open_reader(path: str | Path):
+#: Interrupted bags already made readable in this process: key -> (readable copy, warning).
+_RECOVERED: dict[tuple, tuple[Path, str]] = {}
+
+
+def _print_warning(text: str) -> None:
+    print(f"warning: {text}", file=sys.stderr)
+
+
+def _readable(path: Path, warn: Callable[[str], None]) -> Path:
+    """A readable copy of an interrupted recording (no metadata.yaml, or a ``.mcap`` cut after
+    its last flushed chunk), made once per process in a temporary folder; warns once (one line)
+    saying what was lost."""
+    from .bag_recovery import readable_copy
+
+    files = sorted(path.iterdir()) if path.is_dir() else [path]
+    key = (
+        str(path.resolve()),
+        tuple((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files),
+    )
+    if key not in _RECOVERED:
+        tmp = Path(tempfile.mkdtemp(prefix="bag_read_"))
+        atexit.register(shutil.rmtree, tmp, True)
+        report = readable_copy(path, tmp)
+        text = ""
+        if report.lost:
+            text = (
+                f"{path}: recording was interrupted: {report.lost}. "
+                f"`bag_recover {path}` repairs the bag in place"
+            )
+        _RECOVERED[key] = (report.path, text)
+        if text:
+            warn(text)
+    return _RECOVERED[key][0]
+
+
+def open_reader(path: str | Path, warn: Callable[[str], None] = _print_warning):
     """An opened ``rosbags`` AnyReader (the caller closes it) on a rosbag2 bag directory, a
-    folder without ``metadata.yaml`` that holds exactly one ``.mcap``, or a bare ``.mcap`` file.
+    folder without ``metadata.yaml`` that holds one ``.mcap`` or rosbag2's split files, or a
+    bare ``.mcap`` file. An interrupted recording (no ``metadata.yaml``, last file without
+    footer) is read up to its last complete chunk, with one warning line through ``warn``.
     Raises BagError naming the file when the bag is missing or unreadable."""
     from rosbags.highlevel import AnyReader
+
+    from .bag_recovery import bag_files, needs_recovery
+    from .mcap_recovery import McapRecoveryError, has_footer
 
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: bag not found")
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        mcaps = sorted(path.glob("*.mcap"))
-        if len(mcaps) != 1:
-            raise BagError(
-                f"{path}: not a rosbag2 directory (no metadata.yaml and "
-                f"{len(mcaps)} .mcap files instead of one)"
-            )
-        path = mcaps[0]
+    target = path
     try:
-        reader = AnyReader([path])
+        if needs_recovery(path):
+            files = bag_files(path) if path.is_dir() else [path]
+            if len(files) == 1 and files[0].suffix == ".mcap" and has_footer(files[0]):
+                target = files[0]  # a complete bare file in a folder
+            else:
+                target = _readable(path, warn)
+    except McapRecoveryError as exc:
+        text = str(exc)
+        raise BagError(text if text.startswith(str(path)) else f"{path}: {text}") from None
+    except OSError as exc:
+        raise BagError(f"{path}: cannot read bag ({exc})") from None
+    try:
+        reader = AnyReader([target])
         reader.open()
     except Exception as exc:  # rosbags raises several unrelated types for corrupt files
         raise BagError(f"{path}: cannot read bag ({exc})") from None
@@ -141,6 +190,21 @@ def paced(
             if delay > 0:
                 sleep(delay)
         yield msg
+
+
+def ready_to_play(
+    matched: dict[str, int], known: dict[str, int], elapsed_s: float, discovery_s: float
+) -> bool:
+    """Whether a replay may start without losing messages to subscribers already running.
+
+    ``matched``: subscriptions matched per output topic; ``known``: subscriptions the ROS graph
+    knows per topic (discovery can know of one before its publisher has matched it). Ready when
+    every known subscription is matched and every topic has one; after ``discovery_s`` seconds
+    topics nobody subscribes to no longer hold the start back (discovery of a running process
+    takes up to ~2.4 s with Fast DDS on loopback, docs: ros2-from-pip notes)."""
+    if any(matched.get(t, 0) < n for t, n in known.items()):
+        return False
+    return all(n > 0 for n in matched.values()) or elapsed_s >= discovery_s
 
 
 def message_class(type_name: str):
