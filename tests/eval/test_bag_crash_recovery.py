@@ -202,3 +202,35 @@ def test_bag_recover_cli(tmp_path):
     assert (
         bad.returncode == 2 and bad.stderr.strip() == f"error: {tmp_path / 'nope'}: bag not found"
     )
+
+
+def test_evaluate_cli_reads_interrupted_run(tmp_path, capsys):
+    """`evaluate bag` on a run whose recorder died after frame 11's flush: one warning line,
+    the 12 flushed frames evaluated."""
+    from eval_node.bag_writer import BagWriter, ros_type_name
+    from eval_node.cli import main
+    from rclpy.serialization import serialize_message
+    from test_evaluate_cli_bag import T0 as T0_RUN
+    from test_evaluate_cli_bag import make_messages
+
+    writer = BagWriter(tmp_path / "live")
+    flushed_frames = 12
+    for topic, msg, t in make_messages():
+        writer.add_topic(topic, ros_type_name(msg))
+        writer.write(topic, serialize_message(msg), t)
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        if topic == "/vehicles/tracks" and stamp == T0_RUN + 11 * 100_000_000:
+            writer.flush()  # frame 11 is the last one on disk
+    bag = tmp_path / "run"
+    shutil.copytree(writer.path, bag)
+    writer.close()
+    (bag / "live_0.mcap").rename(bag / "run_0.mcap")
+    assert main(["bag", str(bag), "--no-filters", "--no-progress"]) == 0
+    out, err = capsys.readouterr()
+    warnings = [line for line in err.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1 and "recording was interrupted" in warnings[0]
+    from eval_node.bag_reader import read_run
+
+    run = read_run(bag)
+    assert [f.frame for f in run.frames] == list(range(flushed_frames))
+    assert all(len(f.tracks) == 2 for f in run.frames)

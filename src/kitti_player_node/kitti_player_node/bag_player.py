@@ -157,6 +157,10 @@ def main(argv: list[str] | None = None) -> int:
                     f"{args.wait_timeout} s; playing anyway"
                 )
         elif not args.immediate:
+            log.info(
+                f"waiting up to {args.discovery_time} s for a subscriber on each of "
+                f"{len(types)} topics (--immediate: start at once)"
+            )
             unmatched = node.wait_for_matching(args.discovery_time, args.wait_timeout)
             if unmatched:
                 log.info(f"no subscriber on {', '.join(sorted(unmatched))}; playing anyway")
