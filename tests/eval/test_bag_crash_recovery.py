@@ -124,7 +124,7 @@ def test_killed_writer_keeps_flushed_chunks(tmp_path, capsys):
 
 @pytest.mark.parametrize("options", [{}, {"compression": "zstd"}])
 def test_cut_anywhere_keeps_every_complete_chunk(tmp_path, options):
-    """The last file cut at 40 random offsets (a kill during a write): the reader keeps the
+    """The last file cut at 40 offsets, 38 of them random (a kill during a write): the reader keeps the
     messages of every chunk that lies wholly before the cut, and bag_recover agrees."""
     from kitti_player_node.bag_recovery import recover_bag
     from kitti_player_node.bag_replay import open_reader
@@ -136,7 +136,8 @@ def test_cut_anywhere_keeps_every_complete_chunk(tmp_path, options):
     assert not full.complete and len(full.chunks) == 13
     size = src.stat().st_size
     rng = random.Random(7)
-    for k, cut in enumerate(sorted(rng.sample(range(30, size), 40))):
+    cuts = [0, 5] + sorted(rng.sample(range(8, size), 38))  # 0, 5: killed inside the magic
+    for k, cut in enumerate(cuts):
         bag = tmp_path / f"cut{k}"
         bag.mkdir()
         data = src.read_bytes()[:cut]
@@ -246,3 +247,28 @@ def test_bag_player_replays_interrupted_bag(tmp_path, capfd):
     warnings = [line for line in err.splitlines() if line.startswith("warning:")]
     assert len(warnings) == 1 and f"kept {len(flushed)} messages" in warnings[0]
     assert f"done: {len(flushed)} messages published" in err
+
+
+def test_cut_file_listed_in_metadata_is_read(tmp_path):
+    """A bag whose metadata.yaml exists but whose file lost its end (a writer that writes the
+    metadata first, as rosbag2 may): read up to the last complete chunk, then repaired."""
+    from kitti_player_node.bag_recovery import recover_bag
+    from kitti_player_node.bag_replay import open_reader
+    from kitti_player_node.mcap_recovery import scan_mcap
+
+    crashed, flushed, _ = _crashed_bag(tmp_path, [3, 7], 10)
+    bag = tmp_path / "closed"
+    recover_bag(crashed)
+    shutil.copytree(crashed, bag)
+    mcap = bag / "crashed_0.mcap"
+    first_chunk = scan_mcap(mcap).chunks[0]
+    with open(mcap, "r+b") as f:
+        f.truncate(first_chunk.start + first_chunk.length + 3)  # inside the next record
+    lines = []
+    reader = open_reader(bag, warn=lines.append)
+    try:
+        n = sum(1 for _ in reader.messages())
+    finally:
+        reader.close()
+    assert n == 8 and len(lines) == 1  # the first chunk: pairs 0..3
+    assert recover_bag(bag).message_count == 8 and _read_all(bag) == flushed[:8]

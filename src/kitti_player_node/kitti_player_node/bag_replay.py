@@ -119,8 +119,17 @@ def open_reader(path: str | Path, warn: Callable[[str], None] = _print_warning):
         reader = AnyReader([target])
         reader.open()
     except Exception as exc:  # rosbags raises several unrelated types for corrupt files
+        if target == path and path.is_dir() and _cut_files(path):
+            return open_reader(_readable(path, warn))  # metadata.yaml written, a file cut
         raise BagError(f"{path}: cannot read bag ({exc})") from None
     return reader
+
+
+def _cut_files(bag_dir: Path) -> list[Path]:
+    """``.mcap`` files of a bag directory that lack their footer."""
+    from .mcap_recovery import has_footer
+
+    return [p for p in bag_dir.glob("*.mcap") if not has_footer(p)]
 
 
 def _check_topics(available: Iterable[str], topics: Iterable[str] | None, path) -> None:

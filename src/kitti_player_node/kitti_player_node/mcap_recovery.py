@@ -149,7 +149,11 @@ def scan_mcap(path: str | Path) -> McapScan:
     size = path.stat().st_size
     scan = McapScan(path=path, size=size, complete=has_footer(path))
     with open(path, "rb") as f:
-        if f.read(8) != MAGIC:
+        magic = f.read(8)
+        if magic != MAGIC:
+            if MAGIC.startswith(magic):  # killed before even the magic was written: empty
+                scan.stop_reason = "file cut inside its magic"
+                return scan
             raise McapRecoveryError(f"{path}: cannot read bag (not an MCAP file: bad magic)")
         pos = 8
         scan.valid_end = pos
@@ -255,7 +259,7 @@ def repair_mcap(scan: McapScan, dst: str | Path | None = None) -> Path:
             return src
         shutil.copyfile(src, dst)
         return Path(dst)
-    end = scan.valid_end if scan.has_header else len(MAGIC)
+    end = scan.valid_end if scan.has_header else 0
     if scan.reindex_last:
         end = scan.chunks[-1].start + scan.chunks[-1].length
     scan.metadata = [m for m in scan.metadata if m[0] + m[1] <= end]
@@ -280,10 +284,13 @@ def repair_mcap(scan: McapScan, dst: str | Path | None = None) -> Path:
 
 def _tail(scan: McapScan, end: int) -> bytes:
     """Message indexes of a cut last chunk, data end, summary, summary offsets, footer, magic."""
+    head = b""
+    if not scan.has_header:  # cut inside the magic or header: nothing survived, start anew
+        hb = RecordBuilder()
+        Header(profile="ros2", library="bag_recover").write(hb)
+        head = MAGIC + hb.end()
     out = RecordBuilder()
-    pos = end
-    if not scan.has_header:  # cut inside the header: nothing else survived, write a new one
-        Header(profile="ros2", library="bag_recover").write(out)
+    pos = end + len(head)
     if scan.reindex_last:
         last = scan.chunks[-1]
         last.index_records = {}
@@ -343,4 +350,4 @@ def _tail(scan: McapScan, end: int) -> bytes:
     Footer(
         summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=0
     ).write(out)
-    return out.end() + MAGIC
+    return head + out.end() + MAGIC
