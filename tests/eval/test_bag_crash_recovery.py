@@ -124,8 +124,8 @@ def test_killed_writer_keeps_flushed_chunks(tmp_path, capsys):
 
 @pytest.mark.parametrize("options", [{}, {"compression": "zstd"}])
 def test_cut_anywhere_keeps_every_complete_chunk(tmp_path, options):
-    """The last file cut at 40 offsets, 38 of them random (a kill during a write): the reader keeps the
-    messages of every chunk that lies wholly before the cut, and bag_recover agrees."""
+    """The last file cut at 40 offsets, 38 of them random (a kill during a write): the reader
+    keeps the messages of every chunk that lies wholly before the cut; bag_recover agrees."""
     from kitti_player_node.bag_recovery import recover_bag
     from kitti_player_node.bag_replay import open_reader
     from kitti_player_node.mcap_recovery import scan_mcap
