@@ -110,19 +110,27 @@ def open_reader(path: str | Path, warn: Callable[[str], None] = _print_warning):
                 target = files[0]  # a complete bare file in a folder
             else:
                 target = _readable(path, warn)
-    except McapRecoveryError as exc:
-        text = str(exc)
-        raise BagError(text if text.startswith(str(path)) else f"{path}: {text}") from None
-    except OSError as exc:
-        raise BagError(f"{path}: cannot read bag ({exc})") from None
+    except (McapRecoveryError, OSError) as exc:
+        raise _bag_error(path, exc) from None
     try:
         reader = AnyReader([target])
         reader.open()
     except Exception as exc:  # rosbags raises several unrelated types for corrupt files
         if target == path and path.is_dir() and _cut_files(path):
-            return open_reader(_readable(path, warn))  # metadata.yaml written, a file cut
+            try:  # metadata.yaml was written but a file lost its end
+                return open_reader(_readable(path, warn))
+            except (McapRecoveryError, OSError) as exc2:
+                raise _bag_error(path, exc2) from None
         raise BagError(f"{path}: cannot read bag ({exc})") from None
     return reader
+
+
+def _bag_error(path: Path, exc: Exception) -> BagError:
+    """One-line BagError for a recovery failure, naming the bag once."""
+    text = str(exc)
+    if isinstance(exc, OSError):
+        return BagError(f"{path}: cannot read bag ({text})")
+    return BagError(text if text.startswith(str(path)) else f"{path}: {text}")
 
 
 def _cut_files(bag_dir: Path) -> list[Path]:
