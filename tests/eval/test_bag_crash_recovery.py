@@ -272,3 +272,26 @@ def test_cut_file_listed_in_metadata_is_read(tmp_path):
         reader.close()
     assert n == 8 and len(lines) == 1  # the first chunk: pairs 0..3
     assert recover_bag(bag).message_count == 8 and _read_all(bag) == flushed[:8]
+
+
+@pytest.mark.parametrize("mode", ["file", "message"])
+def test_interrupted_bag_with_file_or_message_compression(tmp_path, mode):
+    from kitti_player_node.bag_recovery import recover_bag
+    from kitti_player_node.bag_replay import iter_bag
+    from ruamel.yaml import YAML
+
+    options = {"compression": "zstd", "compression_mode": mode, "max_bag_size": 1500}
+    crashed, flushed, _ = _crashed_bag(tmp_path, [20], 25, **options)
+    names = sorted(p.name for p in crashed.iterdir())
+    if mode == "file":
+        assert any(n.endswith(".mcap.zstd") for n in names) and names[-1].endswith(".mcap")
+    got = [(m.topic, m.data, m.timestamp_ns) for m in iter_bag(crashed)]
+    assert got == flushed  # messages decompressed (metadata.yaml of the readable copy)
+    report = recover_bag(crashed)
+    assert report.message_count == len(flushed)
+    info = YAML(typ="safe").load((crashed / "metadata.yaml").read_text())
+    info = info["rosbag2_bagfile_information"]
+    assert (info["compression_format"], info["compression_mode"]) == ("zstd", mode)
+    if mode == "file":
+        assert all(p.endswith(".mcap.zstd") for p in info["relative_file_paths"])
+    assert _read_all(crashed) == flushed

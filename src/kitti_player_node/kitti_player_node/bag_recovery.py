@@ -280,6 +280,8 @@ def recover_bag(path: str | Path) -> RecoveryReport:
                 raise BagRecoveryError(f"{p}: listed in metadata.yaml but missing")
             plain = _decompressed(p, Path(tmp)) if p.name.endswith(".zstd") else p
             info = file_info(plain, p.name)
+            if info.scan is not None and plain is not p:  # compressed only once complete
+                raise BagRecoveryError(f"{p}: damaged (no MCAP footer inside the .zstd)")
             if info.scan is not None:
                 repair_mcap(info.scan)
                 repaired.append(p.name)
