@@ -295,3 +295,30 @@ def test_interrupted_bag_with_file_or_message_compression(tmp_path, mode):
     if mode == "file":
         assert all(p.endswith(".mcap.zstd") for p in info["relative_file_paths"])
     assert _read_all(crashed) == flushed
+
+
+def test_autoflush_thread_puts_everything_on_disk(tmp_path):
+    """flush_period: a thread flushes (chunk + fsync) without being asked; a copy taken after
+    one period holds every message written before it."""
+    import time
+
+    from eval_node.bag_writer import BagWriter, BagWriterError
+    from kitti_player_node.bag_replay import iter_bag
+
+    with pytest.raises(BagWriterError, match="flush_period"):
+        BagWriter(tmp_path / "bad", flush_period=float("nan"))
+    assert not (tmp_path / "bad").exists()
+    writer = BagWriter(tmp_path / "live", flush_period=0.05)
+    for topic, msgtype in TOPICS.items():
+        writer.add_topic(topic, msgtype)
+    msgs = _payloads(12)
+    for topic, data, t in msgs:
+        writer.write(topic, data, t)
+    deadline = time.monotonic() + 10
+    while writer._dirty and time.monotonic() < deadline:  # the thread has not run yet
+        time.sleep(0.01)
+    shutil.copytree(writer.path, tmp_path / "copy")
+    writer.close()
+    assert not writer._flush_thread.is_alive()
+    got = [(m.topic, m.data, m.timestamp_ns) for m in iter_bag(tmp_path / "copy")]
+    assert got == msgs

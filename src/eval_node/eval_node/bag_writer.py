@@ -104,8 +104,9 @@ class BagWriter:
 
     ``compression``: ``"none"`` or ``"zstd"``; ``compression_mode``: ``storage`` (MCAP chunk
     compression, default), ``message`` or ``file``. ``max_bag_size``: bytes of message data per
-    ``.mcap`` file before a new one is started (0: one file). Timestamps must be in ns; they are
-    made non-decreasing so that the file keeps the order in which messages were written.
+    ``.mcap`` file before a new one is started (0: one file). ``flush_period`` > 0: a thread
+    calls :meth:`flush` this often [s]. Timestamps must be in ns; they are made non-decreasing so
+    that the file keeps the order in which messages were written.
 
     Crash safety: each file is written under its final name ``<bag>_<i>.mcap`` from the start;
     :meth:`flush` closes the pending chunk and fsyncs it, so a writer killed at any moment leaves
@@ -120,6 +121,7 @@ class BagWriter:
         max_bag_size: int = 0,
         definitions: MessageDefinitions | None = None,
         chunk_size: int = CHUNK_SIZE,
+        flush_period: float = 0.0,
     ) -> None:
         self.path = Path(path)
         if compression not in ("none", "zstd"):
@@ -130,6 +132,8 @@ class BagWriter:
             )
         if max_bag_size < 0:
             raise BagWriterError(f"max_bag_size: {max_bag_size} < 0")
+        if not flush_period >= 0:  # (NaN too)
+            raise BagWriterError(f"flush_period: {flush_period} is not >= 0")
         if self.path.exists():
             raise BagWriterError(f"{self.path}: exists already, not overwriting")
         self.compression = compression
@@ -149,10 +153,14 @@ class BagWriter:
         self._split_counts: Counter[str] = Counter()
         self._split_range: list[int | None] = [None, None]
         self._dirty = False
+        self._stop_flush = threading.Event()
+        self._flush_thread: threading.Thread | None = None
         self._last_ts = 0
         self._closed = False
         self.path.mkdir(parents=True)
         self._open_split()
+        if flush_period > 0:
+            self._start_autoflush(float(flush_period))
 
     # ------------------------------------------------------------------ split files
     def _split_name(self) -> str:
@@ -272,10 +280,29 @@ class BagWriter:
 
     def flush(self) -> None:
         """Write the pending MCAP chunk to disk (file flush + fsync): after this, a crash loses
-        none of the messages written so far."""
+        none of the messages written so far. The fsync runs outside the lock (on a duplicate of
+        the file descriptor), so writers are held up only while the chunk is written out."""
         with self._lock:
-            if self._writer is not None and self._dirty:
-                self._sync()
+            if self._writer is None or not self._dirty:
+                return
+            self._writer.flush()  # closes the pending chunk, writes it to the OS
+            self._dirty = False
+            fd = os.dup(self._file.fileno())
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+    def _start_autoflush(self, period_s: float) -> None:
+        """Call :meth:`flush` every ``period_s`` seconds from a daemon thread until
+        :meth:`close` (a slow fsync then never stalls the thread that receives messages)."""
+
+        def run() -> None:
+            while not self._stop_flush.wait(period_s):
+                self.flush()
+
+        self._flush_thread = threading.Thread(target=run, name="bag_flush", daemon=True)
+        self._flush_thread.start()
 
     @property
     def files(self) -> list[str]:
@@ -284,6 +311,9 @@ class BagWriter:
 
     def close(self) -> dict[str, int]:
         """Finish the file(s), write ``metadata.yaml``; returns the message count per topic."""
+        self._stop_flush.set()
+        if self._flush_thread is not None:
+            self._flush_thread.join()
         with self._lock:
             if self._closed:
                 return dict(self.counts)

@@ -87,7 +87,10 @@ def main(args: list[str] | None = None) -> int:
     flush_period = float(node.declare_parameter("flush_period", 1.0).value)
 
     try:
-        writer = BagWriter(output, compression, compression_mode, max_bag_size)
+        # flush_period: a writer thread puts chunks on disk (fsync off the executor thread)
+        writer = BagWriter(
+            output, compression, compression_mode, max_bag_size, flush_period=flush_period
+        )
     except (BagWriterError, OSError) as exc:
         log.error(f"cannot record: {exc}")
         node.destroy_node()
@@ -130,7 +133,6 @@ def main(args: list[str] | None = None) -> int:
 
     discover()
     node.create_timer(discovery_period, discover)
-    node.create_timer(flush_period, writer.flush)
     log.info(f"bag {output}: waiting for {len(wanted)} topics")
 
     stop = []
