@@ -144,9 +144,15 @@ def test_folder_with_one_mcap_and_no_metadata_opens(tmp_path):
         assert {c.topic for c in reader.connections} == {m.topic for m in msgs}
     finally:
         reader.close()
+    # two files named as rosbag2 splits of this bag (an interrupted recording): one bag
     _write_bare_mcap(folder / "run_1.mcap", msgs)
+    assert sorted(m.data for m in iter_bag(folder)) == sorted(m.data for m in msgs * 2)
+    other = tmp_path / "other"
+    other.mkdir()
+    _write_bare_mcap(other / "a.mcap", msgs)
+    _write_bare_mcap(other / "b.mcap", msgs)
     with pytest.raises(BagError, match="no metadata.yaml and 2 .mcap files") as err:
-        open_reader(folder)
+        open_reader(other)
     assert isinstance(err.value, KittiFormatError)
 
 
@@ -237,7 +243,6 @@ def test_replay_is_byte_exact(rclpy_context, tmp_path, layout):
 
 def test_main_replays_into_graph_and_rejects_bad_input(rclpy_context, tmp_path, capsys):
     from kitti_player_node.bag_player import main
-    from rclpy.executors import SingleThreadedExecutor
 
     assert main([str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -247,17 +252,137 @@ def test_main_replays_into_graph_and_rejects_bad_input(rclpy_context, tmp_path, 
     assert main([str(bag), "--topics", "/x"]) == 2
     assert "--topics: /x not in bag" in capsys.readouterr().err
 
-    sub, got = _raw_subscriber(rclpy_context, {"/chatter": "std_msgs/msg/String"})
-    ex = SingleThreadedExecutor(context=rclpy_context)
+    argv = [str(bag), "--topics", "/chatter", "--rate", "0", "--wait-for-subscribers", "1"]
+    want = [m.data for m in msgs if m.topic == "/chatter"]
+    assert _main_delivers(rclpy_context, argv, "/chatter", "std_msgs/msg/String") == want
+
+
+def _main_delivers(context, argv: list[str], topic: str, type_name: str) -> list[bytes]:
+    """Run bag_player's main(argv) in a thread (its own context) with a raw subscriber on
+    ``topic`` in ``context``; returns what arrived once main() returned 0."""
+    from kitti_player_node.bag_player import main
+    from rclpy.executors import SingleThreadedExecutor
+
+    sub, got = _raw_subscriber(context, {topic: type_name})
+    ex = SingleThreadedExecutor(context=context)
     ex.add_node(sub)
     result = {}
-    argv = [str(bag), "--topics", "/chatter", "--rate", "0", "--wait-for-subscribers", "1"]
     thread = threading.Thread(target=lambda: result.setdefault("rc", main(argv)))
     thread.start()
-    want = [m.data for m in msgs if m.topic == "/chatter"]
-    _spin_until(ex, lambda: len(got) == len(want) and not thread.is_alive(), 20)
-    thread.join(5)
-    assert result.get("rc") == 0
-    assert [d for _, d in got] == want
-    ex.shutdown()
-    sub.destroy_node()
+    try:
+        _spin_until(ex, lambda: not thread.is_alive(), 30)
+        _spin_until(ex, lambda: False, 0.3)  # the last messages
+        thread.join(5)
+        assert result.get("rc") == 0
+        return [d for _, d in got]
+    finally:
+        ex.shutdown()
+        sub.destroy_node()
+
+
+def test_readme_remap_command_line(rclpy_context, tmp_path):
+    """`bag_player BAG --remap /vehicles/tracks:=/replayed/tracks --rate 0` as written in the
+    README (a separate argument, not only --remap=...)."""
+    from kitti_player_node.bag_player import split_ros_args
+
+    assert split_ros_args(["B", "--remap", "/a:=/b", "--ros-args", "-r", "x:=y", "--", "-v"]) == (
+        ["B", "--remap", "/a:=/b", "-v"],
+        ["--ros-args", "-r", "x:=y"],
+    )
+    msgs = _messages()
+    bag = _write_rosbag2(tmp_path / "bag", msgs)
+    argv = [str(bag), "--remap", "/vehicles/tracks:=/replayed/tracks", "--rate", "0"]
+    argv += ["--topics", "/vehicles/tracks"]
+    want = [m.data for m in msgs if m.topic == "/vehicles/tracks"]
+    type_name = "stereo_vehicle_msgs/msg/TrackedVehicleArray"
+    assert _main_delivers(rclpy_context, argv, "/replayed/tracks", type_name) == want
+
+
+def test_ready_to_play_policy():
+    from kitti_player_node.bag_replay import ready_to_play
+
+    # a subscriber the graph knows of but not yet matched holds the start back, always
+    assert not ready_to_play({"/a": 0, "/b": 1}, {"/a": 1, "/b": 1}, 9.0, 3.0)
+    # every topic matched: go at once
+    assert ready_to_play({"/a": 1, "/b": 2}, {"/a": 1, "/b": 2}, 0.0, 3.0)
+    # a topic nobody subscribes to: wait for discovery, then go
+    assert not ready_to_play({"/a": 1, "/b": 0}, {"/a": 1, "/b": 0}, 2.9, 3.0)
+    assert ready_to_play({"/a": 1, "/b": 0}, {"/a": 1, "/b": 0}, 3.0, 3.0)
+
+
+def _timed_bag(tmp_path, n: int = 20, period_ns: int = 100_000_000) -> tuple[Path, list[bytes]]:
+    """``n`` String messages on /chatter, ``period_ns`` apart, and one on /unheard."""
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import String
+
+    data = [serialize_message(String(data=f"m{i}")) for i in range(n)]
+    msgs = [
+        BagMessage("/chatter", "std_msgs/msg/String", T0 + i * period_ns, d)
+        for i, d in enumerate(data)
+    ]
+    msgs.append(BagMessage("/unheard", "std_msgs/msg/String", T0, data[0]))
+    return _write_rosbag2(tmp_path / "timed", sorted(msgs, key=lambda m: m.timestamp_ns)), data
+
+
+def _player_process(bag, *extra):
+    import os
+    import subprocess
+    import sys
+
+    return subprocess.Popen(
+        [sys.executable, "-m", "kitti_player_node.bag_player", str(bag), *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=dict(os.environ),
+    )
+
+
+@pytest.mark.parametrize("late", [False, True])
+def test_default_replay_loses_nothing_to_a_running_subscriber(rclpy_context, tmp_path, late):
+    """A player process at rate 1.0 with default options delivers every message to a subscriber
+    that runs before it starts (late=False) or whose subscription appears 0.6 s after the player
+    began waiting (late=True: a slow discovery; without waiting the first messages are lost);
+    /unheard has no subscriber and does not hold the replay back for ever."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    bag, data = _timed_bag(tmp_path)
+    from rclpy.node import Node
+
+    ex = SingleThreadedExecutor(context=rclpy_context)
+    # this process takes part in the graph before the player starts (its participant exists)
+    anchor = Node("replay_test_anchor", context=rclpy_context)
+    sub = got = None
+    if not late:
+        sub, got = _raw_subscriber(rclpy_context, {"/chatter": "std_msgs/msg/String"})
+        ex.add_node(sub)
+    proc = _player_process(bag)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+    reader.start()
+    try:
+        if late:
+            deadline = time.monotonic() + 20
+            while not any("waiting up to" in line for line in lines):
+                assert time.monotonic() < deadline and proc.poll() is None, "".join(lines)
+                time.sleep(0.02)
+            time.sleep(0.6)
+            sub, got = _raw_subscriber(rclpy_context, {"/chatter": "std_msgs/msg/String"})
+            ex.add_node(sub)
+        _spin_until(ex, lambda: len(got) == len(data) and proc.poll() is not None, 30)
+        assert proc.wait(10) == 0
+        reader.join(5)
+        from rclpy.serialization import deserialize_message
+        from std_msgs.msg import String
+
+        texts = [deserialize_message(d, String).data for _, d in got]  # (DDS pads the CDR)
+        assert texts == [f"m{i}" for i in range(len(data))], "".join(lines)
+        assert any("no subscriber on /unheard" in line for line in lines)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        ex.shutdown()
+        anchor.destroy_node()
+        if sub is not None:
+            sub.destroy_node()

@@ -2,34 +2,44 @@
 
 The pure core of the ``bag_recorder`` node (no rclpy): :class:`BagWriter` takes raw CDR bytes
 with a topic, a ROS type name (``pkg/msg/Type``) and a receive time, and writes them with
-``rosbags.rosbag2.Writer`` (version 9, MCAP). Message definitions and RIHS01 hashes are embedded
-for every type, custom ones included (types are loaded from the ``share/<pkg>/msg/*.msg`` files
-of the environment), so rosbags, rosbag2 and Foxglove can read the bag without the package.
+mcap's ``Writer`` in rosbag2's layout (version 9: ``<bag>/<bag>_<i>.mcap`` + ``metadata.yaml``,
+the ``ros2`` profile, ``ros2msg`` schemas, ``cdr`` messages). Message definitions and RIHS01
+hashes are embedded for every type, custom ones included (types are loaded from the
+``share/<pkg>/msg/*.msg`` files of the environment), so rosbags, rosbag2 and Foxglove can read
+the bag without the package.
 
 Optional zstd compression (``storage``: MCAP chunk compression, readable by every MCAP tool;
 ``message``: each message; ``file``: the whole file after closing) and size-based splitting
 (``max_bag_size`` bytes per ``.mcap`` file; ``metadata.yaml`` lists every file). All public
-methods are thread-safe (one lock).
+methods are thread-safe (one lock). :meth:`BagWriter.flush` (the recorder calls it every
+``flush_period``) puts the pending chunk on disk with an fsync, so a crash loses at most what
+came after the last flush (see :mod:`vehicle_common.bag_recovery`).
 """
 
 from __future__ import annotations
 
-import shutil
+import os
 import threading
 from collections import Counter
-from io import StringIO
 from pathlib import Path
 
-from rosbags.rosbag2 import Writer
-from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+import zstandard
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from ruamel.yaml import YAML
+from vehicle_common.bag_recovery import (
+    ROS_DISTRO,
+    FileInfo,
+    compress_file,
+    dump_yaml,
+    rosbag2_metadata,
+    write_metadata_yaml,
+)
 
-COMPRESSION_MODES = {
-    "storage": CompressionMode.STORAGE,
-    "message": CompressionMode.MESSAGE,
-    "file": CompressionMode.FILE,
-}
+COMPRESSION_MODES = ("storage", "message", "file")
+#: Bytes of messages per MCAP chunk before it is closed (rosbag2's and rosbags' 1 MiB).
+CHUNK_SIZE = 1 << 20
+LIBRARY = "stereo_vehicle_tracking bag_writer (mcap python)"
 
 
 class BagWriterError(RuntimeError):
@@ -94,8 +104,13 @@ class BagWriter:
 
     ``compression``: ``"none"`` or ``"zstd"``; ``compression_mode``: ``storage`` (MCAP chunk
     compression, default), ``message`` or ``file``. ``max_bag_size``: bytes of message data per
-    ``.mcap`` file before a new one is started (0: one file). Timestamps must be in ns; they are
-    made non-decreasing so that the file keeps the order in which messages were written.
+    ``.mcap`` file before a new one is started (0: one file). ``flush_period`` > 0: a thread
+    calls :meth:`flush` this often [s]. Timestamps must be in ns; they are made non-decreasing so
+    that the file keeps the order in which messages were written.
+
+    Crash safety: each file is written under its final name ``<bag>_<i>.mcap`` from the start;
+    :meth:`flush` closes the pending chunk and fsyncs it, so a writer killed at any moment leaves
+    a file whose complete chunks ``bag_recover`` (or any reader of this project) recovers.
     """
 
     def __init__(
@@ -105,6 +120,8 @@ class BagWriter:
         compression_mode: str = "storage",
         max_bag_size: int = 0,
         definitions: MessageDefinitions | None = None,
+        chunk_size: int = CHUNK_SIZE,
+        flush_period: float = 0.0,
     ) -> None:
         self.path = Path(path)
         if compression not in ("none", "zstd"):
@@ -115,67 +132,104 @@ class BagWriter:
             )
         if max_bag_size < 0:
             raise BagWriterError(f"max_bag_size: {max_bag_size} < 0")
+        if not flush_period >= 0:  # (NaN too)
+            raise BagWriterError(f"flush_period: {flush_period} is not >= 0")
         if self.path.exists():
             raise BagWriterError(f"{self.path}: exists already, not overwriting")
         self.compression = compression
-        self.compression_mode = compression_mode
+        self.compression_mode = compression_mode if compression == "zstd" else ""
         self.max_bag_size = int(max_bag_size)
+        self.chunk_size = int(chunk_size)
         self.defs = definitions or MessageDefinitions()
         self.counts: Counter[str] = Counter()
         self.types: dict[str, str] = {}
         self._lock = threading.Lock()
-        self._writer: Writer | None = None
-        self._conns: dict[str, object] = {}
+        self._file = None
+        self._writer: McapWriter | None = None
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
         self._split_bytes = 0
-        self._splits: list[dict] = []  # closed files: {"path", "start", "end", "count"}
+        self._splits: list[FileInfo] = []  # closed files
         self._split_counts: Counter[str] = Counter()
-        self._split_range = [None, None]
+        self._split_range: list[int | None] = [None, None]
+        self._dirty = False
+        self._stop_flush = threading.Event()
+        self._flush_thread: threading.Thread | None = None
         self._last_ts = 0
         self._closed = False
         self.path.mkdir(parents=True)
         self._open_split()
+        if flush_period > 0:
+            self._start_autoflush(float(flush_period))
 
     # ------------------------------------------------------------------ split files
-    def _split_tmp(self) -> Path:
-        return self.path / f".split_{len(self._splits)}"
+    def _split_name(self) -> str:
+        return f"{self.path.name}_{len(self._splits)}.mcap"
 
     def _open_split(self) -> None:
-        w = Writer(self._split_tmp(), version=9, storage_plugin=StoragePlugin.MCAP)
-        if self.compression == "zstd":
-            w.set_compression(COMPRESSION_MODES[self.compression_mode], CompressionFormat.ZSTD)
-        w.open()
-        self._writer = w
-        self._conns = {}
+        # open across calls until the split is closed (a context manager cannot span them)
+        self._file = open(self.path / self._split_name(), "xb")  # noqa: SIM115
+        storage_zstd = self.compression_mode == "storage"
+        self._writer = McapWriter(
+            self._file,
+            chunk_size=self.chunk_size,
+            compression=CompressionType.ZSTD if storage_zstd else CompressionType.NONE,
+        )
+        self._writer.start(profile="ros2", library=LIBRARY)
+        self._schemas, self._channels = {}, {}
         self._split_bytes = 0
         self._split_counts = Counter()
         self._split_range = [None, None]
         for topic, msgtype in self.types.items():
-            self._add_connection(topic, msgtype)
+            self._add_channel(topic, msgtype)
+        self._sync()  # the header is on disk: even an empty file is a recoverable MCAP
+
+    def _sync(self) -> None:
+        self._writer.flush()  # closes the pending chunk (if it holds messages), writes it out
+        os.fsync(self._file.fileno())
+        self._dirty = False
+
+    def _split_info(self, name: str) -> FileInfo:
+        start, end = (t or 0 for t in self._split_range)
+        topics = {t: (m, self.defs.get(m)[1], self._split_counts[t]) for t, m in self.types.items()}
+        return FileInfo(name, start, end, sum(self._split_counts.values()), topics)
 
     def _close_split(self) -> None:
-        w, self._writer = self._writer, None
-        assert w is not None
-        w.close()
-        tmp = self._split_tmp()
-        produced = [p for p in tmp.iterdir() if ".mcap" in p.name]
-        name = f"{self.path.name}_{len(self._splits)}.mcap"
-        for p in produced:
-            dst = self.path / (name + p.name.split(".mcap", 1)[1])
-            p.replace(dst)
-            self._splits.append(
-                {
-                    "path": dst.name,
-                    "start": self._split_range[0] or 0,
-                    "end": self._split_range[1] or 0,
-                    "count": sum(self._split_counts.values()),
-                }
-            )
-        shutil.rmtree(tmp, ignore_errors=True)
+        name = self._split_name()
+        info = self._split_info(name)
+        # rosbag2 embeds the bag's metadata (for this file) in each file
+        meta = rosbag2_metadata([info], list(self.types), *self._metadata_compression())
+        self._writer.add_metadata(
+            "rosbag2",
+            {"serialized_metadata": dump_yaml(meta).strip(), "ros_distro": ROS_DISTRO},
+        )
+        self._writer.finish()
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        self._writer = self._file = None
+        if self.compression_mode == "file":
+            info.name = compress_file(self.path / name).name
+        self._splits.append(info)
 
-    def _add_connection(self, topic: str, msgtype: str) -> None:
+    def _metadata_compression(self) -> tuple[str, str]:
+        """metadata.yaml's (compression_format, compression_mode): chunk compression is MCAP's
+        own and invisible to rosbag2, the per-message and per-file kinds are not."""
+        if self.compression_mode in ("message", "file"):
+            return "zstd", self.compression_mode
+        return "", ""
+
+    def _add_channel(self, topic: str, msgtype: str) -> None:
         msgdef, rihs01 = self.defs.get(msgtype)
-        self._conns[topic] = self._writer.add_connection(
-            topic, msgtype, msgdef=msgdef, rihs01=rihs01
+        if msgtype not in self._schemas:
+            self._schemas[msgtype] = self._writer.register_schema(
+                msgtype, "ros2msg", msgdef.encode()
+            )
+        self._channels[topic] = self._writer.register_channel(
+            topic,
+            "cdr",
+            self._schemas[msgtype],
+            {"offered_qos_profiles": "[]", "topic_type_hash": rihs01},
         )
 
     # ------------------------------------------------------------------ public API
@@ -190,7 +244,8 @@ class BagWriter:
                         f"{topic}: type {msgtype} differs from the recorded {self.types[topic]}"
                     )
                 return
-            self._add_connection(topic, msgtype)  # raises before registering an unknown type
+            self.defs.get(msgtype)  # raises before registering an unknown type
+            self._add_channel(topic, msgtype)
             self.types[topic] = msgtype
 
     def write(self, topic: str, data: bytes, timestamp_ns: int) -> None:
@@ -198,14 +253,24 @@ class BagWriter:
         with self._lock:
             if self._closed:
                 raise BagWriterError(f"{self.path}: bag is closed")
-            if topic not in self._conns:
+            if topic not in self._channels:
                 raise BagWriterError(f"{topic}: topic not added")
             if self.max_bag_size and self._split_bytes >= self.max_bag_size:
                 self._close_split()
                 self._open_split()
             ts = max(int(timestamp_ns), self._last_ts)
             self._last_ts = ts
-            self._writer.write(self._conns[topic], ts, bytes(data))
+            data = bytes(data)
+            if self.compression_mode == "message":
+                data = zstandard.compress(data)
+            self._writer.add_message(
+                self._channels[topic],
+                log_time=ts,
+                data=data,
+                publish_time=ts,
+                sequence=self.counts[topic] & 0xFFFFFFFF,
+            )
+            self._dirty = True
             self._split_bytes += len(data) + 40
             self.counts[topic] += 1
             self._split_counts[topic] += 1
@@ -214,76 +279,49 @@ class BagWriter:
             self._split_range[1] = ts
 
     def flush(self) -> None:
-        """Push buffered messages to the file (closes the pending MCAP chunk)."""
+        """Write the pending MCAP chunk to disk (file flush + fsync): after this, a crash loses
+        none of the messages written so far. The fsync runs outside the lock (on a duplicate of
+        the file descriptor), so writers are held up only while the chunk is written out."""
         with self._lock:
-            storage = getattr(self._writer, "storage", None) if self._writer else None
-            chunk = getattr(storage, "chunk", None)
-            if chunk is not None and chunk.bio.tell() and sum(self._split_counts.values()):
-                storage.close_chunk()
-                storage.bio.flush()
+            if self._writer is None or not self._dirty:
+                return
+            self._writer.flush()  # closes the pending chunk, writes it to the OS
+            self._dirty = False
+            fd = os.dup(self._file.fileno())
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+    def _start_autoflush(self, period_s: float) -> None:
+        """Call :meth:`flush` every ``period_s`` seconds from a daemon thread until
+        :meth:`close` (a slow fsync then never stalls the thread that receives messages)."""
+
+        def run() -> None:
+            while not self._stop_flush.wait(period_s):
+                self.flush()
+
+        self._flush_thread = threading.Thread(target=run, name="bag_flush", daemon=True)
+        self._flush_thread.start()
 
     @property
     def files(self) -> list[str]:
         """Names of the finished ``.mcap`` files (all of them after :meth:`close`)."""
-        return [s["path"] for s in self._splits]
+        return [s.name for s in self._splits]
 
     def close(self) -> dict[str, int]:
         """Finish the file(s), write ``metadata.yaml``; returns the message count per topic."""
+        self._stop_flush.set()
+        if self._flush_thread is not None:
+            self._flush_thread.join()
         with self._lock:
             if self._closed:
                 return dict(self.counts)
             self._closed = True
             self._close_split()
-            self._write_metadata()
+            info = rosbag2_metadata(self._splits, list(self.types), *self._metadata_compression())
+            write_metadata_yaml(self.path, info)
             return dict(self.counts)
-
-    def _write_metadata(self) -> None:
-        starts = [s["start"] for s in self._splits if s["count"]]
-        ends = [s["end"] for s in self._splits if s["count"]]
-        start = min(starts) if starts else 0
-        duration = (max(ends) - start) if ends else 0
-        compressed = self.compression == "zstd" and self.compression_mode != "storage"
-        info = {
-            "version": 9,
-            "storage_identifier": "mcap",
-            "relative_file_paths": [s["path"] for s in self._splits],
-            "duration": {"nanoseconds": duration},
-            "starting_time": {"nanoseconds_since_epoch": start},
-            "message_count": sum(self.counts.values()),
-            "topics_with_message_count": [
-                {
-                    "topic_metadata": {
-                        "name": topic,
-                        "type": msgtype,
-                        "serialization_format": "cdr",
-                        "offered_qos_profiles": [],
-                        "type_description_hash": self.defs.get(msgtype)[1],
-                    },
-                    "message_count": self.counts[topic],
-                }
-                for topic, msgtype in self.types.items()
-            ],
-            "compression_format": "zstd" if compressed else "",
-            "compression_mode": self.compression_mode if compressed else "",
-            "files": [
-                {
-                    "path": s["path"],
-                    "starting_time": {"nanoseconds_since_epoch": s["start"]},
-                    "duration": {"nanoseconds": s["end"] - s["start"]},
-                    "message_count": s["count"],
-                }
-                for s in self._splits
-            ],
-            "custom_data": None,
-            "ros_distro": "jazzy",
-        }
-        yaml = YAML(typ="safe")
-        yaml.default_flow_style = False
-        out = StringIO()
-        yaml.dump({"rosbag2_bagfile_information": info}, out)
-        tmp = self.path / "metadata.yaml.tmp"
-        tmp.write_text(out.getvalue())
-        tmp.replace(self.path / "metadata.yaml")
 
 
 def ros_type_name(msg) -> str:

@@ -102,13 +102,20 @@ def _message_class(msgtype: str):
 class BagRecorderNode(Node):
     """Raw subscriptions to the wanted topics (resolved in the node's namespace), each message
     written with its receive time through :class:`BagWriter`; new topics' types are discovered
-    every ``discovery_period`` and the bag is flushed every ``flush_period``."""
+    every ``discovery_period``; the writer's thread flushes the bag every ``flush_period``."""
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         p = declare_config(self, RecorderParameters)
         self.output = p.output or default_output()
-        self.writer = BagWriter(self.output, p.compression, p.compression_mode, p.max_bag_size)
+        # flush_period: a writer thread puts chunks on disk (fsync off the executor thread)
+        self.writer = BagWriter(
+            self.output,
+            p.compression,
+            p.compression_mode,
+            p.max_bag_size,
+            flush_period=p.flush_period,
+        )
         self.wanted = {
             self.resolve_topic_name(name): msgtype
             for name, msgtype in parse_topics(p.topics, p.include_images).items()
@@ -122,7 +129,6 @@ class BagRecorderNode(Node):
         self._last_ns = 0
         self.discover()
         self.create_timer(p.discovery_period, self.discover)
-        self.create_timer(p.flush_period, self.writer.flush)
         self.get_logger().info(f"bag {self.output}: waiting for {len(self.wanted)} topics")
 
     def subscribe(self, topic: str, msgtype: str) -> None:

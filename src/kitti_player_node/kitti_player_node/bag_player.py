@@ -3,6 +3,10 @@
 The stored CDR bytes are published as they are (no deserialisation), with the original timing
 scaled by ``--rate`` (0 = as fast as possible), optional topic selection, remapping and looping.
 Reading and pacing live in :mod:`.bag_replay`.
+
+By default the replay starts once every topic's subscribers are matched (at most
+``--discovery-time`` seconds for topics nobody subscribes to), so that a subscriber already
+running gets every message; ``--immediate`` starts at once, as ``ros2 bag play`` does.
 """
 
 from __future__ import annotations
@@ -15,7 +19,6 @@ import rclpy
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.utilities import remove_ros_args
 from vehicle_common.bag_files import BagError
 
 from .bag_replay import (
@@ -26,6 +29,7 @@ from .bag_replay import (
     paced,
     parse_remaps,
     parse_topics,
+    ready_to_play,
 )
 
 QOS = QoSProfile(
@@ -34,6 +38,11 @@ QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
     depth=100,
 )
+
+
+#: Default longest wait for a subscriber on every topic [s]: above the 2.4 s that discovery of
+#: a running process was seen to take (Fast DDS, loopback, docs: ros2-from-pip notes).
+DISCOVERY_TIME = 3.0
 
 
 class BagPlayerNode(Node):
@@ -60,6 +69,18 @@ class BagPlayerNode(Node):
             time.sleep(0.02)
         return False
 
+    def wait_for_matching(self, discovery_s: float, timeout_s: float) -> list[str]:
+        """Wait until :func:`ready_to_play` (or ``timeout_s``); returns the output topics that
+        still have no matched subscription."""
+        start = time.monotonic()
+        while True:
+            elapsed = time.monotonic() - start
+            matched = {t: p.get_subscription_count() for t, p in self.pubs.items()}
+            known = {t: self.count_subscribers(t) for t in self.pubs}
+            if ready_to_play(matched, known, elapsed, discovery_s) or elapsed >= timeout_s:
+                return [t for t, n in matched.items() if n == 0]
+            time.sleep(0.02)
+
     def wait_for_acks(self, timeout_s: float) -> bool:
         """Wait until reliable subscribers acknowledged everything (True) or the timeout."""
         return all(p.wait_for_all_acked(Duration(seconds=timeout_s)) for p in self.pubs.values())
@@ -82,17 +103,39 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument(
         "--discovery-time",
         type=float,
-        default=0.5,
-        help="without --wait-for-subscribers: seconds to let discovery match first",
+        default=DISCOVERY_TIME,
+        help="without --wait-for-subscribers: wait up to this long [s] for a subscriber on "
+        "every topic before playing (all subscribers the graph knows are always matched first)",
+    )
+    ap.add_argument(
+        "--immediate",
+        action="store_true",
+        help="start playing at once, without waiting for subscribers (as `ros2 bag play`)",
     )
     ap.add_argument("--ack-timeout", type=float, default=5.0, help="wait for acks at end [s]")
     return ap
 
 
+def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
+    """(own arguments, ROS arguments): the ROS ones are those between ``--ros-args`` and ``--``
+    (or the end). rclpy's ``remove_ros_args`` is not used for this, as it also takes
+    ``/old:=/new`` (a remapping rule for rcl) out of ``--remap /old:=/new``."""
+    own, ros, inside = [], [], False
+    for a in argv:
+        if a == "--ros-args":
+            inside = True
+        elif inside and a == "--":
+            inside = False
+            continue
+        (ros if inside else own).append(a)
+    return own, ros
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console script ``bag_player``; returns the exit code (2 on bad input)."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = _parser().parse_args(remove_ros_args(["bag_player", *argv])[1:])
+    own, ros_args = split_ros_args(argv)
+    args = _parser().parse_args(own)
     try:
         remap = parse_remaps(args.remap)
         topics = parse_topics(args.topics)
@@ -102,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     except BagError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    rclpy.init(args=["bag_player", *argv])
+    rclpy.init(args=["bag_player", *ros_args])
     node = None
     try:
         node = BagPlayerNode(types)
@@ -113,8 +156,14 @@ def main(argv: list[str] | None = None) -> int:
                     f"not every topic has {args.wait_for_subscribers} subscriptions after "
                     f"{args.wait_timeout} s; playing anyway"
                 )
-        elif args.discovery_time > 0:
-            time.sleep(args.discovery_time)
+        elif not args.immediate:
+            log.info(
+                f"waiting up to {args.discovery_time} s for a subscriber on each of "
+                f"{len(types)} topics (--immediate: start at once)"
+            )
+            unmatched = node.wait_for_matching(args.discovery_time, args.wait_timeout)
+            if unmatched:
+                log.info(f"no subscriber on {', '.join(sorted(unmatched))}; playing anyway")
         log.info(f"playing {args.bag}: {len(types)} topics at rate {args.rate}")
         while True:
             for msg in paced(iter_bag(args.bag, topics, remap), args.rate):

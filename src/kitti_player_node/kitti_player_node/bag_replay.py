@@ -114,6 +114,21 @@ def paced(
         yield msg
 
 
+def ready_to_play(
+    matched: dict[str, int], known: dict[str, int], elapsed_s: float, discovery_s: float
+) -> bool:
+    """Whether a replay may start without losing messages to subscribers already running.
+
+    ``matched``: subscriptions matched per output topic; ``known``: subscriptions the ROS graph
+    knows per topic (discovery can know of one before its publisher has matched it). Ready when
+    every known subscription is matched and every topic has one; after ``discovery_s`` seconds
+    topics nobody subscribes to no longer hold the start back (discovery of a running process
+    takes up to ~2.4 s with Fast DDS on loopback, docs: ros2-from-pip notes)."""
+    if any(matched.get(t, 0) < n for t, n in known.items()):
+        return False
+    return all(n > 0 for n in matched.values()) or elapsed_s >= discovery_s
+
+
 def message_class(type_name: str):
     """The Python message class of ``pkg/msg/Name`` (or ``pkg/Name``)."""
     parts = type_name.split("/")

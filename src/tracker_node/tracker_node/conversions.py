@@ -79,20 +79,35 @@ def tracks_to_msg(tracks: TrackSet, header):
     return out
 
 
-def markers_for(tracks: TrackSet, header, ended_ids) -> object:
-    """MarkerArray: per track a LINE_LIST box, a TEXT_VIEW_FACING id label and an ARROW for the
-    velocity; DELETE markers for the tracks in ``ended_ids``."""
+#: Marker lifetime [s]: five frame periods of the KITTI camera (10 Hz), so that boxes vanish
+#: soon after the tracker stops publishing instead of staying in RViz for ever.
+MARKER_LIFETIME_S = 0.5
+
+
+def markers_for(
+    tracks: TrackSet, header, ended_ids, lifetime_s: float = MARKER_LIFETIME_S
+) -> object:
+    """MarkerArray: a DELETEALL first (clears boxes left by an earlier run or a restarted
+    tracker), then per track a LINE_LIST box, a TEXT_VIEW_FACING id label and an ARROW for the
+    velocity, each living ``lifetime_s``; DELETE markers for the tracks in ``ended_ids``."""
+    from builtin_interfaces.msg import Duration
     from geometry_msgs.msg import Point
     from visualization_msgs.msg import Marker, MarkerArray
 
     colours = {0: (1.0, 1.0, 0.0), 1: (0.0, 1.0, 0.0), 2: (1.0, 0.5, 0.0)}
     arr = MarkerArray()
+    clear = Marker()
+    clear.header, clear.action = header, Marker.DELETEALL
+    arr.markers.append(clear)
+    sec = int(lifetime_s)
+    lifetime = Duration(sec=sec, nanosec=int(round((lifetime_s - sec) * 1e9)))
 
     def base(ns, mid, kind):
         m = Marker()
         m.header = header
         m.ns, m.id, m.type, m.action = ns, mid, kind, Marker.ADD
         m.pose.orientation.w = 1.0
+        m.lifetime = lifetime
         return m
 
     for i in range(len(tracks)):

@@ -5,6 +5,11 @@ Shared by the bag player (kitti_player_node.bag_replay) and the evaluator (eval_
 
 from __future__ import annotations
 
+import atexit
+import shutil
+import sys
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 from .kitti import KittiFormatError
@@ -14,26 +19,88 @@ class BagError(KittiFormatError):
     """The bag cannot be read or an option does not fit it; the message names what."""
 
 
-def open_reader(path: str | Path):
+#: Interrupted bags already made readable in this process: key -> (readable copy, warning).
+_RECOVERED: dict[tuple, tuple[Path, str]] = {}
+
+
+def _print_warning(text: str) -> None:
+    print(f"warning: {text}", file=sys.stderr)
+
+
+def _readable(path: Path, warn: Callable[[str], None]) -> Path:
+    """A readable copy of an interrupted recording (no metadata.yaml, or a ``.mcap`` cut after
+    its last flushed chunk), made once per process in a temporary folder; warns once (one line)
+    saying what was lost."""
+    from .bag_recovery import readable_copy
+
+    files = sorted(path.iterdir()) if path.is_dir() else [path]
+    key = (
+        str(path.resolve()),
+        tuple((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files),
+    )
+    if key not in _RECOVERED:
+        tmp = Path(tempfile.mkdtemp(prefix="bag_read_"))
+        atexit.register(shutil.rmtree, tmp, True)
+        report = readable_copy(path, tmp)
+        text = ""
+        if report.lost:
+            text = (
+                f"{path}: recording was interrupted: {report.lost}. "
+                f"`bag_recover {path}` repairs the bag in place"
+            )
+        _RECOVERED[key] = (report.path, text)
+        if text:
+            warn(text)
+    return _RECOVERED[key][0]
+
+
+def open_reader(path: str | Path, warn: Callable[[str], None] = _print_warning):
     """An opened ``rosbags`` AnyReader (the caller closes it) on a rosbag2 bag directory, a
-    folder without ``metadata.yaml`` that holds exactly one ``.mcap``, or a bare ``.mcap`` file.
+    folder without ``metadata.yaml`` that holds one ``.mcap`` or rosbag2's split files, or a
+    bare ``.mcap`` file. An interrupted recording (no ``metadata.yaml``, last file without
+    footer) is read up to its last complete chunk, with one warning line through ``warn``.
     Raises BagError naming the file when the bag is missing or unreadable."""
     from rosbags.highlevel import AnyReader
+
+    from .bag_recovery import bag_files, needs_recovery
+    from .mcap_recovery import McapRecoveryError, has_footer
 
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: bag not found")
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        mcaps = sorted(path.glob("*.mcap"))
-        if len(mcaps) != 1:
-            raise BagError(
-                f"{path}: not a rosbag2 directory (no metadata.yaml and "
-                f"{len(mcaps)} .mcap files instead of one)"
-            )
-        path = mcaps[0]
+    target = path
     try:
-        reader = AnyReader([path])
+        if needs_recovery(path):
+            files = bag_files(path) if path.is_dir() else [path]
+            if len(files) == 1 and files[0].suffix == ".mcap" and has_footer(files[0]):
+                target = files[0]  # a complete bare file in a folder
+            else:
+                target = _readable(path, warn)
+    except (McapRecoveryError, OSError) as exc:
+        raise _bag_error(path, exc) from None
+    try:
+        reader = AnyReader([target])
         reader.open()
     except Exception as exc:  # rosbags raises several unrelated types for corrupt files
+        if target == path and path.is_dir() and _cut_files(path):
+            try:  # metadata.yaml was written but a file lost its end
+                return open_reader(_readable(path, warn))
+            except (McapRecoveryError, OSError) as exc2:
+                raise _bag_error(path, exc2) from None
         raise BagError(f"{path}: cannot read bag ({exc})") from None
     return reader
+
+
+def _bag_error(path: Path, exc: Exception) -> BagError:
+    """One-line BagError for a recovery failure, naming the bag once."""
+    text = str(exc)
+    if isinstance(exc, OSError):
+        return BagError(f"{path}: cannot read bag ({text})")
+    return BagError(text if text.startswith(str(path)) else f"{path}: {text}")
+
+
+def _cut_files(bag_dir: Path) -> list[Path]:
+    """``.mcap`` files of a bag directory that lack their footer."""
+    from .mcap_recovery import has_footer
+
+    return [p for p in bag_dir.glob("*.mcap") if not has_footer(p)]

@@ -1,0 +1,380 @@
+"""rosbag2 bags (MCAP storage) after a crash: ``metadata.yaml`` and reindexing (``bag_recover``).
+
+A recorder that dies leaves a bag directory with no ``metadata.yaml`` and a last ``.mcap`` file
+cut after its last flushed chunk (:mod:`.mcap_recovery` handles one file). This module works on
+the whole bag: it finds the split files (``<bag>_<i>.mcap``, rosbag2's names), reindexes the
+cut one, and writes ``metadata.yaml`` from what the files hold, so that rosbags' ``AnyReader``,
+mcap's ``make_reader``, rosbag2 and this project's tools open it. The same metadata builder
+writes ``metadata.yaml`` for bags closed normally (:class:`eval_node.bag_writer.BagWriter`).
+
+:func:`recover_bag` repairs in place (the ``bag_recover`` console script);
+:func:`readable_copy` builds a repaired view in a temporary folder without touching the bag
+(for reading an interrupted recording).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from io import StringIO
+from pathlib import Path
+
+from .mcap_recovery import McapRecoveryError, McapScan, has_footer, repair_mcap, scan_mcap
+
+ROS_DISTRO = "jazzy"
+
+
+class BagRecoveryError(McapRecoveryError):
+    """The bag cannot be recovered; the message names the file and why."""
+
+
+@dataclass
+class FileInfo:
+    """What one ``.mcap`` file of a bag holds (for ``metadata.yaml``)."""
+
+    name: str  # file name inside the bag directory
+    start: int = 0  # first message time [ns]
+    end: int = 0  # last message time [ns]
+    count: int = 0
+    topics: dict[str, tuple[str, str, int]] = field(default_factory=dict)  # type, hash, count
+    messages_compressed: bool = False
+    scan: McapScan | None = None  # set for a file that was cut (no footer)
+
+
+def topic_entry(topic: str, msgtype: str, type_hash: str, count: int) -> dict:
+    """One ``topics_with_message_count`` entry of rosbag2's metadata (version 9)."""
+    return {
+        "topic_metadata": {
+            "name": topic,
+            "type": msgtype,
+            "serialization_format": "cdr",
+            "offered_qos_profiles": [],
+            "type_description_hash": type_hash,
+        },
+        "message_count": count,
+    }
+
+
+def rosbag2_metadata(
+    files: list[FileInfo],
+    topic_order: list[str] | None = None,
+    compression_format: str = "",
+    compression_mode: str = "",
+) -> dict:
+    """rosbag2's ``rosbag2_bagfile_information`` (version 9) for ``files`` (in order)."""
+    topics: dict[str, list] = {}
+    for f in files:
+        for topic, (msgtype, type_hash, count) in f.topics.items():
+            entry = topics.setdefault(topic, [msgtype, type_hash, 0])
+            entry[1] = entry[1] or type_hash
+            entry[2] += count
+    order = [t for t in (topic_order or []) if t in topics]
+    order += [t for t in topics if t not in order]
+    counted = [f for f in files if f.count]
+    start = min((f.start for f in counted), default=0)
+    end = max((f.end for f in counted), default=0)
+    return {
+        "version": 9,
+        "storage_identifier": "mcap",
+        "relative_file_paths": [f.name for f in files],
+        "duration": {"nanoseconds": end - start},
+        "starting_time": {"nanoseconds_since_epoch": start},
+        "message_count": sum(f.count for f in files),
+        "topics_with_message_count": [topic_entry(t, *topics[t]) for t in order],
+        "compression_format": compression_format,
+        "compression_mode": compression_mode,
+        "files": [
+            {
+                "path": f.name,
+                "starting_time": {"nanoseconds_since_epoch": f.start},
+                "duration": {"nanoseconds": f.end - f.start},
+                "message_count": f.count,
+            }
+            for f in files
+        ],
+        "custom_data": None,
+        "ros_distro": ROS_DISTRO,
+    }
+
+
+def dump_yaml(data: dict) -> str:
+    from ruamel.yaml import YAML
+
+    yaml = YAML(typ="safe")
+    yaml.default_flow_style = False
+    out = StringIO()
+    yaml.dump(data, out)
+    return out.getvalue()
+
+
+def write_metadata_yaml(bag_dir: str | Path, info: dict) -> Path:
+    """Write ``metadata.yaml`` atomically (temporary file, fsync, rename)."""
+    bag_dir = Path(bag_dir)
+    tmp = bag_dir / "metadata.yaml.tmp"
+    with open(tmp, "w") as f:
+        f.write(dump_yaml({"rosbag2_bagfile_information": info}))
+        f.flush()
+        os.fsync(f.fileno())
+    dst = bag_dir / "metadata.yaml"
+    tmp.replace(dst)
+    return dst
+
+
+def split_index(bag_dir: Path, name: str) -> int | None:
+    """``i`` of rosbag2's split name ``<bag>_<i>.mcap[.zstd]``, else None."""
+    m = re.fullmatch(re.escape(bag_dir.name) + r"_(\d+)\.mcap(\.zstd)?", name)
+    return int(m.group(1)) if m else None
+
+
+def bag_files(bag_dir: str | Path) -> list[Path]:
+    """The ``.mcap`` files of a bag directory without ``metadata.yaml``: rosbag2's split names
+    in split order, else a single ``.mcap``. Raises BagRecoveryError when ambiguous."""
+    bag_dir = Path(bag_dir)
+    splits: dict[int, Path] = {}
+    for p in sorted(bag_dir.iterdir()):  # x.mcap sorts before x.mcap.zstd
+        i = split_index(bag_dir, p.name)
+        if i is not None and p.is_file():
+            splits[i] = p  # both present: compression finished, the .zstd one is complete
+    if splits:
+        return [splits[i] for i in sorted(splits)]
+    mcaps = sorted(bag_dir.glob("*.mcap"))
+    if len(mcaps) != 1:
+        raise BagRecoveryError(
+            f"{bag_dir}: not a rosbag2 directory (no metadata.yaml and {len(mcaps)} .mcap "
+            f"files instead of one or {bag_dir.name}_<i>.mcap splits)"
+        )
+    return mcaps
+
+
+def _decompressed(path: Path, tmp_dir: Path) -> Path:
+    """A ``.mcap.zstd`` file (rosbag2 file compression) decompressed into ``tmp_dir``."""
+    import zstandard
+
+    out = tmp_dir / path.name[: -len(".zstd")]
+    with open(path, "rb") as fin, open(out, "wb") as fout:
+        zstandard.ZstdDecompressor().copy_stream(fin, fout)
+    return out
+
+
+def file_info(path: Path, name: str | None = None) -> FileInfo:
+    """Summarise one ``.mcap`` file: from its summary when complete, by scanning when cut."""
+    info = FileInfo(name=name or path.name)
+    if has_footer(path):
+        from mcap.reader import make_reader
+
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            stats = summary.statistics if summary else None
+            if summary is None or stats is None:
+                raise BagRecoveryError(f"{path}: MCAP file without summary statistics")
+            schemas, channels, counts = (
+                summary.schemas,
+                summary.channels,
+                stats.channel_message_counts,
+            )
+            info.start, info.end = stats.message_start_time, stats.message_end_time
+            for _schema, _channel, message in reader.iter_messages():
+                info.messages_compressed = message.data[:4] == b"\x28\xb5\x2f\xfd"
+                break
+    else:
+        scan = scan_mcap(path)
+        info.scan = scan
+        schemas, channels, counts = scan.schemas, scan.channels, scan.message_counts
+        info.start, info.end = scan.start_time, scan.end_time
+        info.messages_compressed = scan.messages_compressed
+    for cid, channel in channels.items():
+        schema = schemas.get(channel.schema_id)
+        msgtype = schema.name if schema else ""
+        type_hash = channel.metadata.get("topic_type_hash", "")
+        n = int(counts.get(cid, 0))
+        old = info.topics.get(channel.topic)
+        info.topics[channel.topic] = (msgtype, type_hash, n + (old[2] if old else 0))
+    info.count = sum(int(n) for n in counts.values())
+    return info
+
+
+def _stamp(ns: int) -> str:
+    return datetime.fromtimestamp(ns * 1e-9, tz=UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
+
+
+def loss_summary(infos: list[FileInfo]) -> str:
+    """What a cut file kept and lost, in words (one line); '' when no file was cut."""
+    cut = [i for i in infos if i.scan is not None and not i.scan.complete]
+    if not cut:
+        return ""
+    parts = []
+    for info in cut:
+        s = info.scan
+        upto = f" up to {_stamp(s.end_time)} UTC" if s.message_count else ""
+        parts.append(
+            f"{info.name} has no MCAP footer: kept {s.message_count} messages in "
+            f"{len(s.chunks)} complete chunks{upto}; what was recorded after its last flushed "
+            f"chunk is lost ({s.lost_bytes} bytes of an unfinished record dropped)"
+        )
+    return "; ".join(parts)
+
+
+@dataclass
+class RecoveryReport:
+    """What :func:`recover_bag` or :func:`readable_copy` did."""
+
+    path: Path  # the bag (or the temporary copy for readable_copy)
+    files: list[FileInfo]
+    repaired: list[str]  # names of files that were cut and got a summary and footer
+    wrote_metadata: bool
+    lost: str  # loss_summary()
+
+    @property
+    def message_count(self) -> int:
+        return sum(f.count for f in self.files)
+
+
+def _compression(infos: list[FileInfo], names: list[str]) -> tuple[str, str]:
+    if names and all(n.endswith(".zstd") for n in names):
+        return "zstd", "file"
+    if any(i.messages_compressed for i in infos):
+        return "zstd", "message"
+    return "", ""
+
+
+def _load_metadata_files(bag_dir: Path) -> list[Path] | None:
+    meta = bag_dir / "metadata.yaml"
+    if not meta.is_file():
+        return None
+    from ruamel.yaml import YAML
+
+    try:
+        info = YAML(typ="safe").load(meta.read_text())["rosbag2_bagfile_information"]
+        return [bag_dir / p for p in info["relative_file_paths"]]
+    except Exception as exc:
+        raise BagRecoveryError(f"{meta}: unreadable ({exc})") from None
+
+
+def recover_bag(path: str | Path) -> RecoveryReport:
+    """Repair a bag in place: reindex every ``.mcap`` without footer (keeping all its complete
+    chunks) and (re)write ``metadata.yaml`` from the files. ``path``: a bag directory or a bare
+    ``.mcap`` file (repaired; no metadata written)."""
+    path = Path(path)
+    if not path.exists():
+        raise BagRecoveryError(f"{path}: bag not found")
+    if path.is_file():
+        info = file_info(path)
+        repaired = []
+        if info.scan is not None:
+            repair_mcap(info.scan)
+            repaired.append(path.name)
+        return RecoveryReport(path, [info], repaired, False, loss_summary([info]))
+    listed = _load_metadata_files(path)
+    files = bag_files(path) if listed is None else listed
+    zstd_files = bool(files) and all(p.name.endswith(".zstd") for p in files[:-1])
+    infos, repaired, names = [], [], []
+    with tempfile.TemporaryDirectory(prefix="bag_recover_") as tmp:
+        for p in files:
+            if not p.is_file():
+                raise BagRecoveryError(f"{p}: listed in metadata.yaml but missing")
+            plain = _decompressed(p, Path(tmp)) if p.name.endswith(".zstd") else p
+            info = file_info(plain, p.name)
+            if info.scan is not None and plain is not p:  # compressed only once complete
+                raise BagRecoveryError(f"{p}: damaged (no MCAP footer inside the .zstd)")
+            if info.scan is not None:
+                repair_mcap(info.scan)
+                repaired.append(p.name)
+                if zstd_files and len(files) > 1:  # file compression: keep the bag uniform
+                    compress_file(p)
+                    info.name = p.name + ".zstd"
+            infos.append(info)
+            names.append(info.name)
+    if listed is not None and not repaired:
+        return RecoveryReport(path, infos, [], False, "")
+    fmt, mode = _compression(infos, names)
+    write_metadata_yaml(path, rosbag2_metadata(infos, None, fmt, mode))
+    return RecoveryReport(path, infos, repaired, True, loss_summary(infos))
+
+
+def compress_file(path: Path) -> Path:
+    """rosbag2's file compression: ``x.mcap`` -> ``x.mcap.zstd`` (written aside, fsynced,
+    renamed, then the original removed, so a crash leaves one complete copy)."""
+    import zstandard
+
+    dst = path.with_name(path.name + ".zstd")
+    tmp = dst.with_name(dst.name + ".tmp")
+    with open(path, "rb") as fin, open(tmp, "wb") as fout:
+        zstandard.ZstdCompressor().copy_stream(fin, fout)
+        fout.flush()
+        os.fsync(fout.fileno())
+    tmp.replace(dst)
+    path.unlink()
+    return dst
+
+
+def needs_recovery(path: str | Path) -> bool:
+    """True for a bag directory without ``metadata.yaml`` or a ``.mcap`` without footer."""
+    path = Path(path)
+    if path.is_dir():
+        return not (path / "metadata.yaml").is_file()
+    return path.suffix == ".mcap" and path.is_file() and not has_footer(path)
+
+
+def readable_copy(path: str | Path, tmp_dir: str | Path) -> RecoveryReport:
+    """A readable rosbag2 directory in ``tmp_dir`` for an interrupted bag at ``path``, which is
+    not modified: complete files are linked, cut ones copied up to their last complete chunk
+    and reindexed, ``.zstd`` ones decompressed; ``metadata.yaml`` lists them."""
+    path, tmp_dir = Path(path), Path(tmp_dir)
+    files = [path] if path.is_file() else (_load_metadata_files(path) or bag_files(path))
+    infos, repaired = [], []
+    for p in files:
+        if p.name.endswith(".zstd"):
+            plain = _decompressed(p, tmp_dir)
+        else:
+            plain = tmp_dir / p.name
+            os.symlink(p.resolve(), plain)
+        info = file_info(plain, plain.name)
+        if info.scan is not None:
+            if plain.is_symlink():  # copy the kept part of the original next to the links
+                plain.unlink()
+                info.scan.path = p
+                repair_mcap(info.scan, plain)
+            else:  # a decompressed copy of our own
+                repair_mcap(info.scan)
+            repaired.append(p.name)
+        infos.append(info)
+    fmt, mode = _compression(infos, [])
+    write_metadata_yaml(tmp_dir, rosbag2_metadata(infos, None, fmt, mode))
+    return RecoveryReport(tmp_dir, infos, repaired, True, loss_summary(infos))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``bag_recover BAG``: repair an interrupted recording in place."""
+    ap = argparse.ArgumentParser(
+        prog="bag_recover",
+        description="Repair a rosbag2/MCAP bag whose recorder died: reindex the cut .mcap "
+        "file (every complete chunk is kept) and write metadata.yaml (like `ros2 bag reindex`).",
+    )
+    ap.add_argument("bag", help="bag directory, or a bare .mcap file")
+    args = ap.parse_args(argv)
+    try:
+        report = recover_bag(args.bag)
+    except (McapRecoveryError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if not report.repaired and not report.wrote_metadata:
+        print(f"{args.bag}: complete, nothing to repair ({report.message_count} messages)")
+        return 0
+    if report.lost:
+        print(f"{args.bag}: {report.lost}")
+    what = "metadata.yaml written" if report.wrote_metadata else "file repaired"
+    print(
+        f"{args.bag}: {what}: {report.message_count} messages in {len(report.files)} file(s)"
+        + (f", reindexed {', '.join(report.repaired)}" if report.repaired else "")
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,353 @@
+"""Reindexing an MCAP file that lost its end (recorder killed, power cut): pure core, no rclpy.
+
+An MCAP file is written as a data section (header, schemas, channels, chunks of messages each
+followed by its message indexes, metadata) and closed by a summary (schemas, channels,
+statistics, chunk indexes) and a footer. A writer that dies leaves the data section only, cut
+anywhere, maybe inside a chunk. :func:`scan_mcap` walks the top-level records and keeps every
+record that is complete (chunks decompress and match their CRC); :func:`repair_mcap` then writes
+the file up to the end of the last complete chunk (in place or as a copy), regenerates the last
+chunk's message indexes when they were cut (and the header when even that was cut: an empty
+file), and appends a summary and footer, so that every
+MCAP reader (mcap's ``make_reader``, rosbags) opens it. Nothing before the cut is rewritten.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import struct
+import zlib
+from dataclasses import dataclass, field
+from io import BytesIO
+from pathlib import Path
+
+from mcap.data_stream import ReadDataStream, RecordBuilder
+from mcap.opcode import Opcode
+from mcap.records import (
+    Channel,
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    MessageIndex,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+
+MAGIC = b"\x89MCAP0\r\n"
+_RECORD_HEAD = struct.Struct("<BQ")
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+
+
+class McapRecoveryError(ValueError):
+    """The file is not an MCAP file, or nothing of it can be recovered; the message says why."""
+
+
+@dataclass
+class ChunkInfo:
+    """A complete chunk: where it lies and what it holds (message indexes rebuilt from its data)."""
+
+    start: int  # offset of the chunk record
+    length: int  # record length including opcode and length prefix
+    message_start_time: int
+    message_end_time: int
+    compression: str
+    compressed_size: int
+    uncompressed_size: int
+    index: dict[int, list[tuple[int, int]]]  # channel id -> [(log time, offset in chunk)]
+    index_records: dict[int, int] = field(default_factory=dict)  # channel -> file offset
+    index_end: int = 0  # end of the message index records found after the chunk
+
+
+@dataclass
+class McapScan:
+    """What :func:`scan_mcap` found in one file."""
+
+    path: Path
+    size: int
+    complete: bool  # footer and end magic present: the file needs no repair
+    valid_end: int = 0  # bytes [0, valid_end) are kept by a repair
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    chunks: list[ChunkInfo] = field(default_factory=list)
+    metadata: list[tuple[int, int, Metadata]] = field(default_factory=list)  # offset, length
+    message_counts: dict[int, int] = field(default_factory=dict)  # channel id -> messages
+    start_time: int = 0
+    end_time: int = 0
+    first_message: bytes = b""  # data of the first message (to detect per-message compression)
+    has_header: bool = False  # the header record after the magic is complete
+    reindex_last: bool = False  # the last chunk's message indexes were cut: write them again
+    stop_reason: str = ""  # why the scan stopped before the end of the file
+
+    @property
+    def message_count(self) -> int:
+        return sum(self.message_counts.values())
+
+    @property
+    def lost_bytes(self) -> int:
+        """Bytes after the last complete record (a chunk cut short, a partial index)."""
+        return self.size - self.valid_end
+
+    @property
+    def messages_compressed(self) -> bool:
+        """True when messages are zstd frames (rosbag2's per-message compression), not CDR."""
+        return self.first_message[:4] == _ZSTD_MAGIC
+
+
+def has_footer(path: str | Path) -> bool:
+    """True when the file ends with an MCAP footer record and the closing magic."""
+    path = Path(path)
+    size = path.stat().st_size
+    if size < 8 + 9 + 20 + 8:
+        return False
+    with open(path, "rb") as f:
+        f.seek(size - 37)
+        tail = f.read(37)
+    return tail[-8:] == MAGIC and tail[0] == Opcode.FOOTER
+
+
+def _chunk_index(chunk: Chunk, validate_crc: bool = True):
+    """(message index, uncompressed data) of a chunk: index is channel -> [(log time, offset of
+    the message record)]; raises ValueError when the chunk is damaged."""
+    if chunk.compression == "zstd":
+        import zstandard
+
+        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+    elif chunk.compression == "lz4":
+        import lz4.frame
+
+        data = lz4.frame.decompress(chunk.data)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        raise ValueError(f"unknown chunk compression {chunk.compression!r}")
+    if len(data) != chunk.uncompressed_size:
+        raise ValueError("chunk size does not match its header")
+    if validate_crc and chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ValueError("chunk CRC mismatch")
+    index: dict[int, list[tuple[int, int]]] = {}
+    pos = 0
+    while pos < len(data):
+        opcode, length = _RECORD_HEAD.unpack_from(data, pos)
+        if pos + 9 + length > len(data):
+            raise ValueError("record overruns its chunk")
+        if opcode == Opcode.MESSAGE:
+            channel, _seq, log_time, _pub = _MESSAGE_HEAD.unpack_from(data, pos + 9)
+            index.setdefault(channel, []).append((log_time, pos))
+        pos += 9 + length
+    return index, data
+
+
+def scan_mcap(path: str | Path) -> McapScan:
+    """Walk the file's top-level records up to the first incomplete or damaged one."""
+    path = Path(path)
+    size = path.stat().st_size
+    scan = McapScan(path=path, size=size, complete=has_footer(path))
+    with open(path, "rb") as f:
+        magic = f.read(8)
+        if magic != MAGIC:
+            if MAGIC.startswith(magic):  # killed before even the magic was written: empty
+                scan.stop_reason = "file cut inside its magic"
+                return scan
+            raise McapRecoveryError(f"{path}: cannot read bag (not an MCAP file: bad magic)")
+        pos = 8
+        scan.valid_end = pos
+        t_min, t_max = None, None
+        while True:
+            head = f.read(9)
+            if len(head) < 9:
+                scan.stop_reason = "" if not head else "incomplete record"
+                break
+            opcode, length = _RECORD_HEAD.unpack(head)
+            if pos + 9 + length > size:
+                scan.stop_reason = "incomplete record"
+                break
+            content = f.read(length)
+            stream = ReadDataStream(BytesIO(content))
+            rec_len = 9 + length
+            try:
+                if opcode == Opcode.HEADER and pos == 8:
+                    scan.has_header = True
+                elif opcode == Opcode.SCHEMA:
+                    s = Schema.read(stream)
+                    scan.schemas[s.id] = s
+                elif opcode == Opcode.CHANNEL:
+                    c = Channel.read(stream)
+                    scan.channels[c.id] = c
+                elif opcode == Opcode.CHUNK:
+                    chunk = Chunk.read(stream)
+                    index, data = _chunk_index(chunk)
+                    _inner_schemas_channels(data, scan)
+                    scan.chunks.append(
+                        ChunkInfo(
+                            start=pos,
+                            length=rec_len,
+                            message_start_time=chunk.message_start_time,
+                            message_end_time=chunk.message_end_time,
+                            compression=chunk.compression,
+                            compressed_size=len(chunk.data),
+                            uncompressed_size=chunk.uncompressed_size,
+                            index=index,
+                        )
+                    )
+                    scan.chunks[-1].index_end = pos + rec_len
+                    for channel, entries in index.items():
+                        scan.message_counts[channel] = scan.message_counts.get(channel, 0) + len(
+                            entries
+                        )
+                        times = [t for t, _ in entries]
+                        t_min = min(times) if t_min is None else min(t_min, *times)
+                        t_max = max(times) if t_max is None else max(t_max, *times)
+                    if not scan.first_message and index:
+                        off = min(o for entries in index.values() for _, o in entries)
+                        scan.first_message = data[off + 9 + _MESSAGE_HEAD.size :][:4]
+                elif opcode == Opcode.MESSAGE_INDEX:
+                    mi = MessageIndex.read(stream)
+                    if not scan.chunks:
+                        raise ValueError("message index before any chunk")
+                    scan.chunks[-1].index_records[mi.channel_id] = pos
+                    scan.chunks[-1].index_end = pos + rec_len
+                elif opcode == Opcode.METADATA:
+                    scan.metadata.append((pos, rec_len, Metadata.read(stream)))
+                elif opcode == Opcode.DATA_END:
+                    scan.stop_reason = "end of data section"
+                    break
+                elif opcode in (Opcode.HEADER, Opcode.FOOTER) or opcode == 0:
+                    raise ValueError(f"unexpected record 0x{opcode:02x}")
+                # attachments, top-level messages and unknown records are kept as they are
+            except Exception as exc:  # damaged record: the data ends before it
+                scan.stop_reason = f"damaged record at byte {pos} ({exc})"
+                break
+            pos += rec_len
+            scan.valid_end = pos
+    if t_min is not None:
+        scan.start_time, scan.end_time = t_min, t_max
+    if scan.chunks:
+        last = scan.chunks[-1]
+        scan.reindex_last = set(last.index_records) != set(last.index)
+    return scan
+
+
+def _inner_schemas_channels(data: bytes, scan: McapScan) -> None:
+    """Schemas and channels written inside a chunk (mcap's writer puts them there)."""
+    pos = 0
+    while pos < len(data):
+        opcode, length = _RECORD_HEAD.unpack_from(data, pos)
+        if opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+            stream = ReadDataStream(BytesIO(data[pos + 9 : pos + 9 + length]))
+            if opcode == Opcode.SCHEMA:
+                s = Schema.read(stream)
+                scan.schemas[s.id] = s
+            else:
+                c = Channel.read(stream)
+                scan.channels[c.id] = c
+        pos += 9 + length
+
+
+def repair_mcap(scan: McapScan, dst: str | Path | None = None) -> Path:
+    """Write the scanned file with a summary and footer: in place (``dst`` None: the file is cut
+    after its last complete record and the summary appended) or as a copy at ``dst``. Returns
+    the repaired file's path. A complete file is copied unchanged (or left as it is)."""
+    src = scan.path
+    if scan.complete:
+        if dst is None:
+            return src
+        shutil.copyfile(src, dst)
+        return Path(dst)
+    end = scan.valid_end if scan.has_header else 0
+    if scan.reindex_last:
+        end = scan.chunks[-1].start + scan.chunks[-1].length
+    scan.metadata = [m for m in scan.metadata if m[0] + m[1] <= end]
+    target = Path(dst) if dst is not None else src
+    if dst is not None:
+        with open(src, "rb") as fin, open(target, "wb") as fout:
+            remaining = end
+            while remaining:
+                buf = fin.read(min(remaining, 1 << 22))
+                if not buf:
+                    break
+                fout.write(buf)
+                remaining -= len(buf)
+    with open(target, "r+b") as f:
+        f.truncate(end)
+        f.seek(end)
+        f.write(_tail(scan, end))
+        f.flush()
+        os.fsync(f.fileno())
+    return target
+
+
+def _tail(scan: McapScan, end: int) -> bytes:
+    """Message indexes of a cut last chunk, data end, summary, summary offsets, footer, magic."""
+    head = b""
+    if not scan.has_header:  # cut inside the magic or header: nothing survived, start anew
+        hb = RecordBuilder()
+        Header(profile="ros2", library="bag_recover").write(hb)
+        head = MAGIC + hb.end()
+    out = RecordBuilder()
+    pos = end + len(head)
+    if scan.reindex_last:
+        last = scan.chunks[-1]
+        last.index_records = {}
+        for channel, entries in last.index.items():
+            last.index_records[channel] = pos + out.count
+            MessageIndex(channel_id=channel, records=entries).write(out)
+        last.index_end = pos + out.count
+    DataEnd(data_section_crc=0).write(out)
+    summary_start = pos + out.count
+    groups: list[tuple[int, int, int]] = []  # opcode, start, length
+
+    def group(opcode, records) -> None:
+        start = out.count
+        for r in records:
+            r.write(out)
+        if out.count > start:
+            groups.append((opcode, pos + start, out.count - start))
+
+    group(Opcode.SCHEMA, scan.schemas.values())
+    group(Opcode.CHANNEL, scan.channels.values())
+    stats = Statistics(
+        message_count=scan.message_count,
+        schema_count=len(scan.schemas),
+        channel_count=len(scan.channels),
+        attachment_count=0,
+        metadata_count=len(scan.metadata),
+        chunk_count=len(scan.chunks),
+        message_start_time=scan.start_time,
+        message_end_time=scan.end_time,
+        channel_message_counts=dict(scan.message_counts),
+    )
+    group(Opcode.STATISTICS, [stats])
+    group(
+        Opcode.CHUNK_INDEX,
+        [
+            ChunkIndex(
+                message_start_time=c.message_start_time,
+                message_end_time=c.message_end_time,
+                chunk_start_offset=c.start,
+                chunk_length=c.length,
+                message_index_offsets=dict(c.index_records),
+                message_index_length=c.index_end - (c.start + c.length),
+                compression=c.compression,
+                compressed_size=c.compressed_size,
+                uncompressed_size=c.uncompressed_size,
+            )
+            for c in scan.chunks
+        ],
+    )
+    group(
+        Opcode.METADATA_INDEX,
+        [MetadataIndex(offset=o, length=n, name=m.name) for o, n, m in scan.metadata],
+    )
+    summary_offset_start = pos + out.count
+    for opcode, start, length in groups:
+        SummaryOffset(group_opcode=opcode, group_start=start, group_length=length).write(out)
+    Footer(
+        summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=0
+    ).write(out)
+    return head + out.end() + MAGIC
