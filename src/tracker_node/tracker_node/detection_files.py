@@ -81,3 +81,22 @@ def read_detection_file(path: str | os.PathLike) -> DetectionRows:
         rotation_y=a[:, 13],
         alpha=a[:, 14],
     )
+
+
+def detection_batch(rows: DetectionRows, offset=None, class_name: str = "Car"):
+    """The rows as a tracker :class:`~tracker_node.tracker.DetectionBatch`: centres of mass
+    (bottom centre lifted by h/2), moved by ``offset`` (3,) (camera 0 -> the tracker's frame;
+    none: stay in camera 0), size (l, w, h), yaw, 2D box and score."""
+    from .tracker import DetectionBatch
+
+    hwl = rows.hwl
+    centre = rows.location + (np.zeros(3) if offset is None else np.asarray(offset, float))
+    centre[:, 1] -= hwl[:, 0] / 2.0  # bottom centre -> centre of mass (y down)
+    return DetectionBatch.create(
+        centre,
+        size=hwl[:, [2, 1, 0]],
+        yaw=rows.rotation_y,
+        bbox=rows.bbox,
+        score=rows.score,
+        class_id=[class_name] * len(rows),
+    )

@@ -29,8 +29,8 @@ from kitti_player_node.kitti import (
 )
 
 from .config import TrackerConfig, TrackerConfigError
-from .detection_files import TYPE_NAMES, DetectionRows, read_detection_file
-from .tracker import COASTING, TENTATIVE, DetectionBatch, Tracker
+from .detection_files import TYPE_NAMES, DetectionRows, detection_batch, read_detection_file
+from .tracker import COASTING, TENTATIVE, Tracker
 
 FRAME_PERIOD = 0.1  # [s] KITTI's 10 Hz
 CAR_TYPE_ID = 2  # detection files' type column (TYPE_NAMES)
@@ -60,17 +60,7 @@ def track_sequence(
     hold = config.output_coasting == "refound"
     for f in range(n_frames):
         sel = order[starts[f] : starts[f + 1]]
-        hwl = rows.hwl[sel]
-        centre = rows.location[sel] + offset
-        centre[:, 1] -= hwl[:, 0] / 2.0  # bottom centre -> centre of mass (y down)
-        dets = DetectionBatch.create(
-            centre,
-            size=hwl[:, [2, 1, 0]],
-            yaw=rows.rotation_y[sel],
-            bbox=rows.bbox[sel],
-            score=rows.score[sel],
-            class_id=[type_name] * len(sel),
-        )
+        dets = detection_batch(rows.select(sel), offset, type_name)
         ts = tracker.step(dets, f * FRAME_PERIOD)
         if hold:  # tracks gone from the tracker (deleted) never come back: drop their rows
             alive = set(tracker.ids.tolist())
