@@ -36,6 +36,7 @@ KITTI = REPO.parent / "shared" / "kitti"
 DETS = KITTI / "detections" / "pointrcnn_Car_val"
 LABELS = KITTI / "tracking" / "training" / "label_02"
 CALIB = KITTI / "tracking" / "training" / "calib"
+GRAPH_PARAMS = REPO / "src" / "tracking_bringup" / "config" / "pipeline.params.yaml"
 VAL = ["0001", "0006", "0008", "0010", "0012", "0013"]
 KEYS = ("mota", "motp", "idsw", "frag", "fp", "fn", "samota")
 
@@ -235,13 +236,19 @@ def cmd_real(args) -> None:
         overrides[name] = type(getattr(base, name))(
             value if not isinstance(getattr(base, name), bool) else value == "true"
         )
-    cfg = replace(base, **overrides)
-    print(f"tracker configuration: {cfg}")
+    # the stereo detections are tracked with the graph's parameters, PointRCNN's with the
+    # TrackerConfig defaults (tracker_offline's)
+    configs = {
+        "stereo": replace(TrackerConfig.from_yaml(GRAPH_PARAMS), **overrides),
+        "pointrcnn": replace(base, **overrides),
+    }
     filters = args.filters.split(",")
     splits = {"tuning": tune, "reporting": report}
     if args.split != "both":
         splits = {args.split: splits[args.split]}
     for source in args.source.split(","):
+        cfg = configs[source]
+        print(f"\n[{source}] tracker configuration: {cfg}")
         if source == "stereo":
             model = rm.measure_stereo_model()
             dm = rm.DetectionModel()

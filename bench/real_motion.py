@@ -34,6 +34,7 @@ import numpy as np
 from eval_node.detection_metrics import precision_recall
 from eval_node.filter_comparison import trackset_to_objects
 from eval_node.motion_metrics import track_velocities
+from eval_node.tracking_metrics import evaluate_tracking_sequences
 from kitti_player_node.kitti import (
     KittiObject,
     alpha_from_rotation_y,
@@ -301,6 +302,7 @@ class MotionStats:
     lag_s: list  # [s] the same divided by the relative speed
     vel_err: list
     speed: list
+    mot: dict  # CLEAR-MOT totals (KITTI tracking rules, 2D IoU 0.5)
 
 
 def run_tracker(data: SequenceData, cfg: TrackerConfig, stats: MotionStats | None):
@@ -364,15 +366,20 @@ def evaluate_split(datas: list[SequenceData], cfg: TrackerConfig, filters, motio
             gt[(data.name, k)] = objs
         for k, objs in data.raw.items():
             preds["raw"][(data.name, k)] = objs
+    gts = {data.name: data.gt for data in datas}
     for flt in filters:
-        st = MotionStats([], [], [], [], [], []) if motion else None
+        st = MotionStats([], [], [], [], [], [], {}) if motion else None
         preds[flt] = {}
+        per_seq = {}
         t0 = time.perf_counter()
         for data in datas:
             out = run_tracker(data, replace(cfg, filter=flt), st)
+            per_seq[data.name] = out
             for k, objs in out.items():
                 preds[flt][(data.name, k)] = objs
         times[flt] = time.perf_counter() - t0
+        if st is not None:
+            st.mot = evaluate_tracking_sequences(gts, per_seq, hota=False)["total"]
         stats[flt] = st
     return _ap_table(gt, preds), stats, times
 
@@ -397,7 +404,9 @@ def print_motion(stats: dict[str, MotionStats], times: dict[str, float]) -> None
     print(
         f"  {'filter':8s} | pos err mean/median [m] | along-motion err [m] | "
         "lag behind detection [m] / [s] (speed > 3 m/s) | "
-        f"velocity RMSE [m/s] all | " + " | ".join(f"{s} m/s (n)" for s in labels) + " | time [s]"
+        f"velocity RMSE [m/s] all | "
+        + " | ".join(f"{s} m/s (n)" for s in labels)
+        + " | MOTA / IDSW (2D IoU 0.5) | time [s]"
     )
     for flt, st in stats.items():
         if st is None:
@@ -416,7 +425,9 @@ def print_motion(stats: dict[str, MotionStats], times: dict[str, float]) -> None
             f"  {flt:8s} | {pe.mean():.2f} / {np.median(pe):.2f}           | {along:+.2f}"
             f"                | {lag:+.2f} / {lag_s:+.3f}"
             f"                                  | {np.sqrt(np.mean(ve**2)):5.2f}"
-            f"                   | " + " | ".join(buckets) + f" | {times[flt]:.1f}"
+            f"                   | "
+            + " | ".join(buckets)
+            + f" | {100 * st.mot['mota']:5.1f} / {st.mot['idsw']} | {times[flt]:.1f}"
         )
     sys.stdout.flush()
 
