@@ -37,9 +37,9 @@ from .scene_motion import initial_velocity
 def _moments(particles: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Weighted means (N, d) and covariances (N, d, d) of particle sets (N, n, d) with
     normalised weights (N, n)."""
-    mean = np.einsum("np,npi->ni", w, particles)
+    mean = np.matmul(w[:, None, :], particles)[:, 0]
     dev = particles - mean[:, None, :]
-    return mean, np.einsum("np,npi,npj->nij", w, dev, dev)
+    return mean, np.matmul(dev.transpose(0, 2, 1) * w[:, None, :], dev)
 
 
 def _cholesky(S: np.ndarray) -> np.ndarray:
@@ -96,7 +96,7 @@ class BatchedParticleFilter:
         else:
             L = np.broadcast_to(np.sqrt(self.init_position_var) * np.eye(3), (m, 3, 3))
         e = self.rng.normal(size=(m, self.n, 3))
-        return z[:, None, :] + np.einsum("mij,mpj->mpi", L, e)
+        return z[:, None, :] + np.matmul(e, L.transpose(0, 2, 1))
 
     def add(self, z: np.ndarray, R: np.ndarray) -> None:
         m = len(z)
@@ -135,7 +135,7 @@ class BatchedParticleFilter:
         p = self.particles[rows]  # (M, Np, 6)
         n = self.n
         d = p[:, :, :3] - z[:, None, :]
-        d2 = np.einsum("mpi,mij,mpj->mp", d, inv3_sym(R), d)
+        d2 = (np.matmul(d, inv3_sym(R)) * d).sum(axis=-1)
         best = d2.min(axis=1)
         w = self.weights[rows] * np.exp(-0.5 * (d2 - best[:, None]))
         total = w.sum(axis=1, keepdims=True)
@@ -168,7 +168,7 @@ class BatchedParticleFilter:
         p = np.take_along_axis(p, np.clip(idx, 0, n - 1)[:, :, None], axis=1)
         if self.roughening > 0:
             L = _cholesky(cov) * self.roughening
-            p += np.einsum("mij,mpj->mpi", L, self.rng.normal(size=p.shape))
+            p += np.matmul(self.rng.normal(size=p.shape), L.transpose(0, 2, 1))
         return p
 
     def _estimates(self) -> tuple[np.ndarray, np.ndarray]:
