@@ -5,8 +5,8 @@ sequences (real trajectories, real ego-motion, positions in the moving camera-0 
 
 ``stereo``: detections made from the ground truth through a stereo error model measured on the
     KITTI Stereo 2015 pairs with the project's default disparity map
-    (:func:`measure_stereo_model`: window-level disparity bias and spread per disparity bin, a
-    linear fit of each), applied to each labelled car's centre of mass: disparity
+    (:func:`measure_stereo_model`: window-level disparity bias and spread per disparity bin,
+    piecewise linear between the bins), applied to each labelled car's centre of mass: disparity
     ``d' = d + bias(d) + spread(d) * n`` -> depth ``z' = f B / d'`` along the pixel ray (lateral
     error in proportion), plus the box noise, missed detections and false alarms of
     :class:`DetectionModel` (rates stated there and printed). Each detection carries the
@@ -232,7 +232,7 @@ def stereo_sequence(
             # the box centre's pixel moves with the box noise; the point moves along its ray
             u = f * c[0] / z + calib.cx + rng.normal(scale=dm.box_noise_px / math.sqrt(2))
             v = calib.fy * c[1] / z + calib.cy + rng.normal(scale=dm.box_noise_px / math.sqrt(2))
-            p = geo.backproject(u - calib.cx + geo.cx, v - calib.cy + geo.cy, zm)
+            p = geo.backproject(u, v, zm)
             pos.append(p - off)
             R = position_covariance(u, v, zm, geo, rparams)
             cov.append(R)
