@@ -5,6 +5,7 @@
     python bench/bench_tracker.py tune    [--params START.yaml] [--seqs 0,2,...] [--rounds 1]
     python bench/bench_tracker.py speed
     python bench/bench_tracker.py sim
+    python bench/bench_tracker.py real   [--source stereo,pointrcnn] [--split tuning] [--set K=V]
 
 ``mot``: tracker_offline's core over ../shared/kitti/detections/pointrcnn_Car_val, scored with
 eval_node.tracking_metrics (KITTI devkit rules; 3D IoU 0.25 and 2D IoU 0.5), per filter x
@@ -13,7 +14,9 @@ fixed-threshold and no-threshold CLEAR-MOT, HOTA, sAMOTA; one evaluator) on DEV 
 ``tune``: coordinate descent over TUNE_GRID on the tuning sequences only (DEV refused).
 ``speed``: Tracker.step time with 20 and 100 vehicles.
 ``sim``: noisy stereo detections of the labelled cars (sigma_z = z^2 sigma_d / (f B), dropped
-detections): mean position error of unfiltered / kalman / particle tracks.
+detections): mean position error of unfiltered / kalman / particle tracks. ``real``: the
+real-motion benchmark (the paper's Table 2 on the labelled KITTI trajectories, stereo error model
+measured on KITTI Stereo 2015, and the real PointRCNN detections; see bench/real_motion.py).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ KITTI = REPO.parent / "shared" / "kitti"
 DETS = KITTI / "detections" / "pointrcnn_Car_val"
 LABELS = KITTI / "tracking" / "training" / "label_02"
 CALIB = KITTI / "tracking" / "training" / "calib"
+GRAPH_PARAMS = REPO / "src" / "tracking_bringup" / "config" / "pipeline.params.yaml"
 VAL = ["0001", "0006", "0008", "0010", "0012", "0013"]
 # Split fixed before any tuning: DEV = the KITTI validation sequences present here (report only);
 # TUNE = the other shared sequences with labels and detections (training split; tune only).
@@ -335,6 +339,52 @@ def cmd_sim(args) -> None:
         )
 
 
+def cmd_real(args) -> None:
+    import real_motion as rm
+
+    tune, report = rm.split_sequences()
+    if args.seqs:
+        report = [f"{int(s):04d}" for s in args.seqs.split(",")]
+    print(f"tuning sequences (not reported): {','.join(tune)}")
+    print(f"reporting sequences: {','.join(report)}")
+    base = TrackerConfig()
+    overrides = {}
+    for kv in args.set or []:
+        name, value = kv.split("=", 1)
+        overrides[name] = type(getattr(base, name))(
+            value if not isinstance(getattr(base, name), bool) else value == "true"
+        )
+    # the stereo detections are tracked with the graph's parameters, PointRCNN's with the
+    # TrackerConfig defaults (tracker_offline's)
+    configs = {
+        "stereo": replace(TrackerConfig.from_yaml(GRAPH_PARAMS), **overrides),
+        "pointrcnn": replace(base, **overrides),
+    }
+    filters = args.filters.split(",")
+    splits = {"tuning": tune, "reporting": report}
+    if args.split != "both":
+        splits = {args.split: splits[args.split]}
+    for source in args.source.split(","):
+        cfg = configs[source]
+        print(f"\n[{source}] tracker configuration: {cfg}")
+        if source == "stereo":
+            model = rm.measure_stereo_model()
+            dm = rm.DetectionModel()
+            print(f"detection model: {dm}")
+        for split, seqs in splits.items():
+            t0 = time.perf_counter()
+            if source == "stereo":
+                datas = [rm.stereo_sequence(s, model, dm, seed=int(s)) for s in seqs]
+            else:
+                datas = [rm.pointrcnn_sequence(s) for s in seqs]
+            ap, stats, times = rm.evaluate_split(datas, cfg, filters)
+            rm.print_ap(f"[{source}] {split} sequences {','.join(seqs)}", ap)
+            if source == "stereo":
+                rm.print_covariance_check(datas)
+            rm.print_motion(stats, times)
+            print(f"  ({time.perf_counter() - t0:.0f} s)")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -359,10 +409,18 @@ def main() -> None:
     s = sub.add_parser("sim")
     s.add_argument("--sigma-d", type=float, default=0.5, help="disparity noise [px]")
     s.add_argument("--drop", type=float, default=0.1, help="fraction of dropped detections")
+    r = sub.add_parser("real")
+    r.add_argument("--source", default="stereo,pointrcnn")
+    r.add_argument("--filters", default="none,kalman,particle")
+    r.add_argument("--split", default="both", choices=("both", "tuning", "reporting"))
+    r.add_argument("--seqs", default="", help="override the reporting sequences")
+    r.add_argument("--set", action="append", help="NAME=VALUE tracker parameter override")
     args = p.parse_args()
     if args.cmd in ("mot", "tune", "compare") and not DETS.is_dir():
         sys.exit(f"error: {DETS}: shared KITTI detections not found")
-    cmds = {"mot": cmd_mot, "tune": cmd_tune, "speed": cmd_speed, "sim": cmd_sim}
+    if args.cmd == "real" and not LABELS.is_dir():
+        sys.exit(f"error: {LABELS}: shared KITTI tracking labels not found")
+    cmds = {"mot": cmd_mot, "tune": cmd_tune, "speed": cmd_speed, "sim": cmd_sim, "real": cmd_real}
     cmds["compare"] = cmd_compare
     cmds[args.cmd](args)
 

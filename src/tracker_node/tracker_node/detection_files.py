@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from vehicle_common.camera_frames import centre_from_kitti
 from vehicle_common.kitti import KittiFormatError
 
 TYPE_NAMES = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}
@@ -80,4 +81,22 @@ def read_detection_file(path: str | os.PathLike) -> DetectionRows:
         location=a[:, 10:13],
         rotation_y=a[:, 13],
         alpha=a[:, 14],
+    )
+
+
+def detection_batch(rows: DetectionRows, offset=None, class_name: str = "Car"):
+    """The rows as a tracker :class:`~tracker_node.tracker.DetectionBatch`: centres of mass
+    (bottom centre lifted by h/2), moved by ``offset`` (3,) (camera 0 -> the tracker's frame;
+    none: stay in camera 0), size (l, w, h), yaw, 2D box and score."""
+    from .tracker import DetectionBatch
+
+    hwl = rows.hwl
+    centre = centre_from_kitti(rows.location, hwl[:, 0], offset)
+    return DetectionBatch.create(
+        centre,
+        size=hwl[:, [2, 1, 0]],
+        yaw=rows.rotation_y,
+        bbox=rows.bbox,
+        score=rows.score,
+        class_id=[class_name] * len(rows),
     )

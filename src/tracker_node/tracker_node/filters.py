@@ -106,16 +106,23 @@ class PassThroughFilter:
 def make_filter(cfg: TrackerConfig) -> MotionFilter:
     """The batched filter selected by ``cfg.filter``."""
     if cfg.filter == "kalman":
-        return BatchedKalmanFilter(cfg.process_noise, cfg.init_position_var, cfg.init_velocity_var)
+        return BatchedKalmanFilter(
+            cfg.process_noise,
+            cfg.init_position_var,
+            cfg.init_velocity_var,
+            cfg.init_velocity,
+            cfg.init_position_from_detection,
+        )
     if cfg.filter == "particle":
         return BatchedParticleFilter(
-            cfg.num_particles,
-            cfg.particle_init_radius,
-            cfg.particle_obs_var,
-            cfg.velocity_history,
-            cfg.particle_diffusion,
-            cfg.seed,
-            cfg.default_dt,
+            num_particles=cfg.num_particles,
+            q=cfg.process_noise,
+            init_position_var=cfg.init_position_var,
+            init_velocity_var=cfg.init_velocity_var,
+            init_velocity=cfg.init_velocity,
+            init_position_from_detection=cfg.init_position_from_detection,
+            roughening=cfg.particle_roughening,
+            seed=cfg.seed,
         )
     if cfg.filter == "none":
         return PassThroughFilter(cfg.init_position_var, cfg.init_velocity_var, cfg.default_dt)

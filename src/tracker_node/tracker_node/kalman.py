@@ -7,14 +7,19 @@ track; it is the documented reference, and the tests check that both give the sa
 Model: ``x_k = F(dt) x_{k-1} + w``, ``F = [[I, dt I], [0, I]]``, ``w`` discrete white-noise
 acceleration with spectral density ``q``: ``Q = q [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]]``.
 Measurement: position only, ``z = H x + v``, ``H = [I 0]``, ``v ~ N(0, R)`` with R taken from the
-detection when it has a covariance. Initial covariance: position ``init_position_var`` (1 m^2 in
-the paper), velocity ``init_velocity_var`` (50 (m/s)^2). The update uses ``P - K H P`` (filterpy
-uses the Joseph form; equal for the optimal gain, checked by the tests).
+detection when it has a covariance. Initial state: the first detection's position with covariance
+``init_position_var`` I (1 m^2 in the paper) or, with ``init_position_from_detection``, the
+detection's own covariance R (a stereo detection at 40 m is uncertain by metres in depth, not
+1 m); velocity zero (the paper) or the scene's common motion (``init_velocity="scene"``, see
+:mod:`.scene_motion`), variance ``init_velocity_var`` (50 (m/s)^2). The update uses ``P - K H P``
+(filterpy uses the Joseph form; equal for the optimal gain, checked by the tests).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from .scene_motion import initial_velocity
 
 _I3 = np.eye(3)
 
@@ -64,11 +69,21 @@ class BatchedKalmanFilter:
 
     name = "kalman"
 
-    def __init__(self, q: float, init_position_var: float = 1.0, init_velocity_var: float = 50.0):
+    def __init__(
+        self,
+        q: float,
+        init_position_var: float = 1.0,
+        init_velocity_var: float = 50.0,
+        init_velocity: str = "zero",
+        init_position_from_detection: bool = False,
+    ):
         self.q = float(q)
         self.P0 = np.diag([init_position_var] * 3 + [init_velocity_var] * 3).astype(float)
+        self.init_velocity = init_velocity
+        self.init_position_from_detection = bool(init_position_from_detection)
         self.x = np.zeros((0, 6))
         self.P = np.zeros((0, 6, 6))
+        self.updates = np.zeros(0, dtype=int)  # detections each track was corrected with
         self._model_dt: float | None = None
         self._model_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
@@ -76,18 +91,25 @@ class BatchedKalmanFilter:
         return len(self.x)
 
     def add(self, z: np.ndarray, R: np.ndarray) -> None:
-        """Start tracks at positions ``z`` (M, 3), zero velocity. ``R`` (M, 3, 3) unused: the
-        paper's fixed initial covariance is used."""
+        """Start tracks at positions ``z`` (M, 3) with covariances ``R`` (M, 3, 3) (used as the
+        initial position covariance with ``init_position_from_detection``), velocity per
+        ``init_velocity``."""
         m = len(z)
         x = np.zeros((m, 6))
         x[:, :3] = z
+        x[:, 3:] = initial_velocity(self.init_velocity, self.velocity, self.updates)
+        P = np.repeat(self.P0[None], m, axis=0)
+        if self.init_position_from_detection and m:
+            P[:, :3, :3] = R
         self.x = np.concatenate([self.x, x])
-        self.P = np.concatenate([self.P, np.broadcast_to(self.P0, (m, 6, 6))])
+        self.P = np.concatenate([self.P, P])
+        self.updates = np.concatenate([self.updates, np.zeros(m, dtype=int)])
 
     def keep(self, mask: np.ndarray) -> None:
         """Keep only the rows where ``mask`` is true."""
         self.x = self.x[mask]
         self.P = self.P[mask]
+        self.updates = self.updates[mask]
 
     def _model(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """F, F^T and Q for ``dt``, cached (successive frames share one dt)."""
@@ -123,6 +145,7 @@ class BatchedKalmanFilter:
         P = 0.5 * (P + P.transpose(0, 2, 1))
         self.x[rows] = x
         self.P[rows] = P
+        self.updates[rows] += 1
 
     @property
     def position(self) -> np.ndarray:

@@ -26,7 +26,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
-from vehicle_common.camera_frames import centre_from_kitti, kitti_row_from_centre
+from vehicle_common.camera_frames import kitti_row_from_centre
 from vehicle_common.kitti import (
     Calibration,
     KittiFormatError,
@@ -36,7 +36,7 @@ from vehicle_common.kitti import (
 )
 
 from .config import TrackerConfig, TrackerConfigError
-from .detection_files import TYPE_NAMES, DetectionRows, read_detection_file
+from .detection_files import TYPE_NAMES, DetectionRows, detection_batch, read_detection_file
 from .tracker import COASTING, TENTATIVE, DetectionBatch, Tracker, TrackSet
 
 FRAME_PERIOD = 0.1  # [s] KITTI's 10 Hz
@@ -48,16 +48,7 @@ def detections_for_frame(
 ) -> DetectionBatch:
     """The tracker's input for detection rows ``sel`` (KITTI camera-0 bottom centres ->
     centres of mass in the tracking frame, ``offset`` = camera 0 -> tracking frame)."""
-    hwl = rows.hwl[sel]
-    centre = centre_from_kitti(rows.location[sel], hwl[:, 0], offset)
-    return DetectionBatch.create(
-        centre,
-        size=hwl[:, [2, 1, 0]],
-        yaw=rows.rotation_y[sel],
-        bbox=rows.bbox[sel],
-        score=rows.score[sel],
-        class_id=[TYPE_NAMES[CAR_TYPE_ID]] * len(sel),
-    )
+    return detection_batch(rows.select(sel), offset, TYPE_NAMES[CAR_TYPE_ID])
 
 
 def result_rows(

@@ -1,159 +1,193 @@
-"""The paper's particle filter for 3D vehicle positions, batched over tracks.
+"""Particle filter for 3D vehicle positions (the paper's second filter), batched over tracks.
 
-Per track: ``num_particles`` (100) particles drawn uniformly within ``init_radius`` (1 m) of the
-first observation; prediction moves them by the mean of the last ``history`` (3) velocity
-estimates times dt (plus a small random walk, ``diffusion``, so that resampled particles do not
-collapse onto one point); an observation weights them with a 3D Gaussian of covariance
-``obs_var`` I (9 m^2) around it; they are then resampled (systematic resampling). When all weights
-vanish (underflow) the track's particles are re-seeded around the observation. The estimate is
-the particle mean; velocities are finite differences of successive estimates.
+Per track ``num_particles`` particles of the constant-velocity state (x, y, z, vx, vy, vz):
+
+- start: positions drawn from N(z, P0) around the first detection (P0 = the detection's
+  covariance R with ``init_position_from_detection``, else ``init_position_var`` I), velocities
+  from N(v0, ``init_velocity_var`` I) with v0 zero or the scene's common motion
+  (:mod:`.scene_motion`), as the Kalman filter starts;
+- predict: ``x += v dt`` plus a sample of the white-acceleration process noise Q(dt, q) (the
+  Kalman filter's model and density q);
+- update: weights multiplied by the detection's Gaussian likelihood N(z; position, R) (R: the
+  detection's covariance); when the effective sample size falls below ``resample_fraction`` of
+  the particles, systematic resampling, then a small regularisation jitter (``roughening`` times
+  the posterior spread) so that resampled copies do not collapse onto one point. When the detection
+  is implausible for every particle (smallest squared Mahalanobis distance > ``reseed_gate``) the
+  track's positions are re-drawn around it (velocities kept).
+
+Estimates are weighted particle means; covariances the weighted sample covariances.
+
+Departures from the paper (Chan et al. 2019: 100 particles within 1 m, a fixed 9 m^2 weighting
+Gaussian, velocity = mean of the last 3 finite differences of the estimates): on real KITTI
+trajectories that variant lags the detections (with a 3 m weighting std the posterior mean
+barely moves toward the detection; its velocity, a difference of lagging estimates, stays
+wrong), so tracks of cars moving at ~10 m/s relative to the moving camera fall out of the gates
+(MOTA 10.5 on the PointRCNN validation detections against ~85 with Kalman). Velocity as a state
+and the detection's own covariance in the weights fix both.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-
-def _uniform_ball(rng: np.random.Generator, shape: tuple[int, int], radius: float) -> np.ndarray:
-    """Points (shape + (3,)) uniform in a ball of ``radius``."""
-    v = rng.normal(size=shape + (3,))
-    v /= np.linalg.norm(v, axis=-1, keepdims=True) + 1e-12
-    r = radius * rng.random(shape + (1,)) ** (1.0 / 3.0)
-    return v * r
+from .kalman import inv3_sym, process_noise
+from .scene_motion import initial_velocity
 
 
-def _spread(particles: np.ndarray, n: int) -> np.ndarray:
-    """Sample covariances (N, 3, 3) of particle sets (N, n, 3)."""
-    d = particles - particles.mean(axis=1, keepdims=True)
-    return np.einsum("npi,npj->nij", d, d) / max(n - 1, 1)
+def _moments(particles: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted means (N, d) and covariances (N, d, d) of particle sets (N, n, d) with
+    normalised weights (N, n)."""
+    mean = np.matmul(w[:, None, :], particles)[:, 0]
+    dev = particles - mean[:, None, :]
+    return mean, np.matmul(dev.transpose(0, 2, 1) * w[:, None, :], dev)
+
+
+def _cholesky(S: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factors of covariances (..., d, d), regularised to be positive definite."""
+    d = S.shape[-1]
+    return np.linalg.cholesky(S + 1e-9 * np.eye(d))
 
 
 class BatchedParticleFilter:
-    """Particle filters of N tracks: ``particles`` (N, Np, 3)."""
+    """Constant-velocity particle filters of N tracks: ``particles`` (N, Np, 6)."""
 
     name = "particle"
 
     def __init__(
         self,
         num_particles: int = 100,
-        init_radius: float = 1.0,
-        obs_var: float = 9.0,
-        history: int = 3,
-        diffusion: float = 0.3,
+        q: float = 8.0,
+        init_position_var: float = 1.0,
+        init_velocity_var: float = 50.0,
+        init_velocity: str = "zero",
+        init_position_from_detection: bool = False,
+        roughening: float = 0.2,
+        resample_fraction: float = 0.5,
+        reseed_gate: float = 100.0,
         seed: int = 0,
-        dt: float = 0.1,
     ):
         self.n = int(num_particles)
-        self.init_radius = float(init_radius)
-        self.obs_var = float(obs_var)
-        self.history = int(history)
-        self.diffusion = float(diffusion)
+        self.q = float(q)
+        self.init_position_var = float(init_position_var)
+        self.init_velocity_var = float(init_velocity_var)
+        self.init_velocity = init_velocity
+        self.init_position_from_detection = bool(init_position_from_detection)
+        self.roughening = float(roughening)
+        self.resample_fraction = float(resample_fraction)
+        self.reseed_gate = float(reseed_gate)
         self.rng = np.random.default_rng(seed)
-        self.dt = float(dt)  # [s] frame period assumed by velocity_cov
-        self.particles = np.zeros((0, self.n, 3))
-        self.vel_hist = np.zeros((0, self.history, 3))
-        self.vel_count = np.zeros(0, dtype=int)
-        self.estimate = np.zeros((0, 3))
-        self.velocity = np.zeros((0, 3))
-        self.last_pos = np.zeros((0, 3))  # estimate at the last update
-        self.elapsed = np.zeros(0)  # [s] since the last update
-        self.reseeds = 0  # how many times particles were re-seeded (all weights vanished)
-        self._cov: np.ndarray | None = None  # position_cov of the current particles (cache)
+        self.particles = np.zeros((0, self.n, 6))
+        self.weights = np.zeros((0, self.n))
+        self.updates = np.zeros(0, dtype=int)
+        self.reseeds = 0  # how many times a track's particles were re-drawn around a detection
+        self._mean: np.ndarray | None = None  # (N, 6) particle means (cache)
+        self._cov: np.ndarray | None = None  # (N, 6, 6) sample covariances (cache)
+        self._noise_dt: float | None = None
+        self._noise_L: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.particles)
 
+    def _draw_positions(self, z: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Positions (M, Np, 3) drawn around ``z`` (M, 3)."""
+        m = len(z)
+        if self.init_position_from_detection:
+            L = _cholesky(R)
+        else:
+            L = np.broadcast_to(np.sqrt(self.init_position_var) * np.eye(3), (m, 3, 3))
+        e = self.rng.normal(size=(m, self.n, 3))
+        return z[:, None, :] + np.matmul(e, L.transpose(0, 2, 1))
+
     def add(self, z: np.ndarray, R: np.ndarray) -> None:
         m = len(z)
-        p = z[:, None, :] + _uniform_ball(self.rng, (m, self.n), self.init_radius)
+        if not m:
+            return
+        v0 = initial_velocity(self.init_velocity, self.velocity, self.updates)
+        p = np.empty((m, self.n, 6))
+        p[:, :, :3] = self._draw_positions(z, R)
+        p[:, :, 3:] = v0 + np.sqrt(self.init_velocity_var) * self.rng.normal(size=(m, self.n, 3))
         self.particles = np.concatenate([self.particles, p])
-        self.vel_hist = np.concatenate([self.vel_hist, np.zeros((m, self.history, 3))])
-        self.vel_count = np.concatenate([self.vel_count, np.zeros(m, dtype=int)])
-        self.estimate = np.concatenate([self.estimate, p.mean(axis=1)])
-        self.velocity = np.concatenate([self.velocity, np.zeros((m, 3))])
-        self.last_pos = np.concatenate([self.last_pos, p.mean(axis=1)])
-        self.elapsed = np.concatenate([self.elapsed, np.zeros(m)])
-        if self._cov is not None:
-            self._cov = np.concatenate([self._cov, _spread(p, self.n)])
+        self.weights = np.concatenate([self.weights, np.full((m, self.n), 1.0 / self.n)])
+        self.updates = np.concatenate([self.updates, np.zeros(m, dtype=int)])
+        self._mean = self._cov = None
 
     def keep(self, mask: np.ndarray) -> None:
         self.particles = self.particles[mask]
-        self.vel_hist = self.vel_hist[mask]
-        self.vel_count = self.vel_count[mask]
-        self.estimate = self.estimate[mask]
-        self.velocity = self.velocity[mask]
-        self.last_pos = self.last_pos[mask]
-        self.elapsed = self.elapsed[mask]
-        if self._cov is not None:
-            self._cov = self._cov[mask]
-
-    def _mean_velocity(self) -> np.ndarray:
-        count = np.minimum(self.vel_count, self.history)
-        total = self.vel_hist.sum(axis=1)
-        return total / np.maximum(count, 1)[:, None]
+        self.weights = self.weights[mask]
+        self.updates = self.updates[mask]
+        self._mean = None if self._mean is None else self._mean[mask]
+        self._cov = None if self._cov is None else self._cov[mask]
 
     def predict(self, dt: float) -> None:
         if not len(self.particles):
             return
-        v = self._mean_velocity()
-        noise = self.rng.normal(scale=self.diffusion, size=self.particles.shape)
-        self.particles = self.particles + (v * dt)[:, None, :] + noise
-        self.estimate = self.estimate + v * dt
-        self.velocity = v
-        self.elapsed = self.elapsed + dt
-        self._cov = None  # every particle moved
+        if self._noise_dt != dt:
+            self._noise_L = _cholesky(process_noise(dt, self.q))
+            self._noise_dt = dt
+        p = self.particles
+        p[:, :, :3] += dt * p[:, :, 3:]
+        p += self.rng.normal(size=p.shape) @ self._noise_L.T
+        self._mean = self._cov = None
 
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         if not len(rows):
             return
-        p = self.particles[rows]  # (M, Np, 3)
-        d2 = ((p - z[:, None, :]) ** 2).sum(axis=-1)
-        w = np.exp(-0.5 * d2 / self.obs_var)
-        total = w.sum(axis=1)
-        dead = total <= 1e-300
-        m, n = w.shape
-        w[dead] = 1.0
-        w /= w.sum(axis=1, keepdims=True)
-        # systematic resampling, all tracks at once
-        cdf = np.cumsum(w, axis=1)
-        cdf[:, -1] = 1.0
-        u = (self.rng.random((m, 1)) + np.arange(n)[None, :]) / n
-        idx = np.empty((m, n), dtype=int)
-        for i in range(m):  # searchsorted has no batched form; M is small
-            idx[i] = np.searchsorted(cdf[i], u[i])
-        p = np.take_along_axis(p, idx[:, :, None], axis=1)
+        p = self.particles[rows]  # (M, Np, 6)
+        n = self.n
+        d = p[:, :, :3] - z[:, None, :]
+        d2 = (np.matmul(d, inv3_sym(R)) * d).sum(axis=-1)
+        best = d2.min(axis=1)
+        w = self.weights[rows] * np.exp(-0.5 * (d2 - best[:, None]))
+        total = w.sum(axis=1, keepdims=True)
+        w = np.where(total > 0, w / np.where(total > 0, total, 1.0), 1.0 / n)
+        dead = best > self.reseed_gate
+        low = (1.0 / (w**2).sum(axis=1) < self.resample_fraction * n) & ~dead
+        if low.any():
+            p[low] = self._resample(p[low], w[low])
+            w[low] = 1.0 / n
         if dead.any():
             self.reseeds += int(dead.sum())
-            p[dead] = z[dead][:, None, :] + _uniform_ball(
-                self.rng, (int(dead.sum()), n), self.init_radius
-            )
-        new_est = p.mean(axis=1)
-        vel = (new_est - self.last_pos[rows]) / np.maximum(self.elapsed[rows], 1e-6)[:, None]
-        hist = np.roll(self.vel_hist[rows], 1, axis=1)
-        hist[:, 0] = vel
-        self.vel_hist[rows] = hist
-        self.vel_count[rows] += 1
+            p[dead, :, :3] = self._draw_positions(z[dead], R[dead])
+            w[dead] = 1.0 / n
         self.particles[rows] = p
-        self.estimate[rows] = new_est
-        self.last_pos[rows] = new_est
-        self.elapsed[rows] = 0.0
-        self.velocity[rows] = self._mean_velocity()[rows]
-        if self._cov is not None:
-            self._cov[rows] = _spread(p, self.n)
+        self.weights[rows] = w
+        self.updates[rows] += 1
+        self._mean = self._cov = None
+
+    def _resample(self, p: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Systematic resampling of particle sets (M, Np, 6) with weights (M, Np), all at once
+        (one sorted search over the stacked cumulative weights: row i's span [i, i + 1)), then
+        the regularisation jitter."""
+        m, n = w.shape
+        _, cov = _moments(p, w)
+        cdf = np.cumsum(w, axis=1)
+        cdf[:, -1] = 1.0
+        cdf += np.arange(m)[:, None]
+        u = (self.rng.random((m, 1)) + np.arange(n)[None, :]) / n + np.arange(m)[:, None]
+        idx = np.searchsorted(cdf.ravel(), u.ravel()).reshape(m, n) - n * np.arange(m)[:, None]
+        p = np.take_along_axis(p, np.clip(idx, 0, n - 1)[:, :, None], axis=1)
+        if self.roughening > 0:
+            L = _cholesky(cov) * self.roughening
+            p += np.matmul(self.rng.normal(size=p.shape), L.transpose(0, 2, 1))
+        return p
+
+    def _estimates(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._mean is None:
+            self._mean, self._cov = _moments(self.particles, self.weights)
+        return self._mean, self._cov
 
     @property
     def position(self) -> np.ndarray:
-        return self.estimate
+        return self._estimates()[0][:, :3]
+
+    @property
+    def velocity(self) -> np.ndarray:
+        return self._estimates()[0][:, 3:]
 
     @property
     def position_cov(self) -> np.ndarray:
-        """Sample covariances of the particles (N, 3, 3); computed once after each prediction,
-        then kept up to date row-wise by update/add/keep."""
-        if self._cov is None:
-            self._cov = _spread(self.particles, self.n)
-        return self._cov
+        return self._estimates()[1][:, :3, :3]
 
     @property
     def velocity_cov(self) -> np.ndarray:
-        # finite difference of two estimates one frame period apart
-        return self.position_cov * (2.0 / self.dt**2)
+        return self._estimates()[1][:, 3:, 3:]

@@ -1,0 +1,448 @@
+"""The real-motion filter benchmark (the paper's Table 2 on real KITTI trajectories).
+
+Used by ``bench/bench_tracker.py real``. Two detection sources on the labelled KITTI tracking
+sequences (real trajectories, real ego-motion, positions in the moving camera-0 frame):
+
+``stereo``: detections made from the ground truth through a stereo error model measured on the
+    KITTI Stereo 2015 pairs with the project's default disparity map
+    (:func:`measure_stereo_model`: window-level disparity bias and spread per disparity bin,
+    piecewise linear between the bins), applied to each labelled car's centre of mass: disparity
+    ``d' = d + bias(d) + spread(d) * n`` -> depth ``z' = f B / d'`` along the pixel ray (lateral
+    error in proportion), plus the box noise, missed detections and false alarms of
+    :class:`DetectionModel` (rates stated there and printed). Each detection carries the
+    covariance the ranging reports (``stereo_depth_node.ranging.position_covariance`` with the
+    default RangingParams).
+``pointrcnn``: the real PointRCNN (LiDAR) detections of ``../shared/kitti/detections``.
+
+Scored with the project's evaluator (``eval_node.detection_metrics.precision_recall``: 3D
+localisation AP by centre distance, KITTI difficulties, as ``evaluate`` does) for the raw
+detections and the reported tracks of each filter; plus position error, lag (error along the
+car's relative motion) and velocity RMSE per relative-speed bucket of the tracks matched to a
+labelled car this frame.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+from eval_node.detection_metrics import precision_recall
+from eval_node.filter_comparison import trackset_to_objects
+from eval_node.motion_metrics import track_velocities
+from eval_node.tracking_metrics import evaluate_tracking_sequences
+from scipy.optimize import linear_sum_assignment
+from tracker_node.config import TrackerConfig
+from tracker_node.detection_files import detection_batch, read_detection_file
+from tracker_node.tracker import DetectionBatch, Tracker
+from vehicle_common.kitti import (
+    KittiObject,
+    alpha_from_rotation_y,
+    read_calib,
+    read_png,
+    read_tracking_labels,
+)
+
+KITTI = Path(__file__).resolve().parent.parent.parent / "shared" / "kitti"
+TRACKING = KITTI / "tracking" / "training"
+STEREO_2015 = KITTI / "stereo_2015" / "training"
+POINTRCNN = KITTI / "detections" / "pointrcnn_Car_val"
+#: The usual KITTI tracking validation split; the labelled sequences outside it tune, those in
+#: it (and 0005, the graph's real sequence) report.
+VAL_SPLIT = ("0001", "0006", "0008", "0010", "0012", "0013", "0014", "0015", "0016", "0018", "0019")
+GRAPH_SEQUENCE = "0005"
+FRAME_PERIOD = 0.1
+LEVELS = ("easy", "moderate", "hard")
+DISTANCES = (1.5, 3.0)
+SPEED_BUCKETS = (0.0, 2.0, 5.0, 10.0, 15.0, math.inf)
+MEAN_HWL = (1.53, 1.63, 3.88)
+
+
+def split_sequences() -> tuple[list[str], list[str]]:
+    """(tuning, reporting) sequences among the labelled ones, chosen up front: tuning = outside
+    the validation split and not 0005; reporting = the rest."""
+    seqs = sorted(p.stem for p in (TRACKING / "label_02").glob("*.txt"))
+    tune = [s for s in seqs if s not in VAL_SPLIT and s != GRAPH_SEQUENCE]
+    return tune, [s for s in seqs if s not in tune]
+
+
+# ----------------------------------------------------------------------------- stereo model
+
+
+@dataclass(frozen=True)
+class StereoErrorModel:
+    """Window-level disparity error [px] as a function of disparity: piecewise linear through
+    the measured bins (``disparity``: each bin's median ground-truth disparity), constant beyond
+    the first and last bin."""
+
+    disparity: tuple[float, ...]
+    bias_px: tuple[float, ...]
+    spread_px: tuple[float, ...]
+
+    def bias(self, d):
+        return np.interp(d, self.disparity, self.bias_px)
+
+    def spread(self, d):
+        return np.interp(d, self.disparity, self.spread_px)
+
+
+def measure_stereo_model(window: int = 16, verbose: bool = True) -> StereoErrorModel:
+    """Measure the default disparity map's error on the KITTI Stereo 2015 pairs, per window of
+    ``window`` px lying on one surface (ground-truth disparity 10-90th percentile within 10 % of
+    its median, at least a fifth of the window with ground truth: the LiDAR truth is sparse):
+    signed error of the window's median disparity against the median ground truth, binned by
+    ground-truth disparity; bias = median, spread = 1.4826 MAD of the bin."""
+    from stereo_depth_node.disparity import compute_disparity
+
+    errs, gts = [], []
+    for i in range(5):
+        name = f"{i:06d}_10.png"
+        left = read_png(STEREO_2015 / "image_2" / name)
+        right = read_png(STEREO_2015 / "image_3" / name)
+        gt = cv2.imread(str(STEREO_2015 / "disp_occ_0" / name), cv2.IMREAD_UNCHANGED) / 256.0
+        est = compute_disparity(left, right)
+        h, w = gt.shape
+        for y in range(0, h - window + 1, window):
+            for x in range(0, w - window + 1, window):
+                g = gt[y : y + window, x : x + window]
+                e = est[y : y + window, x : x + window]
+                ok = (g > 0) & (e > 0)
+                if ok.sum() < window * window // 5:
+                    continue
+                gm = float(np.median(g[ok]))
+                lo, hi = np.percentile(g[ok], [10, 90])
+                if hi - lo > 0.1 * gm:
+                    continue
+                errs.append(float(np.median(e[ok])) - gm)
+                gts.append(gm)
+    errs, gts = np.array(errs), np.array(gts)
+    edges = [0, 10, 15, 20, 30, 40, 60, 128]
+    centres, bias, spread = [], [], []
+    if verbose:
+        print(
+            f"stereo error model: default disparity map on KITTI Stereo 2015 pairs 0-4, "
+            f"{window}x{window} px windows on one surface ({len(errs)} windows)"
+        )
+        print("  GT disparity bin [px] | windows | bias (median) [px] | spread (1.4826 MAD) [px]")
+    for lo, hi in zip(edges, edges[1:], strict=False):
+        m = (gts >= lo) & (gts < hi)
+        if m.sum() < 10:
+            continue
+        e = errs[m]
+        med = float(np.median(e))
+        mad = 1.4826 * float(np.median(np.abs(e - med)))
+        centres.append(float(np.median(gts[m])))
+        bias.append(med)
+        spread.append(mad)
+        if verbose:
+            print(f"  {lo:3d}-{hi:3d}               | {m.sum():7d} | {med:+18.3f} | {mad:24.3f}")
+    model = StereoErrorModel(tuple(centres), tuple(bias), tuple(spread))
+    if verbose:
+        knots = ", ".join(
+            f"{d:.1f}: {b:+.2f}/{s:.2f}" for d, b, s in zip(centres, bias, spread, strict=True)
+        )
+        print(f"  model (piecewise linear, disparity px: bias/spread px): {knots}")
+    return model
+
+
+@dataclass(frozen=True)
+class DetectionModel:
+    """Rates of the simulated stereo detector (stated, not measured)."""
+
+    box_noise_px: float = 2.0  # [px] std of each 2D box edge; the centre ray moves by ~ that/sqrt2
+    centre_depth_std: float = 0.3  # [m] box-to-centre (visible surface -> centre) depth error
+    miss_rate: float = 0.1  # probability a labelled car is not detected in a frame
+    miss_rate_occluded: float = 0.3  # ... when the label says largely occluded (occluded >= 2)
+    false_alarms_per_frame: float = 0.2  # Poisson rate; uniform in the image, 5-50 m deep
+    min_box_height_px: float = 10.0  # labelled cars with smaller boxes are never detected
+
+
+@dataclass
+class SequenceData:
+    """One sequence's ground truth and detections (camera-0 frame)."""
+
+    name: str
+    gt: dict[int, list[KittiObject]]
+    P2: np.ndarray
+    frames: list[DetectionBatch]
+    det_gt_id: list[np.ndarray]  # per frame, the labelled track id of each detection (-1: none)
+    raw: dict[int, list[KittiObject]]  # the detections as KITTI result objects
+    errors: list[tuple[float, float, float]]  # (gt depth, measured - true depth, reported std)
+
+
+def _cars(objs):
+    return [o for o in objs if o.type == "Car" and o.location[2] > 0]
+
+
+def _to_objects(batch: DetectionBatch, frame: int) -> list[KittiObject]:
+    out = []
+    for i in range(len(batch)):
+        x, y, z = batch.position[i]
+        lwh = batch.size[i] if np.isfinite(batch.size[i]).all() else MEAN_HWL[::-1]
+        length, w, h = (float(v) for v in lwh)
+        yaw = float(batch.yaw[i]) if np.isfinite(batch.yaw[i]) else -np.pi / 2
+        out.append(
+            KittiObject(
+                type="Car",
+                alpha=alpha_from_rotation_y(yaw, x, z),
+                bbox=tuple(float(v) for v in batch.bbox[i]),
+                dimensions=(h, w, length),
+                location=(float(x), float(y + h / 2.0), float(z)),
+                rotation_y=yaw,
+                frame=frame,
+                score=float(batch.score[i]),
+            )
+        )
+    return out
+
+
+def stereo_sequence(
+    seq: str, model: StereoErrorModel, dm: DetectionModel, seed: int
+) -> SequenceData:
+    from stereo_depth_node.ranging import RangingParams, position_covariance
+    from stereo_depth_node.reprojection import StereoGeometry
+    from vehicle_common.box3d import projected_bbox
+
+    rng = np.random.default_rng(seed)
+    calib = read_calib(TRACKING / "calib" / f"{seq}.txt")
+    gt = read_tracking_labels(TRACKING / "label_02" / f"{seq}.txt")
+    geo = StereoGeometry.from_projections(calib.P2, calib.P3)
+    rparams = RangingParams()
+    f, fB = calib.fx, calib.fx * calib.baseline
+    off = calib.left_camera_offset
+    n_frames = max(gt) + 1
+    frames, ids, raw, errors = [], [], {}, []
+    for k in range(n_frames):
+        pos, cov, bbox, score, gid = [], [], [], [], []
+        for o in _cars(gt.get(k, [])):
+            if o.height_px < dm.min_box_height_px:
+                continue
+            miss = dm.miss_rate_occluded if o.occluded >= 2 else dm.miss_rate
+            if rng.random() < miss:
+                continue
+            c = o.centre_of_mass + off  # left optical frame
+            z = c[2]
+            d = fB / z
+            dm_ = max(d + float(model.bias(d)) + float(model.spread(d)) * rng.normal(), 0.5)
+            zm = fB / dm_ + rng.normal(scale=dm.centre_depth_std)
+            # the box centre's pixel moves with the box noise; the point moves along its ray
+            u = f * c[0] / z + calib.cx + rng.normal(scale=dm.box_noise_px / math.sqrt(2))
+            v = calib.fy * c[1] / z + calib.cy + rng.normal(scale=dm.box_noise_px / math.sqrt(2))
+            p = geo.backproject(u, v, zm)
+            pos.append(p - off)
+            R = position_covariance(u, v, zm, geo, rparams)
+            cov.append(R)
+            errors.append((z, zm - z, float(np.sqrt(R[2, 2]))))
+            bbox.append(np.array(o.bbox) + rng.normal(scale=dm.box_noise_px, size=4))
+            score.append(float(np.clip(0.9 - 0.1 * o.occluded + rng.normal(scale=0.05), 0, 1)))
+            gid.append(o.track_id)
+        for _ in range(rng.poisson(dm.false_alarms_per_frame)):
+            zf = rng.uniform(5.0, 50.0)
+            u = rng.uniform(50, 1190)
+            p = geo.backproject(u, geo.cy + f * 0.9 / zf, zf)  # on the road, centre 0.9 m up
+            b = projected_bbox(calib.P2, MEAN_HWL, p - off + [0, 0.75, 0], -np.pi / 2, (1242, 375))
+            if b is None:
+                continue
+            pos.append(p - off)
+            cov.append(position_covariance(u, geo.cy + f * 0.9 / zf, zf, geo, rparams))
+            bbox.append(np.array(b))
+            score.append(float(rng.uniform(0.2, 0.6)))
+            gid.append(-1)
+        batch = DetectionBatch.create(
+            np.array(pos).reshape(-1, 3),
+            covariance=np.array(cov).reshape(-1, 3, 3),
+            bbox=np.array(bbox).reshape(-1, 4),
+            score=np.array(score),
+        )
+        frames.append(batch)
+        ids.append(np.array(gid, dtype=int))
+        raw[k] = _to_objects(batch, k)
+    return SequenceData(seq, gt, calib.P2, frames, ids, raw, errors)
+
+
+def pointrcnn_sequence(seq: str) -> SequenceData:
+    calib = read_calib(TRACKING / "calib" / f"{seq}.txt")
+    gt = read_tracking_labels(TRACKING / "label_02" / f"{seq}.txt")
+    rows = read_detection_file(POINTRCNN / f"{seq}.txt")
+    rows = rows.select(rows.type_id == 2)
+    n_frames = max(max(gt), int(rows.frame.max()) if len(rows) else 0) + 1
+    frames, ids, raw = [], [], {}
+    for k in range(n_frames):
+        batch = detection_batch(rows.select(rows.frame == k))
+        # the labelled car each detection is (centre within 2 m, one-to-one)
+        cars = _cars(gt.get(k, []))
+        gid = np.full(len(batch), -1)
+        if len(cars) and len(batch):
+            g = np.array([o.centre_of_mass for o in cars])
+            dist = np.linalg.norm(batch.position[:, None] - g[None], axis=-1)
+            r, c = linear_sum_assignment(np.where(dist < 2.0, dist, 1e6))
+            for i, j in zip(r, c, strict=True):
+                if dist[i, j] < 2.0:
+                    gid[i] = cars[j].track_id
+        frames.append(batch)
+        ids.append(gid)
+        raw[k] = _to_objects(batch, k)
+    return SequenceData(seq, gt, calib.P2, frames, ids, raw, [])
+
+
+# ----------------------------------------------------------------------------- runs
+
+
+@dataclass
+class MotionStats:
+    """Per matched track row: position error, along-motion error, velocity error."""
+
+    pos_err: list
+    along: list  # [m] error along the car's relative motion (negative = behind), moving cars
+    lag: list  # [m] track minus its detection along the motion (negative = behind it)
+    lag_s: list  # [s] the same divided by the relative speed
+    vel_err: list
+    speed: list
+    mot: dict  # CLEAR-MOT totals (KITTI tracking rules, 2D IoU 0.5)
+
+
+def run_tracker(data: SequenceData, cfg: TrackerConfig, stats: MotionStats | None):
+    trk = Tracker(cfg, projection=data.P2)
+    gt_vel = track_velocities(data.gt, dt=FRAME_PERIOD, axes="xyz")
+    gt_pos = {(k, o.track_id): o.centre_of_mass for k, objs in data.gt.items() for o in _cars(objs)}
+    out = {}
+    for k, batch in enumerate(data.frames):
+        ts = trk.step(batch, k * FRAME_PERIOD)
+        # trackset_to_objects clips scores to [0, 1] (as the node publishes); PointRCNN scores
+        # are logits, so the tracks keep the tracker's own score for the AP ranking
+        objs = trackset_to_objects(ts, np.zeros(3), k, MEAN_HWL)
+        scores = ts.score[ts.state != 0]
+        out[k] = [o.with_(score=float(sc)) for o, sc in zip(objs, scores, strict=True)]
+        if stats is None:
+            continue
+        for i in np.nonzero(ts.det_index >= 0)[0]:
+            if ts.state[i] == 0:
+                continue
+            g = int(data.det_gt_id[k][ts.det_index[i]])
+            if g < 0 or (k, g) not in gt_pos:
+                continue
+            e = ts.position[i] - gt_pos[(k, g)]
+            stats.pos_err.append(float(np.linalg.norm(e)))
+            vg = gt_vel.get((k, g))
+            if vg is None:
+                continue
+            ve = ts.velocity[i] - vg
+            s = float(np.linalg.norm(vg[[0, 2]]))
+            stats.vel_err.append(float(np.linalg.norm(ve[[0, 2]])))
+            stats.speed.append(s)
+            if s > 3.0:
+                ed = ts.position[i] - batch.position[ts.det_index[i]]
+                lag = float(ed[[0, 2]] @ vg[[0, 2]]) / s
+                stats.along.append(float(e[[0, 2]] @ vg[[0, 2]]) / s)
+                stats.lag.append(lag)
+                stats.lag_s.append(lag / s)
+    return out
+
+
+def _ap_table(gt, preds: dict[str, dict]) -> dict[str, dict]:
+    res = {}
+    for name, pred in preds.items():
+        res[name] = {
+            (lvl, d): 100
+            * precision_recall(
+                gt, pred, criterion="centre_distance", threshold=d, difficulty=lvl
+            ).ap_r41
+            for lvl in LEVELS
+            for d in DISTANCES
+        }
+    return res
+
+
+def evaluate_split(datas: list[SequenceData], cfg: TrackerConfig, filters, motion=True):
+    """AP of raw detections and of each filter's tracks over the sequences, plus motion stats."""
+    gt, preds = {}, {"raw": {}}
+    stats, times = {}, {}
+    for data in datas:
+        for k, objs in data.gt.items():
+            gt[(data.name, k)] = objs
+        for k, objs in data.raw.items():
+            preds["raw"][(data.name, k)] = objs
+    gts = {data.name: data.gt for data in datas}
+    for flt in filters:
+        st = MotionStats([], [], [], [], [], [], {}) if motion else None
+        preds[flt] = {}
+        per_seq = {}
+        t0 = time.perf_counter()
+        for data in datas:
+            out = run_tracker(data, replace(cfg, filter=flt), st)
+            per_seq[data.name] = out
+            for k, objs in out.items():
+                preds[flt][(data.name, k)] = objs
+        times[flt] = time.perf_counter() - t0
+        if st is not None:
+            st.mot = evaluate_tracking_sequences(gts, per_seq, hota=False)["total"]
+        stats[flt] = st
+    return _ap_table(gt, preds), stats, times
+
+
+def print_ap(title: str, ap: dict) -> None:
+    print(f"\n{title}: 3D localisation AP (41-point, %) by centre distance")
+    head = " | ".join(f"{lvl[:3]} @{d:g}m" for d in DISTANCES for lvl in LEVELS)
+    print(f"| {'':8s} | {head} |")
+    for name, row in ap.items():
+        vals = " | ".join(f"{row[(lvl, d)]:9.1f}" for d in DISTANCES for lvl in LEVELS)
+        print(f"| {name:8s} | {vals} |")
+    sys.stdout.flush()
+
+
+def print_motion(stats: dict[str, MotionStats], times: dict[str, float]) -> None:
+    print("  tracks matched to a labelled car this frame (relative motion in the camera frame):")
+    edges = SPEED_BUCKETS
+    labels = [
+        f"{lo:g}-{hi:g}" if math.isfinite(hi) else f">={lo:g}"
+        for lo, hi in zip(edges, edges[1:], strict=False)
+    ]
+    print(
+        f"  {'filter':8s} | pos err mean/median [m] | along-motion err [m] | "
+        "lag behind detection [m] / [s] (speed > 3 m/s) | "
+        f"velocity RMSE [m/s] all | "
+        + " | ".join(f"{s} m/s (n)" for s in labels)
+        + " | MOTA / IDSW (2D IoU 0.5) | time [s]"
+    )
+    for flt, st in stats.items():
+        if st is None:
+            continue
+        pe, ve, sp = np.array(st.pos_err), np.array(st.vel_err), np.array(st.speed)
+        buckets = []
+        for lo, hi in zip(edges, edges[1:], strict=False):
+            m = (sp >= lo) & (sp < hi)
+            buckets.append(
+                f"{np.sqrt(np.mean(ve[m] ** 2)):5.2f} ({m.sum()})" if m.any() else "   - (0)"
+            )
+        along = np.mean(st.along) if st.along else math.nan
+        lag = np.mean(st.lag) if st.lag else math.nan
+        lag_s = np.mean(st.lag_s) if st.lag_s else math.nan
+        print(
+            f"  {flt:8s} | {pe.mean():.2f} / {np.median(pe):.2f}           | {along:+.2f}"
+            f"                | {lag:+.2f} / {lag_s:+.3f}"
+            f"                                  | {np.sqrt(np.mean(ve**2)):5.2f}"
+            f"                   | "
+            + " | ".join(buckets)
+            + f" | {100 * st.mot['mota']:5.1f} / {st.mot['idsw']} | {times[flt]:.1f}"
+        )
+    sys.stdout.flush()
+
+
+def print_covariance_check(datas: list[SequenceData]) -> None:
+    """The depth std the ranging reports against the depth error the model makes, per range."""
+    e = np.array([x for d in datas for x in d.errors])
+    print("  depth error of the stereo detections vs the std the ranging covariance reports:")
+    print("  range [m] | n | bias [m] | actual std [m] | actual RMS [m] | reported std [m]")
+    for lo, hi in ((0, 10), (10, 20), (20, 30), (30, 45), (45, 60), (60, 100)):
+        m = (e[:, 0] >= lo) & (e[:, 0] < hi)
+        if m.sum() < 5:
+            continue
+        err, rep = e[m, 1], e[m, 2]
+        print(
+            f"  {lo:3d}-{hi:3d}   | {m.sum():5d} | {err.mean():+.2f} | {err.std():.2f} | "
+            f"{np.sqrt(np.mean(err**2)):.2f} | {np.median(rep):.2f}"
+        )
