@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tracking_bringup import graph
+from tracking_bringup import graph, hosts
 from tracking_bringup.environment import PARAMS_FILE, graph_environment
 
 _PR_SET_PDEATHSIG = 1
@@ -298,12 +298,16 @@ def graph_processes(
     nodes: Sequence[graph.NodeSpec],
     params_file: str | os.PathLike | None = PARAMS_FILE,
     overrides: Sequence[str] = (),
+    graph_nodes: Sequence[graph.NodeSpec] | None = None,
 ) -> list[ProcessSpec]:
     """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings.
 
     The detector's subscriptions follow its ``backend`` parameter (file or override), and each
-    source node is told how many subscriptions to wait for on each of its topics."""
-    per_node: dict[str, list[str]] = {n.name: [] for n in nodes}
+    source node is told how many subscriptions to wait for on each of its topics, counted over
+    ``graph_nodes``: the whole graph, also the nodes other hosts run (default: ``nodes``).
+    Overrides of nodes that run elsewhere only inform those counts (the detector's backend)."""
+    graph_nodes = list(nodes if graph_nodes is None else graph_nodes)
+    per_node: dict[str, list[str]] = {n.name: [] for n in [*graph_nodes, *nodes]}
     for ov in overrides:
         target, sep, rest = ov.partition(".")
         if not sep or ":=" not in rest or target not in per_node:
@@ -312,12 +316,12 @@ def graph_processes(
                 + ", ".join(per_node)
             )
         per_node[target].append(rest)
-    nodes = graph.with_detector_backend(
-        list(nodes), _parameter(params_file, per_node, graph.DETECTOR.name, "backend", "cnn")
-    )
+    backend = _parameter(params_file, per_node, graph.DETECTOR.name, "backend", "cnn")
+    nodes = graph.with_detector_backend(list(nodes), backend)
+    whole = graph.with_detector_backend(graph_nodes, backend)
     for n in nodes:
         if n.source and n.wait_parameter:
-            counts = graph.expected_subscriptions(n, nodes)
+            counts = graph.expected_subscriptions(n, whole)
             spec = ",".join(f"{t}:{c}" for t, c in counts.items() if c)
             per_node[n.name].append(f"{n.wait_parameter}:={spec}")
     return [
@@ -354,10 +358,11 @@ def run_graph(
     ready_timeout: float = 60.0,
     echo: bool = False,
     announce=print,
+    env: dict[str, str] | None = None,
 ) -> int:
     """Run processes as a graph until a finishing node is done, Ctrl-C or SIGTERM.
     Returns the exit code: 0 on a clean run, 1 when a node died (named in the message)."""
-    launcher = GraphLauncher(processes, log_dir, ready_timeout=ready_timeout, echo=echo)
+    launcher = GraphLauncher(processes, log_dir, env=env, ready_timeout=ready_timeout, echo=echo)
     previous = {
         sig: signal.signal(sig, launcher.request_stop) for sig in (signal.SIGINT, signal.SIGTERM)
     }
@@ -410,13 +415,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="keep the graph up after the player finished (stop with Ctrl-C)",
     )
     parser.add_argument("--echo", action="store_true", help="print node output to the console")
+    hosts.add_arguments(parser)
     args = parser.parse_args(argv)
     if not Path(args.params).is_file():
         print(f"error: {args.params}: parameter file not found", file=sys.stderr)
         return 2
     try:
-        nodes = graph.by_name(args.nodes.split(",") if args.nodes else None)
-        processes = graph_processes(nodes, args.params, args.param)
+        plan = hosts.launch_plan(args)
+        nodes = graph.by_name(plan.nodes)
+        whole = graph.by_name(plan.graph_nodes)  # the player waits for nodes elsewhere too
+        overrides = [*plan.overrides, *args.param]
+        processes = graph_processes(nodes, args.params, overrides, graph_nodes=whole)
     except (ValueError, LaunchError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -426,6 +435,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         until_finished=not args.keep_running,
         ready_timeout=args.ready_timeout,
         echo=args.echo,
+        env=plan.discovery.environment(),
     )
 
 
