@@ -109,7 +109,6 @@ def _env(profile: str | None, peer: str) -> dict[str, str]:
         env.pop("ROS_STATIC_PEERS", None)
     else:
         env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_STATIC_PEERS=peer)
-    env.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
     env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
     return env
 
@@ -190,6 +189,82 @@ def bench_link(frames: int) -> None:
                 )
 
 
+def bench_graph(
+    frames: int, kitti_root: str | None, sequence: str, backend: str, outage: float
+) -> None:
+    from tracking_bringup.environment import PARAMS_FILE
+    from tracking_bringup.netns_link import (
+        cut_link_after,
+        frame_latencies,
+        launch_command,
+        run_two_host_graph,
+    )
+
+    with tempfile.TemporaryDirectory() as tmp:
+        if kitti_root:
+            root, last = Path(kitti_root), frames - 1
+        else:
+            from kitti_player_node.synthetic import generate_sequence
+
+            root, sequence, last = Path(tmp) / "data", "0000", frames - 1
+            generate_sequence(root, sequence=sequence, frames=frames, seed=3)
+        args = ["--params", str(PARAMS_FILE)]
+        for p in (
+            f"kitti_player.dataset_root:={root}",
+            f"kitti_player.sequence:='{sequence}'",
+            f"kitti_player.last_frame:={last}",
+            "kitti_player.lockstep:=true",
+            "kitti_player.lockstep_timeout:=30.0",
+            f"vehicle_detector.backend:={backend}",
+        ):
+            args += ["-p", p]
+        print(f"\nlockstep graph, {sequence} ({frames} frames, {backend} detector)")
+        print(f"{'run':28s} {'frames':>6s} {'frame latency med':>18s} {'max':>7s} {'MB/frame':>9s}")
+        with NetnsPair(tag=f"g{os.getpid() % 10000}") as pair:
+            bag1 = Path(tmp) / "bag_one"
+            one = args + ["-p", f"bag_recorder.output:={bag1}", "--log-dir", f"{tmp}/logs1"]
+            subprocess.run(pair.command(pair.a, launch_command(*one)), check=True, timeout=900)
+            bag2 = Path(tmp) / "bag_two"
+            result = run_two_host_graph(
+                pair,
+                args + ["-p", f"bag_recorder.output:={bag2}"],
+                Path(tmp) / "logs2",
+                timeout=900,
+            )
+            runs = [
+                ("one host (shared memory)", bag1, None),
+                ("two hosts (veth, UDP)", bag2, result),
+            ]
+            if outage > 0:
+                bag3, logs3, cut = Path(tmp) / "bag_cut", Path(tmp) / "logs3", {}
+                during = cut_link_after(logs3 / "a" / "kitti_player.log", "frame 9:", outage, cut)
+                res3 = run_two_host_graph(
+                    pair,
+                    args + ["-p", f"bag_recorder.output:={bag3}"],
+                    logs3,
+                    timeout=900,
+                    during=during,
+                )
+                summary = [
+                    ln.split("]: ")[-1]
+                    for ln in (logs3 / "a" / "kitti_player.log").read_text().splitlines()
+                    if "done:" in ln
+                ]
+                print(f"link down {outage:.1f} s after frame 9: player {summary}")
+                runs.append((f"two hosts, {outage:.0f} s outage", bag3, res3))
+            for name, bag, wire in runs:
+                lat = sorted(frame_latencies(bag))
+                mb = (
+                    f"{(wire['tx_bytes'] + wire['rx_bytes']) / frames / 1e6:9.2f}"
+                    if wire
+                    else "        -"
+                )
+                print(
+                    f"{name:28s} {len(lat):6d} {statistics.median(lat):18.3f} {lat[-1]:7.3f} {mb}",
+                    flush=True,
+                )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
@@ -198,6 +273,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--hz", type=float, default=10.0)
     parser.add_argument("--out", help=argparse.SUPPRESS)
+    parser.add_argument("--kitti-root", help="graph: a KITTI tracking root instead of synthetic")
+    parser.add_argument("--sequence", default="0005")
+    parser.add_argument("--outage", type=float, default=1.0, help="graph: link down (s), 0: no")
+    parser.add_argument("--detector", default="cnn", choices=("cnn", "oracle"))
     parser.add_argument(
         "--profile",
         action="append",
@@ -212,6 +291,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.what == "_sub":
         _subscriber(args.frames, args.out)
         return 0
+    # a domain of its own: nothing else on the machine sees the benchmark's graphs
+    os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))
     reason = namespaces_unavailable()
     if reason:
         print(f"error: {reason}", file=sys.stderr)
@@ -221,6 +302,12 @@ def main(argv: list[str] | None = None) -> int:
         PROFILES[name] = path
     if args.what in ("link", "all"):
         bench_link(args.frames)
+    if args.what in ("graph", "all"):
+        frames = args.frames
+        if args.kitti_root:
+            seq = Path(args.kitti_root) / "image_02" / args.sequence
+            frames = min(frames, len(list(seq.glob("*.png"))))
+        bench_graph(frames, args.kitti_root, args.sequence, args.detector, args.outage)
     return 0
 
 

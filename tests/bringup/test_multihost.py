@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import re
 import subprocess
-import threading
-import time
 from pathlib import Path
 
 import pytest
 from tracking_bringup.environment import PARAMS_FILE
 from tracking_bringup.netns_link import (
     NetnsPair,
+    cut_link_after,
+    frame_latencies,
     launch_command,
     namespaces_unavailable,
     run_two_host_graph,
@@ -136,28 +136,14 @@ def test_link_down_for_one_second_recovers(netns_pair, synthetic_root, tmp_path)
     resumes, every frame is tracked; the stall and any lockstep timeout are reported."""
     bag = tmp_path / "bag"
     log_a = tmp_path / "logs" / "a" / "kitti_player.log"
-    cut = {}
-
-    def cut_link(pair):
-        def worker():
-            deadline = time.monotonic() + 120
-            while time.monotonic() < deadline:
-                if log_a.is_file() and "frame 9:" in log_a.read_text():  # 10 frames out
-                    break
-                time.sleep(0.05)
-            pair.set_link(False)
-            cut["down"] = time.monotonic()
-            time.sleep(1.0)
-            pair.set_link(True)
-            cut["up"] = time.monotonic()
-
-        threading.Thread(target=worker, daemon=True).start()
+    cut: dict[str, float] = {}
+    during = cut_link_after(log_a, "frame 9:", 1.0, cut)  # 10 frames out, 2 to go
 
     result = run_two_host_graph(
         netns_pair,
         _overrides(synthetic_root, "0000", bag, "oracle"),
         tmp_path / "logs",
-        during=cut_link,
+        during=during,
     )
     assert "up" in cut, "the link was never cut"
     assert result["camera_exit"] == 0 and result["compute_exit"] == 0
@@ -167,3 +153,5 @@ def test_link_down_for_one_second_recovers(netns_pair, synthetic_root, tmp_path)
     # every frame tracked, unless lockstep timed out on it (then it is counted)
     assert len(tracks) + timeouts >= SYNTH_FRAMES
     assert timeouts == 0
+    # the frame in flight waited for the link: the outage hit the data flow, and was repaired
+    assert max(frame_latencies(bag)) >= 0.8

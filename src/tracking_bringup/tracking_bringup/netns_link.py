@@ -15,6 +15,7 @@ import json
 import os
 import shutil
 import subprocess
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -227,3 +228,41 @@ def run_two_host_graph(
         "rx_bytes": after["rx_bytes"] - before["rx_bytes"],
         "wall_s": elapsed,
     }
+
+
+def cut_link_after(log: Path, marker: str, seconds: float, cut: dict):
+    """A ``during`` callback for run_two_host_graph: once ``marker`` is in ``log`` (e.g. the
+    player's "frame 9:"), take the link down for ``seconds``; times go into ``cut``."""
+
+    def during(pair: NetnsPair) -> None:
+        def worker() -> None:
+            deadline = time.monotonic() + 300
+            while time.monotonic() < deadline:
+                if log.is_file() and marker in log.read_text():
+                    break
+                time.sleep(0.02)
+            pair.set_link(False)
+            cut["down"] = time.monotonic()
+            time.sleep(seconds)
+            pair.set_link(True)
+            cut["up"] = time.monotonic()
+
+        threading.Thread(target=worker, daemon=True).start()
+
+    return during
+
+
+def frame_latencies(bag: Path) -> list[float]:
+    """Per frame of a lockstep run's bag: ground truth received -> tracks received by the
+    recorder (s), both on the camera host: the graph's latency for one frame, link included."""
+    from rosbags.highlevel import AnyReader
+
+    seen: dict[str, dict[int, int]] = {"/kitti/ground_truth": {}, "/vehicles/tracks": {}}
+    with AnyReader([bag]) as reader:
+        conns = [c for c in reader.connections if c.topic in seen]
+        for conn, t, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+            seen[conn.topic][stamp] = t
+    gt, tracks = seen["/kitti/ground_truth"], seen["/vehicles/tracks"]
+    return [(tracks[k] - gt[k]) / 1e9 for k in sorted(gt) if k in tracks]
