@@ -2,15 +2,18 @@
 by a veth pair (tracking_bringup.netns_link; needs root and iproute2).
 
 Usage: sudo .venv/bin/python bench/bench_multihost.py [link|graph|all] [--frames N]
-       [--kitti-root DIR --sequence 0005]
+       [--kitti-root DIR --sequence 0005 --detector oracle] [--outage S] [--profile NAME=XML]
 
 ``link``: 10 Hz stereo (two 1242x375 rgb8 images per frame, as the player publishes them) from
 "host" a to "host" b, reliable QoS depth 5 as in the graph, for each transport profile (Fast DDS
-built-in transports; the project's multi-host UDP profile) on a plain veth and on an emulated
-gigabit LAN (``tc netem rate 1gbit delay 0.1ms``) and with 0.1 % packet loss: pairs delivered,
-latency (publish -> both images received; one clock, same machine), bytes/s on the link.
-``graph``: the lockstep graph split over the two hosts (player, tracker, recorder on a; detector
-and stereo on b) against the same graph on one host: frames/s, bytes per frame on the link.
+built-in transports; the project's multi-host UDP profile; the latter with the LOCALHOST
+discovery range) on the plain veth and on a 1 Gbit/s link (``tc tbf``; this kernel has no
+netem): pairs delivered, latency (publish -> both images received; one clock, same machine),
+bytes/s on the link, bytes sent per payload byte, datagrams dropped by a full receive buffer.
+``graph``: the lockstep graph on one host (in namespace a) and split over the two hosts (player,
+tracker, recorder on a; detector and stereo depth on b), and once more with the link down for
+``--outage`` seconds after frame 9: frames tracked, per-frame latency (ground truth -> tracks at
+the recorder), bytes per frame on the link.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tracking_bringup.dds import MULTIHOST_PROFILE
+from tracking_bringup.dds import MULTIHOST_PROFILE, DiscoverySettings
 from tracking_bringup.netns_link import NetnsPair, namespaces_unavailable
 
 WIDTH, HEIGHT = 1242, 375
@@ -97,37 +100,35 @@ def _subscriber(frames: int, out: str) -> None:
 # -- the benchmark -----------------------------------------------------------------------------
 
 
-def _env(profile: str | None, peer: str) -> dict[str, str]:
-    env = dict(os.environ)
+def _env(profile: str | None, peer: str, discovery_range: str) -> dict[str, str]:
+    """The probe's DDS environment: the launcher's "peers" settings (SUBNET range + the other
+    end as static peer), with ``profile`` (None: Fast DDS's built-in transports) and the
+    discovery range ``discovery_range``."""
+    env = DiscoverySettings("peers", (peer,)).environment()
     env.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
     if profile:
         env["FASTRTPS_DEFAULT_PROFILES_FILE"] = profile
-    if os.environ.get("BENCH_DISCOVERY") == "subnet_peers":
-        env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET", ROS_STATIC_PEERS=peer)
-    elif os.environ.get("BENCH_DISCOVERY") == "subnet":
-        env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET")
-        env.pop("ROS_STATIC_PEERS", None)
-    else:
-        env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_STATIC_PEERS=peer)
-    env["RMW_IMPLEMENTATION"] = "rmw_fastrtps_cpp"
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = discovery_range
     return env
 
 
-def link_run(pair: NetnsPair, profile: str | None, frames: int, hz: float = 10.0) -> dict:
+def link_run(
+    pair: NetnsPair, profile: str | None, frames: int, discovery_range: str, hz: float = 10.0
+) -> dict:
     """One probe run a -> b; returns delivery, latency and link bytes."""
     me = [sys.executable, str(Path(__file__).resolve())]
     with tempfile.TemporaryDirectory() as tmp:
         out = str(Path(tmp) / "sub.json")
         sub = subprocess.Popen(
             pair.command(pair.b, [*me, "_sub", "--frames", str(frames), "--out", out]),
-            env=_env(profile, pair.addr_a),
+            env=_env(profile, pair.addr_a, discovery_range),
         )
         before = pair.link_bytes(pair.a)
         err0 = pair.udp_errors(pair.b)
         t0 = time.monotonic()
         pub = subprocess.run(
             pair.command(pair.a, [*me, "_pub", "--frames", str(frames), "--hz", str(hz)]),
-            env=_env(profile, pair.addr_b),
+            env=_env(profile, pair.addr_b, discovery_range),
             check=False,
             timeout=frames / hz + 120,
         )
@@ -160,7 +161,13 @@ LINKS = {
     "veth": (),
     "1 Gbit/s (tbf)": ("tbf", "rate", "1gbit", "burst", "256k", "latency", "20ms"),
 }
-PROFILES = {"Fast DDS built-in": None, "multihost profile": str(MULTIHOST_PROFILE)}
+#: name: (Fast DDS profile or None for the built-in transports, discovery range); the launcher's
+#: "peers" mode is SUBNET + static peers; LOCALHOST + static peers is shown for the record
+PROFILES = {
+    "Fast DDS built-in": (None, "SUBNET"),
+    "multihost profile": (str(MULTIHOST_PROFILE), "SUBNET"),
+    "multihost, LOCALHOST": (str(MULTIHOST_PROFILE), "LOCALHOST"),
+}
 
 
 def bench_link(frames: int) -> None:
@@ -174,8 +181,8 @@ def bench_link(frames: int) -> None:
         for link, netem in LINKS.items():
             for ns in (pair.a, pair.b):
                 pair.qdisc(ns, *netem)
-            for name, profile in PROFILES.items():
-                r = link_run(pair, profile, frames)
+            for name, (profile, discovery_range) in PROFILES.items():
+                r = link_run(pair, profile, frames, discovery_range)
 
                 def fmt(v):
                     return f"{v:8.1f}" if v is not None else "     n/a"
@@ -299,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     for item in args.profile:
         name, _, path = item.partition("=")
-        PROFILES[name] = path
+        PROFILES[name] = (path, "SUBNET")
     if args.what in ("link", "all"):
         bench_link(args.frames)
     if args.what in ("graph", "all"):
