@@ -197,7 +197,12 @@ def bench_link(frames: int) -> None:
 
 
 def bench_graph(
-    frames: int, kitti_root: str | None, sequence: str, backend: str, outage: float
+    frames: int,
+    kitti_root: str | None,
+    sequence: str,
+    backend: str,
+    outage: float,
+    transport_profile: str | None = None,
 ) -> None:
     from tracking_bringup.environment import PARAMS_FILE
     from tracking_bringup.netns_link import (
@@ -225,6 +230,7 @@ def bench_graph(
             f"vehicle_detector.backend:={backend}",
         ):
             args += ["-p", p]
+        two = ["--transport-profile", transport_profile] if transport_profile else []
         print(f"\nlockstep graph, {sequence} ({frames} frames, {backend} detector)")
         print(f"{'run':28s} {'frames':>6s} {'frame latency med':>18s} {'max':>7s} {'MB/frame':>9s}")
         with NetnsPair(tag=f"g{os.getpid() % 10000}") as pair:
@@ -234,7 +240,7 @@ def bench_graph(
             bag2 = Path(tmp) / "bag_two"
             result = run_two_host_graph(
                 pair,
-                args + ["-p", f"bag_recorder.output:={bag2}"],
+                [*args, *two, "-p", f"bag_recorder.output:={bag2}"],
                 Path(tmp) / "logs2",
                 timeout=900,
             )
@@ -247,7 +253,7 @@ def bench_graph(
                 during = cut_link_after(logs3 / "a" / "kitti_player.log", "frame 9:", outage, cut)
                 res3 = run_two_host_graph(
                     pair,
-                    args + ["-p", f"bag_recorder.output:={bag3}"],
+                    [*args, *two, "-p", f"bag_recorder.output:={bag3}"],
                     logs3,
                     timeout=900,
                     during=during,
@@ -282,6 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", help=argparse.SUPPRESS)
     parser.add_argument("--kitti-root", help="graph: a KITTI tracking root instead of synthetic")
     parser.add_argument("--sequence", default="0005")
+    parser.add_argument("--transport-profile", help="graph: Fast DDS profile of the two hosts")
     parser.add_argument("--outage", type=float, default=1.0, help="graph: link down (s), 0: no")
     parser.add_argument("--detector", default="cnn", choices=("cnn", "oracle"))
     parser.add_argument(
@@ -314,7 +321,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.kitti_root:
             seq = Path(args.kitti_root) / "image_02" / args.sequence
             frames = min(frames, len(list(seq.glob("*.png"))))
-        bench_graph(frames, args.kitti_root, args.sequence, args.detector, args.outage)
+        bench_graph(
+            frames,
+            args.kitti_root,
+            args.sequence,
+            args.detector,
+            args.outage,
+            args.transport_profile,
+        )
     return 0
 
 
