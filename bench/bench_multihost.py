@@ -226,7 +226,6 @@ def bench_graph(
             f"kitti_player.sequence:='{sequence}'",
             f"kitti_player.last_frame:={last}",
             "kitti_player.lockstep:=true",
-            "kitti_player.lockstep_timeout:=30.0",
             f"vehicle_detector.backend:={backend}",
         ):
             args += ["-p", p]
