@@ -429,6 +429,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, LaunchError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    elsewhere = [n.name for n in whole if n not in nodes]
+    if elsewhere and any(n.source for n in nodes):
+        print(f"expecting on other hosts: {', '.join(elsewhere)} (the player waits for them)")
     return run_graph(
         processes,
         args.log_dir,

@@ -147,11 +147,6 @@ class NetnsPair:
         return {k: table.get(k, 0) for k in ("InErrors", "RcvbufErrors", "SndbufErrors")}
 
 
-#: the split the multi-host test and benchmark use: camera host a, compute host b
-CAMERA_HOST = ("kitti_player", "vehicle_tracker", "bag_recorder")
-COMPUTE_HOST = ("vehicle_detector", "stereo_depth")
-
-
 def launch_command(*args: str) -> list[str]:
     """``stereo_tracking_launch`` of this interpreter's environment with ``args``."""
     from tracking_bringup.launcher import resolve_executable
@@ -166,34 +161,20 @@ def run_two_host_graph(
     timeout: float = 300.0,
     during=None,
 ) -> dict:
-    """The lockstep graph split over the pair: :data:`COMPUTE_HOST` in b, :data:`CAMERA_HOST`
-    in a, each started by its own ``stereo_tracking_launch`` with ``--discovery peers`` and
-    ``launch_args`` (parameters, overrides). Runs until the player is done (``during(pair)`` is
-    called meanwhile, e.g. to cut the link), then stops host b. Returns the exit codes, the
-    bytes a sent and received on the link, and the wall time."""
+    """The lockstep graph split over the pair by the host profiles of the parameter file
+    (``launch_args`` must name one that has them, e.g. the shipped one, with ``--params``):
+    ``--host compute`` (detector, stereo depth) in b, ``--host camera`` (player, tracker,
+    recorder) in a, each by its own ``stereo_tracking_launch`` with the other as static peer.
+    Runs until the player is done (``during(pair)`` is called meanwhile, e.g. to cut the link),
+    then stops host b. Returns the exit codes, the bytes a sent and received on the link, and
+    the wall time."""
     log_dir = Path(log_dir)
     log_dir.mkdir(parents=True, exist_ok=True)
-    common = ["--graph", ",".join((*CAMERA_HOST, *COMPUTE_HOST)), "--discovery", "peers"]
     compute_cmd = launch_command(
-        "--nodes",
-        ",".join(COMPUTE_HOST),
-        "--peers",
-        pair.addr_a,
-        "--keep-running",
-        "--log-dir",
-        str(log_dir / "b"),
-        *common,
-        *launch_args,
+        "--host", "compute", "--peers", pair.addr_a, "--log-dir", str(log_dir / "b"), *launch_args
     )
     camera_cmd = launch_command(
-        "--nodes",
-        ",".join(CAMERA_HOST),
-        "--peers",
-        pair.addr_b,
-        "--log-dir",
-        str(log_dir / "a"),
-        *common,
-        *launch_args,
+        "--host", "camera", "--peers", pair.addr_b, "--log-dir", str(log_dir / "a"), *launch_args
     )
     before = pair.link_bytes(pair.a)
     t0 = time.monotonic()
