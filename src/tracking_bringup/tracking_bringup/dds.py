@@ -58,7 +58,9 @@ class DiscoverySettings:
         if bad:
             raise DdsSettingsError(f"peers: not an address or host name: {', '.join(bad)}")
         if self.mode == "peers" and not self.peers:
-            raise DdsSettingsError("peers: discovery 'peers' needs at least one peer address (--peers A,B)")
+            raise DdsSettingsError(
+                "peers: discovery 'peers' needs at least one peer address (--peers A,B)"
+            )
         if self.mode == "localhost" and self.peers:
             raise DdsSettingsError("peers: given with discovery 'localhost' (use subnet or peers)")
         if self.profile is not None and not os.path.isfile(self.profile):
