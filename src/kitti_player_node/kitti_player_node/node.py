@@ -75,6 +75,10 @@ class PlayerParameters:
     # subscriptions (the process launcher sets it from the graph description); relative topic
     # names are resolved in the node's namespace
     wait_for_topics: str = ""
+    # s to wait after every expected subscription matched, before the first frame: across hosts
+    # a remote reader may match the player's writer later than the writer matched it, and a
+    # volatile reader drops what arrived before (README, "Across machines"); 0 on one host
+    match_settle_time: float = param(0.0, low=0.0)
     exit_when_done: bool = True
 
 
@@ -136,6 +140,7 @@ class KittiPlayerNode(Node):
         self._started = False
         self._summary_logged = False
         self._last_wait_log = 0.0
+        self._matched_at: float | None = None
         self._expected = {
             self.resolve_topic_name(topic): n
             for topic, n in parse_topic_counts(p["wait_for_topics"]).items()
@@ -189,6 +194,10 @@ class KittiPlayerNode(Node):
                         f"waiting for subscribers: left image {have}/{want}"
                         + (f", not yet matched on {', '.join(unmatched)}" if unmatched else "")
                     )
+                self._matched_at = None
+                return
+            self._matched_at = self._matched_at or now
+            if now - self._matched_at < float(self.params["match_settle_time"]):
                 return
             self._started = True
         timeouts = self.scheduler.stats.lockstep_timeouts

@@ -159,10 +159,13 @@ class StereoDepthNode(Node):
         if self.publish_points:
             self.pub_points = self.create_publisher(PointCloud2, TOPIC_POINTS, 5)
         self.pub_det3d = self.create_publisher(VehicleDetection3DArray, TOPIC_DETECTIONS_3D, 10)
-        self.create_subscription(Image, TOPIC_LEFT, lambda m: self._on_image("left", m), 5)
-        self.create_subscription(Image, TOPIC_RIGHT, lambda m: self._on_image("right", m), 5)
+        # camera infos first: the executor runs ready callbacks in creation order, so a frame's
+        # CameraInfo that arrives with its images is read before the pair is matched (else the
+        # first frame was skipped for "no CameraInfo yet" in some runs)
         self.create_subscription(CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, 5)
         self.create_subscription(CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, 5)
+        self.create_subscription(Image, TOPIC_LEFT, lambda m: self._on_image("left", m), 5)
+        self.create_subscription(Image, TOPIC_RIGHT, lambda m: self._on_image("right", m), 5)
         self.create_subscription(
             VehicleDetection2DArray,
             TOPIC_DETECTIONS_2D,

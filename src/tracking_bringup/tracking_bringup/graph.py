@@ -153,20 +153,25 @@ def parameter_value(params_file, overrides: list[str], node: str, name: str, def
 
 
 def plan(
-    nodes: list[NodeSpec], params_file=None, overrides: dict[str, list[str]] | None = None
+    nodes: list[NodeSpec],
+    params_file=None,
+    overrides: dict[str, list[str]] | None = None,
+    graph_nodes: list[NodeSpec] | None = None,
 ) -> list[tuple[NodeSpec, dict[str, str]]]:
     """The graph to start: each node (the detector's subscriptions following its ``backend``
     parameter, from ``overrides[node]`` or the parameter file) with the parameters the
-    launchers set on it (a source's ``wait_for_topics``)."""
+    launchers set on it (a source's ``wait_for_topics``, counted over ``graph_nodes``: the whole
+    graph, also the nodes other hosts run; default ``nodes``)."""
     overrides = overrides or {}
     backend = parameter_value(
         params_file, overrides.get(DETECTOR.name, []), DETECTOR.name, "backend", "cnn"
     )
     nodes = with_detector_backend(list(nodes), str(backend))
+    whole = nodes if graph_nodes is None else with_detector_backend(list(graph_nodes), backend)
     out = []
     for n in nodes:
         extra = {}
         if n.source and n.wait_parameter:
-            extra[n.wait_parameter] = wait_for_topics_value(n, nodes)
+            extra[n.wait_parameter] = wait_for_topics_value(n, whole)
         out.append((n, extra))
     return out

@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tracking_bringup import graph
+from tracking_bringup import graph, hosts
 from tracking_bringup.environment import PARAMS_FILE, graph_environment
 from vehicle_common import topics
 
@@ -306,14 +306,18 @@ def graph_processes(
     params_file: str | os.PathLike | None = PARAMS_FILE,
     overrides: Sequence[str] = (),
     namespace: str = "",
+    graph_nodes: Sequence[graph.NodeSpec] | None = None,
 ) -> list[ProcessSpec]:
     """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings.
 
     The detector's subscriptions follow its ``backend`` parameter (file or override), and each
     source node is told how many subscriptions to wait for on each of its topics
-    (:func:`graph.plan`, as the ROS launch file). ``namespace`` moves the whole graph; the
+    (:func:`graph.plan`, as the ROS launch file), counted over ``graph_nodes``: the whole graph,
+    also the nodes other hosts run (default: ``nodes``); overrides of nodes that run elsewhere
+    only inform those counts (the detector's backend). ``namespace`` moves the whole graph; the
     specs' topics are the resolved names."""
-    per_node: dict[str, list[str]] = {n.name: [] for n in nodes}
+    graph_nodes = list(nodes if graph_nodes is None else graph_nodes)
+    per_node: dict[str, list[str]] = {n.name: [] for n in [*graph_nodes, *nodes]}
     for ov in overrides:
         target, sep, rest = ov.partition(".")
         if not sep or ":=" not in rest or target not in per_node:
@@ -323,7 +327,7 @@ def graph_processes(
             )
         per_node[target].append(rest)
     out = []
-    for n, extra in graph.plan(list(nodes), params_file, per_node):
+    for n, extra in graph.plan(list(nodes), params_file, per_node, graph_nodes):
         argv_overrides = per_node[n.name] + [f"{k}:={v}" for k, v in extra.items()]
         out.append(
             ProcessSpec(
@@ -345,10 +349,11 @@ def run_graph(
     ready_timeout: float = 60.0,
     echo: bool = False,
     announce=print,
+    env: dict[str, str] | None = None,
 ) -> int:
     """Run processes as a graph until a finishing node is done, Ctrl-C or SIGTERM.
     Returns the exit code: 0 on a clean run, 1 when a node died (named in the message)."""
-    launcher = GraphLauncher(processes, log_dir, ready_timeout=ready_timeout, echo=echo)
+    launcher = GraphLauncher(processes, log_dir, env=env, ready_timeout=ready_timeout, echo=echo)
     previous = {
         sig: signal.signal(sig, launcher.request_stop) for sig in (signal.SIGINT, signal.SIGTERM)
     }
@@ -404,22 +409,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="keep the graph up after the player finished (stop with Ctrl-C)",
     )
     parser.add_argument("--echo", action="store_true", help="print node output to the console")
+    hosts.add_arguments(parser)
     args = parser.parse_args(argv)
     if not Path(args.params).is_file():
         print(f"error: {args.params}: parameter file not found", file=sys.stderr)
         return 2
     try:
-        nodes = graph.by_name(args.nodes.split(",") if args.nodes else None)
-        processes = graph_processes(nodes, args.params, args.param, args.namespace)
+        plan = hosts.launch_plan(args)
+        nodes = graph.by_name(plan.nodes)
+        whole = graph.by_name(plan.graph_nodes)  # the player waits for nodes elsewhere too
+        overrides = [*plan.overrides, *args.param]
+        processes = graph_processes(
+            nodes, args.params, overrides, args.namespace, graph_nodes=whole
+        )
     except (ValueError, LaunchError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    elsewhere = [n.name for n in whole if n not in nodes]
+    if elsewhere and any(n.source for n in nodes):
+        print(f"expecting on other hosts: {', '.join(elsewhere)} (the player waits for them)")
     return run_graph(
         processes,
         args.log_dir,
         until_finished=not args.keep_running,
         ready_timeout=args.ready_timeout,
         echo=args.echo,
+        env=plan.discovery.environment(),
     )
 
 
