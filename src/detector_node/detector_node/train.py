@@ -162,6 +162,16 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="weight the orientation loss by 1/sqrt(bin frequency) of the training boxes",
     )
+    p.add_argument(
+        "--orientation-weight", type=float, default=1.0, help="weight of the orientation loss"
+    )
+    p.add_argument(
+        "--ema",
+        type=float,
+        default=0.0,
+        help="decay of an exponential moving average of the weights (e.g. 0.995; 0 = off); "
+        "validation, best.pt and final.pt then use the averaged weights",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
     p.add_argument("--num-threads", type=int, default=2, help="torch CPU threads")
@@ -275,7 +285,7 @@ def _train(args: argparse.Namespace) -> int:
     )
     print(mix.summary(), flush=True)
     epoch_samples = args.epoch_samples or n_train
-    weights = LossWeights()
+    weights = LossWeights(orientation=args.orientation_weight)
     if args.balance_orientation:
         bins = np.concatenate([x.bins for s in sources for x in s.samples])
         counts = np.bincount(bins[bins >= 0], minlength=4)
@@ -289,6 +299,12 @@ def _train(args: argparse.Namespace) -> int:
     opt = torch.optim.Adam(model.parameters(), lr=args.lr, betas=(0.9, 0.999))
     if args.resume and "optimizer" in state:
         opt.load_state_dict(state["optimizer"])
+    ema = None
+    if args.ema:
+        from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+        ema = AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(args.ema), use_buffers=True)
+    eval_model = ema.module if ema is not None else model
     args.output.mkdir(parents=True, exist_ok=True)
     log_path = args.output / "train_log.jsonl"
     train_start = time.time()
@@ -322,6 +338,8 @@ def _train(args: argparse.Namespace) -> int:
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
+            if ema is not None:
+                ema.update_parameters(model)
             nb += 1
             for k, v in {"loss": loss.item(), **terms}.items():
                 sums[k] = sums.get(k, 0.0) + v
@@ -334,7 +352,7 @@ def _train(args: argparse.Namespace) -> int:
             "elapsed_s": round(time.time() - train_start, 1),
         }
         if val_samples:
-            r50, r70 = validate(model, val_samples, device)
+            r50, r70 = validate(eval_model, val_samples, device)
             entry.update(
                 ap50=round(r50.ap, 4),
                 ap70=round(r70.ap, 4),
@@ -348,13 +366,16 @@ def _train(args: argparse.Namespace) -> int:
         extra = {"epoch": epoch, "history": json.dumps(history), "seed": args.seed}
         if score >= best_ap:
             best_ap = score
-            save_checkpoint(args.output / "best.pt", model, {**extra, "metrics": json.dumps(entry)})
+            save_checkpoint(
+                args.output / "best.pt", eval_model, {**extra, "metrics": json.dumps(entry)}
+            )
         save_checkpoint(
             args.output / "last.pt",
             model,
             {**extra, "best_ap": best_ap, "optimizer": opt.state_dict()},
         )
-    save_checkpoint(args.output / "final.pt", model, {"epoch": args.epochs - 1, "seed": args.seed})
+    final = {"epoch": args.epochs - 1, "seed": args.seed}
+    save_checkpoint(args.output / "final.pt", eval_model, final)
     print(
         f"done: {time.time() - train_start:.1f} s of training, best {best_ap:.4f}, "
         f"checkpoints in {args.output}",
