@@ -13,7 +13,7 @@ from .model import DetectorConfig, YoloV2Passthrough
 def _shipped_checkpoint() -> Path:
     """The shipped checkpoint: ``src/detector_node/models/`` in the source tree (editable
     install), else ``share/detector_node/models/`` of a colcon/ament install."""
-    source = Path(__file__).resolve().parent.parent / "models" / "tiny_synthetic.pt"
+    source = Path(__file__).resolve().parent.parent / "models" / "tiny_kitti.pt"
     if source.is_file():
         return source
     try:
@@ -24,7 +24,8 @@ def _shipped_checkpoint() -> Path:
         return source
 
 
-#: The checkpoint shipped in the repository (trained on synthetic KITTI-format sequences).
+#: The checkpoint shipped in the repository: the tiny model pre-trained on synthetic sequences and
+#: fine-tuned on real KITTI frames (model card: docs/detector.md).
 SHIPPED_CHECKPOINT = _shipped_checkpoint()
 FORMAT_VERSION = 1
 
