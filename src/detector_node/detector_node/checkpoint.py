@@ -20,7 +20,7 @@ def _shipped_checkpoint() -> Path:
         from ament_index_python.packages import get_package_share_directory
 
         return Path(get_package_share_directory("detector_node")) / "models" / source.name
-    except (ImportError, LookupError):
+    except (ImportError, LookupError, OSError):  # OSError: AMENT_PREFIX_PATH unset
         return source
 
 

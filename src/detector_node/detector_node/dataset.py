@@ -1,8 +1,11 @@
 """Training/validation data from KITTI object (image_2/label_2) and tracking (image_02/label_02)
-layouts, read through the player's KITTI reader; resizing, targets and augmentation.
+layouts, read through the player's KITTI label reader (left images and labels only): frame
+selection, labels -> :class:`Sample`, resizing (augmentation: :mod:`detector_node.augmentation`).
 
 A data source is written ``ROOT`` (every sequence of a tracking layout, or every frame of an
-object layout) or ``ROOT:SEQ,SEQ`` (selected tracking sequences). Objects whose type is in
+object layout), ``ROOT:SEQ,SEQ`` (selected tracking sequences) or ``ROOT:IDS`` (object frames by
+id and inclusive id range, e.g. ``ROOT:0-59,80-100``); training sources may add ``@WEIGHT`` (the
+sampling weight, :func:`parse_weighted_source`). Objects whose type is in
 ``positive_types`` (default Car and Van) are positives; DontCare regions are kept apart so the
 loss does not penalise detections there as background; other types are background.
 """
@@ -135,12 +138,9 @@ def sources_from_args(specs: list[str]) -> list[FrameRef]:
     return refs
 
 
-#: KITTI's placeholder for "no observation angle" (2D-only labels); any alpha below -pi is unknown.
-UNKNOWN_ALPHA = -10.0
-
-
 def label_bin(alpha: float) -> int:
-    """Orientation bin of a label's alpha, -1 for the 'unknown' placeholder (alpha < -pi)."""
+    """Orientation bin of a label's alpha, -1 for KITTI's 'unknown' placeholder -10 (any alpha
+    below -pi)."""
     return -1 if alpha < -math.pi - 1e-6 else alpha_to_bin(alpha)
 
 
