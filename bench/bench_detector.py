@@ -1,15 +1,19 @@
 """Benchmark of the 2D vehicle detector: accuracy and CPU inference time.
 
 Prints, for the shipped (or a given) checkpoint:
-- on a held-out synthetic sequence (generated here with a seed not used for training, or given
-  with --synthetic ROOT:SEQ) and on the 16 real frames of ../shared/kitti sequence 0005:
-  2D AP at IoU 0.5 and 0.7 (eval_node.detection_metrics: KITTI devkit AP_R40 per difficulty, and
-  the detector's own all-boxes VOC AP), orientation accuracy over matched detections (IoU >= 0.5)
-  and its 4x4 confusion matrix (rows: true bin, columns: predicted bin; bins 0/45/90/135 deg);
+- on the detector's fixed real validation split (detector_node.real_split: ../shared/kitti
+  tracking 0005, 16 frames, and object frames 000060-000079; never trained on), on each of its two
+  parts, and on a held-out synthetic sequence (generated here with a seed not used for training,
+  or given with --synthetic ROOT:SEQ): 2D AP at IoU 0.5 and 0.7 (eval_node.detection_metrics:
+  KITTI devkit AP_R40 per difficulty, and the detector's own all-boxes VOC AP), orientation
+  accuracy over matched detections (IoU >= 0.5) and its 4x4 confusion matrix (rows: true bin,
+  columns: predicted bin; bins 0/45/90/135 deg), with the majority-bin baseline and the
+  balanced accuracy beside it;
 - the median inference time (preprocessing + network + decoding) on a 1242x375 frame for the
   tiny and the full configuration, torch threads = 2, 20 runs after 3 warm-up runs, and the ratio.
 
 Usage: python bench/bench_detector.py [--checkpoint PT] [--synthetic ROOT:SEQ] [--threads 2]
+       [--skip-synthetic] [--skip-timing] [--json FILE]
 """
 
 from __future__ import annotations
@@ -24,23 +28,25 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from detector_node.dataset import frames_from_source
+from detector_node.dataset import frames_from_source, label_bin
 from detector_node.inference import CnnDetector
 from detector_node.model import YoloV2Passthrough, preset
+from detector_node.real_split import val_sources
 from detector_node.validation import FrameResult, evaluate_frames
 from vehicle_common.kitti import KittiObject, read_png
-from vehicle_common.orientation_bins import BIN_CENTRES_DEG, alpha_to_bin
+from vehicle_common.orientation_bins import BIN_CENTRES_DEG
 
 REPO = Path(__file__).resolve().parent.parent
-SHARED_0005 = REPO.parent / "shared" / "kitti" / "tracking" / "training"
+SHARED_KITTI = REPO.parent / "shared" / "kitti"
 HELDOUT_SEED = 1000
 
 
-def evaluate(detector: CnnDetector, spec: str, label: str) -> dict:
-    """Run the detector over every frame of a data source and score it."""
+def evaluate(detector: CnnDetector, specs: list[str], label: str) -> dict:
+    """Run the detector over every frame of some data sources and score it."""
     from eval_node.detection_metrics import detection_ap_2d, orientation_accuracy
 
-    refs = frames_from_source(spec)
+    refs = [r for spec in specs for r in frames_from_source(spec)]
+    spec = " + ".join(specs)
     gt, pred, simple = {}, {}, []
     types = detector.config.positive_types
     for i, ref in enumerate(refs):
@@ -62,7 +68,7 @@ def evaluate(detector: CnnDetector, spec: str, label: str) -> dict:
                 det_scores=np.array([d.score for d in dets]),
                 det_bins=np.array([d.orientation_bin for d in dets], dtype=np.int64),
                 gt_boxes=np.array([o.bbox for o in pos]).reshape(-1, 4),
-                gt_bins=np.array([alpha_to_bin(o.alpha) for o in pos], dtype=np.int64),
+                gt_bins=np.array([label_bin(o.alpha) for o in pos], dtype=np.int64),
                 dontcare=np.array([o.bbox for o in ref.objects if o.is_dontcare]).reshape(-1, 4),
             )
         )
@@ -132,6 +138,7 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--score-threshold", type=float, default=0.05)
     p.add_argument("--skip-timing", action="store_true")
+    p.add_argument("--skip-synthetic", action="store_true", help="real validation frames only")
     p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
@@ -142,18 +149,23 @@ def main() -> None:
         f"{c.depth}), input {c.input_width}x{c.input_height}, torch threads {args.threads}"
     )
     results = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        spec = args.synthetic
-        if not spec:
-            from kitti_player_node.synthetic import generate_sequence
-
-            generate_sequence(Path(tmp), "0100", args.frames, HELDOUT_SEED)
-            spec = f"{tmp}:0100"
-        results["synthetic"] = evaluate(det, spec, f"held-out synthetic (seed {HELDOUT_SEED})")
-    if (SHARED_0005 / "image_02" / "0005").is_dir():
-        results["kitti_0005"] = evaluate(det, f"{SHARED_0005}:0005", "real KITTI 0005")
+    if (SHARED_KITTI / "README.md").is_file():
+        val = val_sources(SHARED_KITTI)
+        results["real_val"] = evaluate(det, val, "real validation split (0005 + object 60-79)")
+        results["real_val_0005"] = evaluate(det, val[:1], "real validation part: tracking 0005")
+        results["real_val_object"] = evaluate(det, val[1:], "real validation part: object 60-79")
     else:
-        print(f"\n(real KITTI frames not found at {SHARED_0005}; skipped)")
+        print(f"\n(real KITTI frames not found at {SHARED_KITTI}; skipped)")
+    if not args.skip_synthetic:
+        with tempfile.TemporaryDirectory() as tmp:
+            spec = args.synthetic
+            if not spec:
+                from kitti_player_node.synthetic import generate_sequence
+
+                generate_sequence(Path(tmp), "0100", args.frames, HELDOUT_SEED)
+                spec = f"{tmp}:0100"
+            label = f"held-out synthetic (seed {HELDOUT_SEED})"
+            results["synthetic"] = evaluate(det, [spec], label)
     if not args.skip_timing:
         print("\n== inference time per 1242x375 frame (median of 20 after warm-up)")
         tiny = time_model(det.model)

@@ -170,7 +170,9 @@ def test_colcon_build_of_the_workspace(tmp_path):
     assert (share / "launch" / "stereo_tracking.launch.py").is_file()
     assert (share / "config" / "pipeline.params.yaml").is_file()
     models = ws / "install" / "detector_node" / "share" / "detector_node" / "models"
-    assert (models / "tiny_synthetic.pt").is_file()
+    from detector_node.checkpoint import SHIPPED_CHECKPOINT
+
+    assert (models / SHIPPED_CHECKPOINT.name).is_file()
     # the generated Python interface imports from the colcon install
     site = next((ws / "install" / "stereo_vehicle_msgs" / "lib").glob("python3*/site-packages"))
     check = subprocess.run(

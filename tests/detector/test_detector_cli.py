@@ -95,3 +95,67 @@ def test_object_layout_source_and_dontcare(tmp_path):
     assert s.image.shape == (192, 640, 3)
     cars_only = load_sample(refs[0], 640, 192, ("Car",))
     assert len(cars_only.boxes) == 1
+
+
+def test_train_cli_mixes_real_partial_synthetic_and_starts_from_init(tmp_path):
+    import numpy as np
+    from detector_node.model import YoloV2Passthrough, preset
+    from kitti_player_node.synthetic import generate_sequence
+    from vehicle_common.kitti import KittiObject, write_object_labels, write_png
+
+    root = tmp_path / "data"
+    generate_sequence(root, "0001", 3, seed=1)
+    crops = tmp_path / "crops"
+    rng = np.random.default_rng(0)
+    write_png(crops / "image_2" / "000101.png", rng.integers(0, 255, (96, 96, 3), np.uint8))
+    write_object_labels(
+        crops / "label_2" / "000101.txt", [KittiObject("Car", bbox=(10.0, 20.0, 60.0, 50.0))]
+    )
+    init = tmp_path / "init.pt"
+    from detector_node.checkpoint import save_checkpoint
+
+    save_checkpoint(init, YoloV2Passthrough(preset("tiny", input_width=256, input_height=96)))
+    out = tmp_path / "run"
+    args = [
+        "--train",
+        f"{root}:0001@2",
+        "--partial",
+        f"{crops}@1",
+        "--synthetic",
+        f"{root}:0001@0.5",
+        "--init",
+        str(init),
+        "--output",
+        str(out),
+        "--input-width",
+        "256",
+        "--input-height",
+        "96",
+        "--epochs",
+        "1",
+        "--epoch-samples",
+        "4",
+        "--batch-size",
+        "2",
+        "--no-progress",
+    ]
+    assert train_main(args) == 0
+    model, state = load_checkpoint(out / "final.pt")
+    assert state["epoch"] == 0 and len(model.config.anchors) == 5
+    bad = [a if a != f"{crops}@1" else f"{crops}@many" for a in args]
+    assert train_main(bad) == 2
+
+
+def test_real_split_is_disjoint_and_reads_every_frame_size(shared_kitti):
+    from detector_node.dataset import frames_from_source, load_full_sample
+    from detector_node.real_split import partial_source, train_sources, val_sources
+
+    val = [r for s in val_sources(shared_kitti) for r in frames_from_source(s)]
+    train = [r for s in train_sources(shared_kitti) for r in frames_from_source(s)]
+    assert len(val) == 36 and len(train) == 115
+    assert not {r.image_path for r in val} & {r.image_path for r in train}
+    n_car = sum(o.type == "Car" for r in val for o in r.objects)
+    assert n_car == 100
+    sizes = {load_full_sample(r, ("Car",)).image.shape[:2] for r in train}
+    assert (375, 1242) in sizes and len(sizes) > 1  # object frames of other sizes are read
+    assert len(frames_from_source(partial_source(shared_kitti))) == 148

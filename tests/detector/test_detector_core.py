@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 import torch
 from detector_node.anchors import kmeans_anchors
+from detector_node.augmentation import flip_sample
 from detector_node.boxes import decode_raw, encode_box, iou_matrix, nms
 from detector_node.checkpoint import load_checkpoint, save_checkpoint
-from detector_node.dataset import Sample, flip_sample
+from detector_node.dataset import Sample
 from detector_node.inference import decode_output
 from detector_node.loss import detection_loss
 from detector_node.model import YoloV2Passthrough, preset

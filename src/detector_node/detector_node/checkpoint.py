@@ -13,18 +13,19 @@ from .model import DetectorConfig, YoloV2Passthrough
 def _shipped_checkpoint() -> Path:
     """The shipped checkpoint: ``src/detector_node/models/`` in the source tree (editable
     install), else ``share/detector_node/models/`` of a colcon/ament install."""
-    source = Path(__file__).resolve().parent.parent / "models" / "tiny_synthetic.pt"
+    source = Path(__file__).resolve().parent.parent / "models" / "tiny_kitti.pt"
     if source.is_file():
         return source
     try:
         from ament_index_python.packages import get_package_share_directory
 
         return Path(get_package_share_directory("detector_node")) / "models" / source.name
-    except (ImportError, LookupError):
+    except (ImportError, LookupError, OSError):  # OSError: AMENT_PREFIX_PATH unset
         return source
 
 
-#: The checkpoint shipped in the repository (trained on synthetic KITTI-format sequences).
+#: The checkpoint shipped in the repository: the tiny model pre-trained on synthetic sequences and
+#: fine-tuned on real KITTI frames (model card: docs/detector.md).
 SHIPPED_CHECKPOINT = _shipped_checkpoint()
 FORMAT_VERSION = 1
 

@@ -1,8 +1,11 @@
 """Training/validation data from KITTI object (image_2/label_2) and tracking (image_02/label_02)
-layouts, read through the player's KITTI reader; resizing, targets and augmentation.
+layouts, read through the player's KITTI label reader (left images and labels only): frame
+selection, labels -> :class:`Sample`, resizing (augmentation: :mod:`detector_node.augmentation`).
 
 A data source is written ``ROOT`` (every sequence of a tracking layout, or every frame of an
-object layout) or ``ROOT:SEQ,SEQ`` (selected tracking sequences). Objects whose type is in
+object layout), ``ROOT:SEQ,SEQ`` (selected tracking sequences) or ``ROOT:IDS`` (object frames by
+id and inclusive id range, e.g. ``ROOT:0-59,80-100``); training sources may add ``@WEIGHT`` (the
+sampling weight, :func:`parse_weighted_source`). Objects whose type is in
 ``positive_types`` (default Car and Van) are positives; DontCare regions are kept apart so the
 loss does not penalise detections there as background; other types are background.
 """
@@ -10,6 +13,7 @@ loss does not penalise detections there as background; other types are backgroun
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,12 +23,12 @@ from vehicle_common.kitti import (
     DONTCARE,
     KittiFormatError,
     KittiObject,
-    TrackingSequence,
     list_object_frames,
     list_tracking_sequences,
     read_png,
+    read_tracking_labels,
 )
-from vehicle_common.orientation_bins import alpha_to_bin, flip_bin
+from vehicle_common.orientation_bins import alpha_to_bin
 
 
 @dataclass
@@ -40,8 +44,9 @@ class FrameRef:
 class Sample:
     """One frame resized to the network input.
 
-    ``boxes`` (N, 4) positives in input px, ``bins`` (N,) orientation bins, ``dontcare`` (M, 4)
-    ignore regions in input px, ``scale`` (sx, sy) = input px per original px.
+    ``boxes`` (N, 4) positives in input px, ``bins`` (N,) orientation bins (-1: unknown, no
+    alpha in the label), ``dontcare`` (M, 4) ignore regions in input px, ``scale`` (sx, sy) =
+    input px per original px.
     """
 
     image: np.ndarray
@@ -50,6 +55,10 @@ class Sample:
     dontcare: np.ndarray
     scale: tuple[float, float]
     name: str = ""
+    #: (N,) truncation of each box in [0, 1] (None = unknown, taken as 0)
+    truncation: np.ndarray | None = None
+    #: (N,) KITTI occlusion flag of each box (None = unknown)
+    occluded: np.ndarray | None = None
 
 
 def parse_source(spec: str) -> tuple[Path, list[str] | None]:
@@ -60,13 +69,42 @@ def parse_source(spec: str) -> tuple[Path, list[str] | None]:
     return Path(spec), None
 
 
+def parse_weighted_source(spec: str) -> tuple[str, float]:
+    """``SOURCE@WEIGHT`` -> (SOURCE, WEIGHT); no ``@`` -> weight 1."""
+    source, sep, weight = spec.rpartition("@")
+    if not sep:
+        return spec, 1.0
+    try:
+        w = float(weight)
+    except ValueError:
+        raise ValueError(f"{spec}: sampling weight {weight!r} is not a number") from None
+    if not (w >= 0.0 and math.isfinite(w)):
+        raise ValueError(f"{spec}: sampling weight must be a finite number >= 0")
+    return source, w
+
+
+def _expand_ids(items: list[str]) -> set[int]:
+    """Object frame selection: ids and inclusive ranges ``A-B`` -> set of ints."""
+    out: set[int] = set()
+    for item in items:
+        lo, sep, hi = item.partition("-")
+        try:
+            out.update(range(int(lo), int(hi) + 1) if sep else [int(lo)])
+        except ValueError:
+            raise ValueError(f"{item}: not a frame id or id range A-B") from None
+    return out
+
+
 def frames_from_source(spec: str) -> list[FrameRef]:
-    """Every labelled frame of one data source (see module docstring)."""
+    """Every labelled frame of one data source (see module docstring). For an object layout,
+    ``ROOT:IDS`` selects frames by id (ids and inclusive ranges, e.g. ``ROOT:0-79,100``)."""
     root, seqs = parse_source(spec)
     if (root / "image_2").is_dir():
+        wanted = _expand_ids(seqs) if seqs is not None else None
         return [
             FrameRef(f.left_path, f.objects(), f"{root.name}/{f.frame_id}")
             for f in list_object_frames(root)
+            if wanted is None or int(f.frame_id) in wanted
         ]
     if not (root / "image_02").is_dir():
         raise KittiFormatError(
@@ -74,13 +112,18 @@ def frames_from_source(spec: str) -> list[FrameRef]:
         )
     refs = []
     for seq in seqs if seqs is not None else list_tracking_sequences(root):
-        ts = TrackingSequence.open(root, seq)
-        if ts.labels is None:
-            raise KittiFormatError(
-                f"{root / 'label_02' / (ts.sequence + '.txt')}: labels not found"
-            )
-        for fid in ts.frame_ids:
-            refs.append(FrameRef(ts.left_path(fid), ts.objects(fid), f"{ts.sequence}/{fid:06d}"))
+        seq = f"{int(seq):04d}" if seq.isdigit() else seq
+        # left images and labels only (no calib or right images needed for the detector)
+        left = root / "image_02" / seq
+        if not left.is_dir():
+            raise KittiFormatError(f"{left}: image folder of sequence {seq} not found")
+        label_path = root / "label_02" / f"{seq}.txt"
+        if not label_path.is_file():
+            raise KittiFormatError(f"{label_path}: labels not found")
+        labels = read_tracking_labels(label_path)
+        for png in sorted(left.glob("*.png")):
+            fid = int(png.stem)
+            refs.append(FrameRef(png, list(labels.get(fid, [])), f"{seq}/{fid:06d}"))
     return refs
 
 
@@ -94,16 +137,31 @@ def sources_from_args(specs: list[str]) -> list[FrameRef]:
     return refs
 
 
+def label_bin(alpha: float) -> int:
+    """Orientation bin of a label's alpha, -1 for KITTI's 'unknown' placeholder -10 (any alpha
+    below -pi)."""
+    return -1 if alpha < -math.pi - 1e-6 else alpha_to_bin(alpha)
+
+
 def split_objects(
     objects: list[KittiObject], positive_types: tuple[str, ...]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(positive boxes (N, 4), their orientation bins (N,), DontCare boxes (M, 4)), original px."""
+    """(positive boxes (N, 4), their orientation bins (N,; -1 unknown), DontCare boxes (M, 4)),
+    original px."""
     pos = [o for o in objects if o.type in positive_types]
     dc = [o for o in objects if o.type == DONTCARE]
     boxes = np.array([o.bbox for o in pos], dtype=np.float32).reshape(-1, 4)
-    bins = np.array([alpha_to_bin(o.alpha) for o in pos], dtype=np.int64)
+    bins = np.array([label_bin(o.alpha) for o in pos], dtype=np.int64)
     dcb = np.array([o.bbox for o in dc], dtype=np.float32).reshape(-1, 4)
     return boxes, bins, dcb
+
+
+def _positive_flags(objects: list[KittiObject], positive_types) -> tuple[np.ndarray, np.ndarray]:
+    """(truncation, occlusion) of the positives; the -1 placeholders of 2D-only labels -> 0."""
+    pos = [o for o in objects if o.type in positive_types]
+    trunc = np.array([max(o.truncated, 0.0) for o in pos], dtype=np.float32)
+    occl = np.array([max(o.occluded, 0) for o in pos], dtype=np.int64)
+    return trunc, occl
 
 
 def resize_image(
@@ -119,14 +177,22 @@ def resize_image(
     return out, (width / w, height / h)
 
 
+def load_full_sample(ref: FrameRef, positive_types: tuple[str, ...]) -> Sample:
+    """Read a frame and its labels at its own resolution (any size; scale (1, 1))."""
+    boxes, bins, dc = split_objects(ref.objects, positive_types)
+    trunc, occl = _positive_flags(ref.objects, positive_types)
+    return Sample(read_png(ref.image_path), boxes, bins, dc, (1.0, 1.0), ref.name, trunc, occl)
+
+
 def load_sample(ref: FrameRef, width: int, height: int, positive_types: tuple[str, ...]) -> Sample:
-    """Read a frame and its labels at network resolution."""
+    """Read a frame and its labels at network resolution (boxes under 2 px dropped)."""
     img, (sx, sy) = resize_image(read_png(ref.image_path), width, height)
     boxes, bins, dc = split_objects(ref.objects, positive_types)
+    trunc, occl = _positive_flags(ref.objects, positive_types)
     s = np.array([sx, sy, sx, sy], dtype=np.float32)
     boxes, dc = boxes * s, dc * s
     keep = ((boxes[:, 2] - boxes[:, 0]) >= 2) & ((boxes[:, 3] - boxes[:, 1]) >= 2)
-    return Sample(img, boxes[keep], bins[keep], dc, (sx, sy), ref.name)
+    return Sample(img, boxes[keep], bins[keep], dc, (sx, sy), ref.name, trunc[keep], occl[keep])
 
 
 def collect_box_sizes(refs: list[FrameRef], width: int, height: int, positive_types=("Car", "Van")):
@@ -149,58 +215,12 @@ _SIZE_CACHE: dict[Path, tuple[int, int]] = {}
 
 
 def _image_size(path: Path) -> tuple[int, int]:
-    """(width, height) of an image; one read per folder (KITTI frames share a size)."""
-    key = path.parent
+    """(width, height) of an image (object frames differ slightly in size)."""
+    key = path
     if key not in _SIZE_CACHE:
         img = read_png(path)
         _SIZE_CACHE[key] = (img.shape[1], img.shape[0])
     return _SIZE_CACHE[key]
-
-
-def flip_sample(sample: Sample) -> Sample:
-    """Horizontal flip: boxes mirrored, orientation bins 45 <-> 135 (orientation_bins)."""
-    w = sample.image.shape[1]
-    b = sample.boxes.copy()
-    b[:, [0, 2]] = w - sample.boxes[:, [2, 0]]
-    d = sample.dontcare.copy()
-    d[:, [0, 2]] = w - sample.dontcare[:, [2, 0]]
-    return Sample(
-        np.ascontiguousarray(sample.image[:, ::-1]),
-        b,
-        flip_bin(sample.bins),
-        d,
-        sample.scale,
-        sample.name,
-    )
-
-
-def colour_jitter(image: np.ndarray, rng: np.random.Generator, strength: float = 0.3) -> np.ndarray:
-    """Random brightness, contrast and saturation (uint8 RGB in, uint8 out)."""
-    x = image.astype(np.float32)
-    gray = x.mean(axis=2, keepdims=True)
-    x = gray + (x - gray) * rng.uniform(1 - strength, 1 + strength)  # saturation
-    m = x.mean()
-    x = m + (x - m) * rng.uniform(1 - strength, 1 + strength)  # contrast
-    x = x * rng.uniform(1 - strength, 1 + strength)  # brightness
-    return np.clip(x, 0, 255).astype(np.uint8)
-
-
-def augment(
-    sample: Sample, rng: np.random.Generator, flip: bool = True, jitter: bool = True
-) -> Sample:
-    """Training augmentation: colour jitter and horizontal flip (no random crop)."""
-    if flip and rng.random() < 0.5:
-        sample = flip_sample(sample)
-    if jitter:
-        sample = Sample(
-            colour_jitter(sample.image, rng),
-            sample.boxes,
-            sample.bins,
-            sample.dontcare,
-            sample.scale,
-            sample.name,
-        )
-    return sample
 
 
 def add_data_arguments(parser: argparse.ArgumentParser, train_only: bool = False) -> None:

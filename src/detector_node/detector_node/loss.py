@@ -29,7 +29,8 @@ def build_targets(samples_boxes, samples_bins, config: DetectorConfig):
     """Assign every box to the cell of its centre and the anchor of best shape IoU.
 
     Returns (mask (B, A, H, W) bool, box targets (B, A, H, W, 4) (off_x, off_y, tw, th),
-    scale weights (B, A, H, W) = 2 - w*h/(W*H), orientation targets (B, A, H, W) long).
+    scale weights (B, A, H, W) = 2 - w*h/(W*H), orientation targets (B, A, H, W) long, -1 =
+    unknown orientation, ignored by the loss).
     """
     gh, gw = config.grid
     a = config.num_anchors
@@ -125,7 +126,10 @@ def detection_loss(
             if w.orientation_bin_weights is not None
             else None
         )
-        l_ori = F.cross_entropy(sel[:, 5:], tbin_t[mask_t], weight=bw, reduction="sum") / b
+        l_ori = (
+            F.cross_entropy(sel[:, 5:], tbin_t[mask_t], weight=bw, ignore_index=-1, reduction="sum")
+            / b
+        )
     else:
         l_xy = l_wh = l_obj = l_ori = raw.sum() * 0.0
     total = w.coord * (l_xy + l_wh) + w.obj * l_obj + w.noobj * l_noobj + w.orientation * l_ori

@@ -1,9 +1,15 @@
 """``detector_train``: train the detector on KITTI object/tracking layouts.
 
+Data: real frames (``--train``), supplementary crops with incomplete labels (``--partial``) and
+synthetic frames (``--synthetic``), each ``SOURCE[@WEIGHT]``, mixed by weight
+(:mod:`detector_node.training_data`) with the augmentations of :mod:`detector_node.augmentation`.
+``--init`` starts from a checkpoint's weights (e.g. synthetic pre-training); anchors come from
+k-means on the real (``--train``) boxes unless ``--anchors``.
+
 Adam (0.9, 0.999), batch 8, the paper's schedule by default (warm-up epochs at 1e-4, bulk at
-1e-3, final epochs at 1e-6), colour jitter and horizontal flip (no random crop), validation AP
-each epoch, checkpoint every epoch (``last.pt`` with optimizer state for ``--resume``; ``best.pt``
-weights + config only), fixed seeds, CPU or CUDA chosen automatically.
+1e-3, final epochs at 1e-6), validation AP each epoch, checkpoint every epoch (``last.pt`` with
+optimizer state for ``--resume``; ``best.pt`` weights + config only, best validation AP@0.5;
+``final.pt`` weights + config of the last epoch), fixed seeds, CPU or CUDA chosen automatically.
 """
 
 from __future__ import annotations
@@ -20,10 +26,19 @@ import torch
 
 from .anchors import kmeans_anchors
 from .checkpoint import load_checkpoint, save_checkpoint
-from .dataset import Sample, add_data_arguments, augment, load_sample, sources_from_args
+from .dataset import (
+    Sample,
+    add_data_arguments,
+    frames_from_source,
+    load_full_sample,
+    load_sample,
+    parse_weighted_source,
+    sources_from_args,
+)
 from .inference import choose_device, decode_output, to_tensor
 from .loss import LossWeights, detection_loss
 from .model import YoloV2Passthrough, preset
+from .training_data import AugmentConfig, Source, TrainingMix
 from .validation import ApResult, FrameResult, evaluate_frames
 
 
@@ -71,6 +86,21 @@ def validate(
     return [evaluate_frames(frames, t) for t in iou_thresholds]
 
 
+def anchor_box_sizes(sources: list[Source], config) -> np.ndarray:
+    """Widths/heights (N, 2) in network-input px of the boxes of the ``real`` sources (all
+    sources when there is none), for the k-means anchors."""
+    use = [s for s in sources if s.kind == "real"] or sources
+    wh = []
+    for src in use:
+        for x in src.samples:
+            h, w = x.image.shape[:2]
+            sx, sy = config.input_width / w, config.input_height / h
+            b = x.boxes
+            wh.append(np.stack([(b[:, 2] - b[:, 0]) * sx, (b[:, 3] - b[:, 1]) * sy], 1))
+    wh = np.concatenate(wh) if wh else np.zeros((0, 2))
+    return wh[(wh > 1).all(axis=1)]
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="detector_train",
@@ -96,12 +126,51 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--warmup-epochs", type=int, default=2)
     p.add_argument("--final-lr", type=float, default=1e-6)
     p.add_argument("--final-epochs", type=int, default=2)
+    p.add_argument(
+        "--synthetic",
+        nargs="*",
+        default=[],
+        metavar="ROOT[:SEQ,...][@W]",
+        help="synthetic frames (network resolution; flip + photometric augmentation only)",
+    )
+    p.add_argument(
+        "--partial",
+        nargs="*",
+        default=[],
+        metavar="ROOT[@W]",
+        help="native-resolution crops with incomplete Car labels (object_crops352 layout)",
+    )
+    p.add_argument("--init", type=Path, help="checkpoint whose weights start the training")
+    p.add_argument(
+        "--epoch-samples",
+        type=int,
+        help="samples drawn per epoch (default: frames of all sources together)",
+    )
     p.add_argument("--no-flip", action="store_true", help="disable horizontal flips")
-    p.add_argument("--no-jitter", action="store_true", help="disable colour jitter")
+    p.add_argument(
+        "--no-jitter", action="store_true", help="disable photometric jitter, blur and noise"
+    )
+    p.add_argument("--crop-probability", type=float, default=0.6, help="scale jitter + crop")
+    p.add_argument("--min-scale", type=float, default=0.6, help="smallest crop / frame size")
+    p.add_argument("--max-scale", type=float, default=1.0, help="largest crop / frame size")
+    p.add_argument(
+        "--paste-probability", type=float, default=0.5, help="copy-paste of real car crops"
+    )
+    p.add_argument("--paste-max", type=int, default=3, help="most cars pasted per frame")
     p.add_argument(
         "--balance-orientation",
         action="store_true",
         help="weight the orientation loss by 1/sqrt(bin frequency) of the training boxes",
+    )
+    p.add_argument(
+        "--orientation-weight", type=float, default=1.0, help="weight of the orientation loss"
+    )
+    p.add_argument(
+        "--ema",
+        type=float,
+        default=0.0,
+        help="decay of an exponential moving average of the weights (e.g. 0.995; 0 = off); "
+        "validation, best.pt and final.pt then use the averaged weights",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
@@ -141,17 +210,30 @@ def _train(args: argparse.Namespace) -> int:
         if v is not None
     }
     config = preset(args.size, **overrides)
-    train_refs = sources_from_args(args.train)
-    val_refs = sources_from_args(args.val) if args.val else []
     t0 = time.time()
+    types = config.positive_types
 
-    def load(r):
-        return load_sample(r, config.input_width, config.input_height, config.positive_types)
+    def load_source(spec: str, kind: str) -> Source:
+        source, weight = parse_weighted_source(spec)
+        refs = frames_from_source(source)
+        if not refs:
+            raise ValueError(f"{source}: no frames found")
+        if kind == "synthetic":
+            samples = [load_sample(r, config.input_width, config.input_height, types) for r in refs]
+        else:
+            samples = [load_full_sample(r, types) for r in refs]
+        return Source(source, kind, samples, weight)
 
-    train_samples = [load(r) for r in tqdm(train_refs, desc="load train", disable=args.no_progress)]
-    val_samples = [load(r) for r in val_refs]
+    sources = (
+        [load_source(x, "real") for x in args.train]
+        + [load_source(x, "partial") for x in args.partial]
+        + [load_source(x, "synthetic") for x in args.synthetic]
+    )
+    val_refs = sources_from_args(args.val) if args.val else []
+    val_samples = [load_sample(r, config.input_width, config.input_height, types) for r in val_refs]
+    n_train = sum(len(s.samples) for s in sources)
     print(
-        f"data: {len(train_samples)} train frames, {len(val_samples)} val frames, "
+        f"data: {n_train} train frames, {len(val_samples)} val frames, "
         f"loaded in {time.time() - t0:.1f} s, device {device}",
         flush=True,
     )
@@ -170,22 +252,43 @@ def _train(args: argparse.Namespace) -> int:
             except (OSError, ValueError, KeyError) as exc:
                 raise ValueError(f"{args.anchors}: cannot read anchors ({exc})") from None
         else:
-            wh = np.concatenate(
-                [
-                    np.stack([s.boxes[:, 2] - s.boxes[:, 0], s.boxes[:, 3] - s.boxes[:, 1]], 1)
-                    for s in train_samples
-                ]
-            )
-            anchors, miou = kmeans_anchors(wh, k=5, seed=args.seed)
+            anchors, miou = kmeans_anchors(anchor_box_sizes(sources, config), k=5, seed=args.seed)
             print(
                 f"k-means anchors (input px): {np.round(anchors, 1).tolist()} mean IoU {miou:.3f}",
                 flush=True,
             )
         config = preset(args.size, **{**overrides, "anchors": tuple(map(tuple, anchors))})
         model = YoloV2Passthrough(config).to(device)
-    weights = LossWeights()
+        if args.init:
+            init_model, _ = load_checkpoint(args.init, device)
+            ic = init_model.config
+            if (ic.width, ic.depth) != (config.width, config.depth):
+                raise ValueError(
+                    f"{args.init}: width/depth {ic.width}/{ic.depth} differ from "
+                    f"{config.width}/{config.depth}"
+                )
+            model.load_state_dict(init_model.state_dict())
+            print(f"initialised from {args.init}", flush=True)
+    mix = TrainingMix(
+        sources,
+        config.input_width,
+        config.input_height,
+        AugmentConfig(
+            flip=not args.no_flip,
+            photometric=not args.no_jitter,
+            crop_probability=args.crop_probability,
+            min_scale=args.min_scale,
+            max_scale=args.max_scale,
+            paste_probability=args.paste_probability,
+            paste_max=args.paste_max,
+        ),
+    )
+    print(mix.summary(), flush=True)
+    epoch_samples = args.epoch_samples or n_train
+    weights = LossWeights(orientation=args.orientation_weight)
     if args.balance_orientation:
-        counts = np.bincount(np.concatenate([s.bins for s in train_samples]), minlength=4)
+        bins = np.concatenate([x.bins for s in sources for x in s.samples])
+        counts = np.bincount(bins[bins >= 0], minlength=4)
         inv = 1.0 / np.sqrt(np.maximum(counts, 1) / max(counts.sum(), 1))
         weights.orientation_bin_weights = tuple(float(v) for v in inv / inv.mean())
         print(
@@ -196,6 +299,12 @@ def _train(args: argparse.Namespace) -> int:
     opt = torch.optim.Adam(model.parameters(), lr=args.lr, betas=(0.9, 0.999))
     if args.resume and "optimizer" in state:
         opt.load_state_dict(state["optimizer"])
+    ema = None
+    if args.ema:
+        from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+        ema = AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(args.ema), use_buffers=True)
+    eval_model = ema.module if ema is not None else model
     args.output.mkdir(parents=True, exist_ok=True)
     log_path = args.output / "train_log.jsonl"
     train_start = time.time()
@@ -206,7 +315,7 @@ def _train(args: argparse.Namespace) -> int:
         model.train()
         rng = np.random.default_rng([args.seed, epoch])
         torch.manual_seed(args.seed * 1000 + epoch)
-        order = rng.permutation(len(train_samples))
+        order = mix.draw(epoch_samples, rng)
         sums: dict[str, float] = {}
         nb = 0
         bar = tqdm(
@@ -216,10 +325,7 @@ def _train(args: argparse.Namespace) -> int:
             leave=False,
         )
         for start in bar:
-            batch = [
-                augment(train_samples[i], rng, flip=not args.no_flip, jitter=not args.no_jitter)
-                for i in order[start : start + args.batch_size]
-            ]
+            batch = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
             raw = model(to_tensor([s.image for s in batch], device))
             loss, terms = detection_loss(
                 raw,
@@ -232,6 +338,8 @@ def _train(args: argparse.Namespace) -> int:
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
+            if ema is not None:
+                ema.update_parameters(model)
             nb += 1
             for k, v in {"loss": loss.item(), **terms}.items():
                 sums[k] = sums.get(k, 0.0) + v
@@ -244,7 +352,7 @@ def _train(args: argparse.Namespace) -> int:
             "elapsed_s": round(time.time() - train_start, 1),
         }
         if val_samples:
-            r50, r70 = validate(model, val_samples, device)
+            r50, r70 = validate(eval_model, val_samples, device)
             entry.update(
                 ap50=round(r50.ap, 4),
                 ap70=round(r70.ap, 4),
@@ -258,12 +366,16 @@ def _train(args: argparse.Namespace) -> int:
         extra = {"epoch": epoch, "history": json.dumps(history), "seed": args.seed}
         if score >= best_ap:
             best_ap = score
-            save_checkpoint(args.output / "best.pt", model, {**extra, "metrics": json.dumps(entry)})
+            save_checkpoint(
+                args.output / "best.pt", eval_model, {**extra, "metrics": json.dumps(entry)}
+            )
         save_checkpoint(
             args.output / "last.pt",
             model,
             {**extra, "best_ap": best_ap, "optimizer": opt.state_dict()},
         )
+    final = {"epoch": args.epochs - 1, "seed": args.seed}
+    save_checkpoint(args.output / "final.pt", eval_model, final)
     print(
         f"done: {time.time() - train_start:.1f} s of training, best {best_ap:.4f}, "
         f"checkpoints in {args.output}",
