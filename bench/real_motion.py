@@ -175,6 +175,29 @@ class SequenceData:
     errors: list[tuple[float, float, float]]  # (gt depth, measured - true depth, reported std)
 
 
+def segments(data: SequenceData, length: int) -> list[SequenceData]:
+    """``data`` cut into consecutive pieces of ``length`` frames (the last may be shorter), each
+    re-indexed from frame 0: tracked one by one with a fresh tracker they measure the start-up
+    transient of a tracker joining a drive (no track established, scene motion unknown), which
+    the full sequences dilute."""
+    out = []
+    n = len(data.frames)
+    for k0 in range(0, n, length):
+        ks = range(k0, min(n, k0 + length))
+        out.append(
+            SequenceData(
+                f"{data.name}+{k0}",
+                {k - k0: [o.with_(frame=k - k0) for o in data.gt.get(k, [])] for k in ks},
+                data.P2,
+                [data.frames[k] for k in ks],
+                [data.det_gt_id[k] for k in ks],
+                {k - k0: [o.with_(frame=k - k0) for o in data.raw.get(k, [])] for k in ks},
+                data.errors if k0 == 0 else [],  # the ranging errors once per sequence
+            )
+        )
+    return out
+
+
 def _cars(objs):
     return [o for o in objs if o.type == "Car" and o.location[2] > 0]
 

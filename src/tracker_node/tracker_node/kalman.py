@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scene_motion import initial_velocity
+from .scene_motion import velocity_prior
 
 _I3 = np.eye(3)
 
@@ -97,8 +97,10 @@ class BatchedKalmanFilter:
         m = len(z)
         x = np.zeros((m, 6))
         x[:, :3] = z
-        x[:, 3:] = initial_velocity(self.init_velocity, self.velocity, self.updates)
+        v0, v_var = velocity_prior(self.init_velocity, self.velocity, self.updates, self.P0[3, 3])
+        x[:, 3:] = v0
         P = np.repeat(self.P0[None], m, axis=0)
+        P[:, 3:, 3:] = np.diag(v_var)
         if self.init_position_from_detection and m:
             P[:, :3, :3] = R
         self.x = np.concatenate([self.x, x])
