@@ -11,7 +11,9 @@ detection when it has a covariance. Initial state: the first detection's positio
 ``init_position_var`` I (1 m^2 in the paper) or, with ``init_position_from_detection``, the
 detection's own covariance R (a stereo detection at 40 m is uncertain by metres in depth, not
 1 m); velocity zero (the paper) or the scene's common motion (``init_velocity="scene"``, see
-:mod:`.scene_motion`), variance ``init_velocity_var`` (50 (m/s)^2). The update uses ``P - K H P``
+:mod:`.scene_motion`), variance ``init_velocity_var`` (50 (m/s)^2; while the scene motion is
+unknown, the per-axis prior :data:`.scene_motion.UNKNOWN_SCENE_VELOCITY_VAR`). The update uses
+``P - K H P``
 (filterpy uses the Joseph form; equal for the optimal gain, checked by the tests).
 """
 
