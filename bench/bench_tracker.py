@@ -377,6 +377,9 @@ def cmd_real(args) -> None:
                 datas = [rm.stereo_sequence(s, model, dm, seed=int(s)) for s in seqs]
             else:
                 datas = [rm.pointrcnn_sequence(s) for s in seqs]
+            if args.cold_start:
+                datas = [p for d in datas for p in rm.segments(d, args.cold_start)]
+                split = f"{split} (cold starts every {args.cold_start} frames)"
             ap, stats, times = rm.evaluate_split(datas, cfg, filters)
             rm.print_ap(f"[{source}] {split} sequences {','.join(seqs)}", ap)
             if source == "stereo":
@@ -415,6 +418,14 @@ def main() -> None:
     r.add_argument("--split", default="both", choices=("both", "tuning", "reporting"))
     r.add_argument("--seqs", default="", help="override the reporting sequences")
     r.add_argument("--set", action="append", help="NAME=VALUE tracker parameter override")
+    r.add_argument(
+        "--cold-start",
+        type=int,
+        default=0,
+        metavar="N",
+        help="cut each sequence into pieces of N frames, each tracked from a fresh tracker "
+        "(the start-up transient; 0 = whole sequences)",
+    )
     args = p.parse_args()
     if args.cmd in ("mot", "tune", "compare") and not DETS.is_dir():
         sys.exit(f"error: {DETS}: shared KITTI detections not found")

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from eval_node.bag_reader import OUTPUT_STATES, RANKED_STATES
 from eval_node.detection_metrics import precision_recall
 from eval_node.filter_comparison import trackset_to_objects
 from eval_node.motion_metrics import track_velocities
@@ -174,6 +175,29 @@ class SequenceData:
     errors: list[tuple[float, float, float]]  # (gt depth, measured - true depth, reported std)
 
 
+def segments(data: SequenceData, length: int) -> list[SequenceData]:
+    """``data`` cut into consecutive pieces of ``length`` frames (the last may be shorter), each
+    re-indexed from frame 0: tracked one by one with a fresh tracker they measure the start-up
+    transient of a tracker joining a drive (no track established, scene motion unknown), which
+    the full sequences dilute."""
+    out = []
+    n = len(data.frames)
+    for k0 in range(0, n, length):
+        ks = range(k0, min(n, k0 + length))
+        out.append(
+            SequenceData(
+                f"{data.name}+{k0}",
+                {k - k0: [o.with_(frame=k - k0) for o in data.gt.get(k, [])] for k in ks},
+                data.P2,
+                [data.frames[k] for k in ks],
+                [data.det_gt_id[k] for k in ks],
+                {k - k0: [o.with_(frame=k - k0) for o in data.raw.get(k, [])] for k in ks},
+                data.errors if k0 == 0 else [],  # the ranging errors once per sequence
+            )
+        )
+    return out
+
+
 def _cars(objs):
     return [o for o in objs if o.type == "Car" and o.location[2] > 0]
 
@@ -309,14 +333,21 @@ def run_tracker(data: SequenceData, cfg: TrackerConfig, stats: MotionStats | Non
     trk = Tracker(cfg, projection=data.P2)
     gt_vel = track_velocities(data.gt, dt=FRAME_PERIOD, axes="xyz")
     gt_pos = {(k, o.track_id): o.centre_of_mass for k, objs in data.gt.items() for o in _cars(objs)}
-    out = {}
+    out, ranked = {}, {}
     for k, batch in enumerate(data.frames):
         ts = trk.step(batch, k * FRAME_PERIOD)
         # trackset_to_objects clips scores to [0, 1] (as the node publishes); PointRCNN scores
-        # are logits, so the tracks keep the tracker's own score for the AP ranking
-        objs = trackset_to_objects(ts, np.zeros(3), k, MEAN_HWL)
-        scores = ts.score[ts.state != 0]
-        out[k] = [o.with_(score=float(sc)) for o, sc in zip(objs, scores, strict=True)]
+        # are logits, so the tracks keep the tracker's own score for the AP ranking. The AP
+        # ranks tentative tracks too (at their lowered score, as `evaluate` does); CLEAR-MOT
+        # takes the output states (confirmed / coasting) only.
+        objs = trackset_to_objects(ts, np.zeros(3), k, MEAN_HWL, RANKED_STATES)
+        scores = ts.score[np.isin(ts.state, RANKED_STATES)]
+        ranked[k] = [o.with_(score=float(sc)) for o, sc in zip(objs, scores, strict=True)]
+        out[k] = [
+            o
+            for o, st in zip(ranked[k], ts.state[np.isin(ts.state, RANKED_STATES)], strict=True)
+            if st in OUTPUT_STATES
+        ]
         if stats is None:
             continue
         for i in np.nonzero(ts.det_index >= 0)[0]:
@@ -340,7 +371,7 @@ def run_tracker(data: SequenceData, cfg: TrackerConfig, stats: MotionStats | Non
                 stats.along.append(float(e[[0, 2]] @ vg[[0, 2]]) / s)
                 stats.lag.append(lag)
                 stats.lag_s.append(lag / s)
-    return out
+    return ranked, out
 
 
 def _ap_table(gt, preds: dict[str, dict]) -> dict[str, dict]:
@@ -373,9 +404,9 @@ def evaluate_split(datas: list[SequenceData], cfg: TrackerConfig, filters, motio
         per_seq = {}
         t0 = time.perf_counter()
         for data in datas:
-            out = run_tracker(data, replace(cfg, filter=flt), st)
+            ranked, out = run_tracker(data, replace(cfg, filter=flt), st)
             per_seq[data.name] = out
-            for k, objs in out.items():
+            for k, objs in ranked.items():
                 preds[flt][(data.name, k)] = objs
         times[flt] = time.perf_counter() - t0
         if st is not None:

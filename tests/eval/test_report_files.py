@@ -17,10 +17,10 @@ def test_report_files_and_filter_comparison(tmp_path):
     table = res["filter_comparison"]
     assert set(table) == {"none", "kalman", "particle"}
     for name, row in table.items():
-        # perfect detections: everything but the first (tentative) frame is found -> 40/42 GT,
-        # recall 0.952: precision 1 at 39 of the 41 recall samples (0, 1/40, ..., 0.95)
-        assert row["moderate"] == pytest.approx(39 / 41), name
-        assert row["ap_r40"]["moderate"] == pytest.approx(38 / 40), name
+        # perfect detections: every GT box is found, the first frame's by tentative tracks
+        # (ranked at half the score with min_hits 2): precision 1 up to recall 1
+        assert row["moderate"] == pytest.approx(1.0), name
+        assert row["ap_r40"]["moderate"] == pytest.approx(1.0), name
         assert row["fps"] > 0
     files = write_report(res, tmp_path / "report")
     expected = {"md", "html", "gif", "bev", "confusion"}

@@ -80,3 +80,27 @@ def test_config_rejects_an_unknown_initial_velocity():
         TrackerConfig(init_velocity="ego").validate()
     with pytest.raises(TrackerConfigError, match="particle_roughening"):
         TrackerConfig(particle_roughening=1.5).validate()
+
+
+def test_velocity_prior_is_wide_along_z_while_the_scene_motion_is_unknown():
+    from tracker_node.scene_motion import UNKNOWN_SCENE_VELOCITY_VAR, velocity_prior
+
+    v = np.array([[0.0, 0.0, -12.0], [1.0, 0.0, -10.0]])
+    v0, var = velocity_prior("scene", v, np.array([1, 2]), 50.0)  # none established yet
+    np.testing.assert_allclose(v0, np.zeros(3))
+    np.testing.assert_allclose(var, UNKNOWN_SCENE_VELOCITY_VAR)
+    assert var[2] > 50.0 > var[0] > var[1]
+    v0, var = velocity_prior("scene", v, np.array([3, 5]), 50.0)  # the scene motion is known
+    np.testing.assert_allclose(v0, [0.5, 0.0, -11.0])
+    np.testing.assert_allclose(var, [50.0] * 3)
+    _, var = velocity_prior("zero", v, np.array([0, 0]), 50.0)  # the paper's prior
+    np.testing.assert_allclose(var, [50.0] * 3)
+
+
+def test_kalman_track_started_in_an_unknown_scene_takes_the_per_axis_prior():
+    from tracker_node.kalman import BatchedKalmanFilter
+    from tracker_node.scene_motion import UNKNOWN_SCENE_VELOCITY_VAR
+
+    kf = BatchedKalmanFilter(8.0, init_velocity_var=50.0, init_velocity="scene")
+    kf.add(np.array([[0.0, 1.0, 30.0]]), np.eye(3)[None])
+    np.testing.assert_allclose(np.diag(kf.velocity_cov[0]), UNKNOWN_SCENE_VELOCITY_VAR)

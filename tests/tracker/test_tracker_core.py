@@ -298,3 +298,17 @@ def test_score_aware_confirmation_ramp_and_coasting_rules():
     trk.step(DetectionBatch.create([a], score=[12.0]), 0.0)
     assert len(trk.step(DetectionBatch.empty(), 0.1)) == 0  # 1 hit < coast_min_hits
     assert len(trk) == 1  # still alive, only not reported
+
+
+def test_tentative_tracks_rank_below_confirmed_ones():
+    """A tentative track is reported with its score scaled by hits / min_hits, so AP ranks it
+    after a confirmed track with the same detection score; once confirmed it scores in full."""
+    trk = Tracker(TrackerConfig(min_hits=2))
+    a, b = [0.0, 1.0, 20.0], [8.0, 1.0, 40.0]
+    out = trk.step(DetectionBatch.create([a], score=[0.9]), 0.0)
+    assert list(out.state) == [TENTATIVE]
+    np.testing.assert_allclose(out.score, [0.45])
+    out = trk.step(DetectionBatch.create([a, b], score=[0.9, 0.9]), 0.1)
+    assert list(out.state) == [CONFIRMED, TENTATIVE]
+    np.testing.assert_allclose(out.score, [0.9, 0.45])
+    assert out.score[0] > out.score[1]

@@ -183,6 +183,8 @@ def evaluate_bag(
     det2d = {f.frame: f.det2d for f in run.frames}
     det3d = {f.frame: f.det3d for f in run.frames}
     tracks = {f.frame: f.tracks for f in run.frames}
+    # AP ranks tentative tracks too, at their lowered score (bag_reader.RANKED_STATES)
+    ranked = {f.frame: f.tracks + f.tentative for f in run.frames}
 
     curves: dict = {"detections_3d": {}, "tracks_3d": {}, "detections_2d": {}}
     res: dict = {
@@ -195,7 +197,7 @@ def evaluate_bag(
         "detections_3d": _ap_table(
             gt, det3d, "centre_distance", DISTANCES, curves["detections_3d"]
         ),
-        "tracks_3d": _ap_table(gt, tracks, "centre_distance", DISTANCES, curves["tracks_3d"]),
+        "tracks_3d": _ap_table(gt, ranked, "centre_distance", DISTANCES, curves["tracks_3d"]),
         "detections_2d": _ap_table(gt, det2d, "iou2d", IOUS, curves["detections_2d"]),
     }
     res["detections_2d"]["voc11_0.5"] = {

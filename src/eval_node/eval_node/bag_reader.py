@@ -33,6 +33,10 @@ LEFT_IMAGE_TOPIC = topics.resolve(topics.LEFT_IMAGE)
 LEFT_INFO_TOPIC = topics.resolve(topics.LEFT_INFO)
 #: Track states reported as tracker output (confirmed and coasting; tentative ones are not).
 OUTPUT_STATES = (1, 2)
+#: Track states ranked by the tracks' 3D AP: the output plus tentative tracks (state 0), whose
+#: score the tracker lowers by their progress toward confirmation (tracker_node.lifecycle), so
+#: they rank after confirmed ones. CLEAR-MOT / HOTA take the output states only.
+RANKED_STATES = (0, 1, 2)
 
 
 class BagReadError(BagError):
@@ -51,6 +55,7 @@ class RecordedFrame:
     det3d: list[KittiObject] = field(default_factory=list)
     det3d_msg: object | None = None  # the recorded VehicleDetection3DArray (tracker input)
     tracks: list[KittiObject] = field(default_factory=list)
+    tentative: list[KittiObject] = field(default_factory=list)  # state-0 tracks (AP only)
     track_velocities: list[np.ndarray] = field(default_factory=list)  # (3,) per track [m/s]
     receive_ns: dict[str, int] = field(default_factory=dict)  # topic -> receive time [ns]
 
@@ -115,7 +120,8 @@ def read_run(
 ) -> RecordedRun:
     """Read a recorded run. Frames come from ``/kitti/ground_truth``; without it, every stamp
     of the pipeline's topics becomes a frame (index in stamp order, no ground truth).
-    Tracks whose state is not in ``track_states`` are dropped. ``namespace``: the namespace
+    Tracks whose state is not in ``track_states`` are dropped (tentative ones go to
+    ``RecordedFrame.tentative``, for the tracks' AP). ``namespace``: the namespace
     the graph ran in (``/rig2``); None: detected from the bag's topics (:func:`bag_namespace`)."""
     reader = open_reader(path)
     counts = {c.topic: c.msgcount for c in reader.connections}
@@ -204,10 +210,14 @@ def read_run(
                 f.det3d = [r for r in rows if r is not None]
             else:
                 for v in m.vehicles:
-                    if int(v.state) not in track_states:
+                    output = int(v.state) in track_states
+                    if not output and int(v.state) not in RANKED_STATES:
                         continue
                     row = _track_object(v, f.offset, f.frame)
                     if row is None:
+                        continue
+                    if not output:
+                        f.tentative.append(row)
                         continue
                     f.tracks.append(row)
                     f.track_velocities.append(

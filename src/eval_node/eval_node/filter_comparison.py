@@ -13,20 +13,22 @@ import numpy as np
 from vehicle_common.camera_frames import kitti_row_from_centre
 from vehicle_common.kitti import KittiObject
 
-from eval_node.bag_reader import OUTPUT_STATES, RecordedRun
+from eval_node.bag_reader import OUTPUT_STATES, RANKED_STATES, RecordedRun
 from eval_node.detection_metrics import precision_recall
 
 FILTER_NAMES = ("none", "kalman", "particle")
 LEVELS = ("easy", "moderate", "hard")
 
 
-def trackset_to_objects(tracks, offset: np.ndarray, frame: int, mean_hwl) -> list[KittiObject]:
+def trackset_to_objects(
+    tracks, offset: np.ndarray, frame: int, mean_hwl, states=OUTPUT_STATES
+) -> list[KittiObject]:
     """A tracker TrackSet (left optical frame, centres) as KITTI result rows (camera 0, bottom
-    centre, :mod:`vehicle_common.camera_frames`); tentative tracks and rows that are not finite
-    are dropped."""
+    centre, :mod:`vehicle_common.camera_frames`); tracks whose state is not in ``states``
+    (default: tentative ones) and rows that are not finite are dropped."""
     out = []
     for i in range(len(tracks)):
-        if int(tracks.state[i]) not in OUTPUT_STATES:
+        if int(tracks.state[i]) not in states:
             continue
         row = kitti_row_from_centre(
             tracks.position[i],
@@ -46,7 +48,8 @@ def trackset_to_objects(tracks, offset: np.ndarray, frame: int, mean_hwl) -> lis
 
 def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, list[KittiObject]]:
     """Track the run's recorded 3D detections with ``config`` (a TrackerConfig):
-    ``{frame: [KittiObject...]}`` of the reported (confirmed/coasting) tracks."""
+    ``{frame: [KittiObject...]}`` of the tracks the AP ranks (``RANKED_STATES``: confirmed,
+    coasting and, at their lowered score, tentative; as ``evaluate`` scores the live graph)."""
     from tracker_node.conversions import detections_from_msg
     from tracker_node.tracker import DetectionBatch, Tracker
 
@@ -65,7 +68,7 @@ def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, l
         # the same message conversion as the live vehicle_tracker node
         batch = detections_from_msg(f.det3d_msg)[0] if f.det3d_msg else DetectionBatch.empty()
         tracks = tracker.step(batch, f.stamp_ns * 1e-9)
-        out[f.frame] = trackset_to_objects(tracks, f.offset, f.frame, mean_hwl)
+        out[f.frame] = trackset_to_objects(tracks, f.offset, f.frame, mean_hwl, RANKED_STATES)
     return out
 
 

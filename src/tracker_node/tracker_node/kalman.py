@@ -11,7 +11,9 @@ detection when it has a covariance. Initial state: the first detection's positio
 ``init_position_var`` I (1 m^2 in the paper) or, with ``init_position_from_detection``, the
 detection's own covariance R (a stereo detection at 40 m is uncertain by metres in depth, not
 1 m); velocity zero (the paper) or the scene's common motion (``init_velocity="scene"``, see
-:mod:`.scene_motion`), variance ``init_velocity_var`` (50 (m/s)^2). The update uses ``P - K H P``
+:mod:`.scene_motion`), variance ``init_velocity_var`` (50 (m/s)^2; while the scene motion is
+unknown, the per-axis prior :data:`.scene_motion.UNKNOWN_SCENE_VELOCITY_VAR`). The update uses
+``P - K H P``
 (filterpy uses the Joseph form; equal for the optimal gain, checked by the tests).
 """
 
@@ -19,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scene_motion import initial_velocity
+from .scene_motion import velocity_prior
 
 _I3 = np.eye(3)
 
@@ -97,8 +99,10 @@ class BatchedKalmanFilter:
         m = len(z)
         x = np.zeros((m, 6))
         x[:, :3] = z
-        x[:, 3:] = initial_velocity(self.init_velocity, self.velocity, self.updates)
+        v0, v_var = velocity_prior(self.init_velocity, self.velocity, self.updates, self.P0[3, 3])
+        x[:, 3:] = v0
         P = np.repeat(self.P0[None], m, axis=0)
+        P[:, 3:, 3:] = np.diag(v_var)
         if self.init_position_from_detection and m:
             P[:, :3, :3] = R
         self.x = np.concatenate([self.x, x])

@@ -63,8 +63,16 @@ class TrackLifecycle:
 
     def row_score(self, table: TrackTable, idx: np.ndarray) -> np.ndarray:
         """Reported score: the last detection's score scaled by the track confidence and by
-        ``min(1, hits / score_ramp_hits)`` (young tracks, most of them false, score lower); a
-        negative score is divided by the factor instead, so it still falls."""
+        ``min(1, hits / ramp)`` (young tracks, most of them false, score lower); ``ramp`` is
+        ``score_ramp_hits``, and for a tentative track at least ``min_hits`` (its progress
+        toward confirmation: a tentative track ranks below a confirmed one with the same
+        detection score, so a ranking metric such as AP can take tentative rows without
+        letting them outrank confirmed ones). A negative score is divided by the factor
+        instead, so it still falls."""
+        cfg = self.cfg
         s = table.score[idx]
-        c = table.conf[idx] * np.minimum(1.0, table.hits[idx] / self.cfg.score_ramp_hits)
+        ramp = np.where(
+            table.confirmed[idx], cfg.score_ramp_hits, max(cfg.score_ramp_hits, cfg.min_hits)
+        )
+        c = table.conf[idx] * np.minimum(1.0, table.hits[idx] / ramp)
         return np.where(s >= 0, s * c, s / np.maximum(c, 1e-6))

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from .kalman import inv3_sym, process_noise
-from .scene_motion import initial_velocity
+from .scene_motion import velocity_prior
 
 
 def _moments(particles: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -102,10 +102,12 @@ class BatchedParticleFilter:
         m = len(z)
         if not m:
             return
-        v0 = initial_velocity(self.init_velocity, self.velocity, self.updates)
+        v0, v_var = velocity_prior(
+            self.init_velocity, self.velocity, self.updates, self.init_velocity_var
+        )
         p = np.empty((m, self.n, 6))
         p[:, :, :3] = self._draw_positions(z, R)
-        p[:, :, 3:] = v0 + np.sqrt(self.init_velocity_var) * self.rng.normal(size=(m, self.n, 3))
+        p[:, :, 3:] = v0 + np.sqrt(v_var) * self.rng.normal(size=(m, self.n, 3))
         self.particles = np.concatenate([self.particles, p])
         self.weights = np.concatenate([self.weights, np.full((m, self.n), 1.0 / self.n)])
         self.updates = np.concatenate([self.updates, np.zeros(m, dtype=int)])
