@@ -19,6 +19,7 @@ from vehicle_common.node_parameters import (
     param,
 )
 
+from .particle import PROPOSALS
 from .scene_motion import INIT_VELOCITIES
 
 FILTERS = ("kalman", "particle", "none")
@@ -79,6 +80,10 @@ class TrackerConfig:
     num_particles: int = param(2000, low=1)
     # jitter after resampling, x the posterior spread (0..1)
     particle_roughening: float = param(0.2, low=0.0, high=1.0)
+    # particle filter proposal: "optimal" (each particle drawn from p(x | its predicted state,
+    # detection), weights by the detection's density given the predicted state) or "prior"
+    # (bootstrap: particles moved with the process noise, weights N(z; p, R)); docs/tracker.md
+    particle_proposal: str = param("optimal", choices=PROPOSALS)
     seed: int = param(0, low=0)  # random seed of the particle filter
     # [s] used for the first frame or non-increasing stamps
     default_dt: float = param(0.1, low=0, low_open=True)

@@ -122,6 +122,7 @@ def make_filter(cfg: TrackerConfig) -> MotionFilter:
             init_velocity=cfg.init_velocity,
             init_position_from_detection=cfg.init_position_from_detection,
             roughening=cfg.particle_roughening,
+            proposal=cfg.particle_proposal,
             seed=cfg.seed,
         )
     if cfg.filter == "none":

@@ -33,6 +33,8 @@ import numpy as np
 from .kalman import inv3_sym, process_noise
 from .scene_motion import velocity_prior
 
+PROPOSALS = ("optimal", "prior")  # importance distributions (BatchedParticleFilter.proposal)
+
 
 def _moments(particles: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Weighted means (N, d) and covariances (N, d, d) of particle sets (N, n, d) with
@@ -64,8 +66,11 @@ class BatchedParticleFilter:
         roughening: float = 0.2,
         resample_fraction: float = 0.5,
         reseed_gate: float = 100.0,
+        proposal: str = "optimal",
         seed: int = 0,
     ):
+        if proposal not in PROPOSALS:
+            raise ValueError(f"proposal: unknown proposal {proposal!r} (optimal / prior)")
         self.n = int(num_particles)
         self.q = float(q)
         self.init_position_var = float(init_position_var)
@@ -75,10 +80,12 @@ class BatchedParticleFilter:
         self.roughening = float(roughening)
         self.resample_fraction = float(resample_fraction)
         self.reseed_gate = float(reseed_gate)
+        self.proposal = proposal
         self.rng = np.random.default_rng(seed)
         self.particles = np.zeros((0, self.n, 6))
         self.weights = np.zeros((0, self.n))
         self.updates = np.zeros(0, dtype=int)
+        self.pending = np.zeros((0, 6, 6))  # (N, 6, 6) process noise not yet sampled (optimal)
         self.reseeds = 0  # how many times a track's particles were re-drawn around a detection
         self._mean: np.ndarray | None = None  # (N, 6) particle means (cache)
         self._cov: np.ndarray | None = None  # (N, 6, 6) sample covariances (cache)
@@ -111,12 +118,14 @@ class BatchedParticleFilter:
         self.particles = np.concatenate([self.particles, p])
         self.weights = np.concatenate([self.weights, np.full((m, self.n), 1.0 / self.n)])
         self.updates = np.concatenate([self.updates, np.zeros(m, dtype=int)])
+        self.pending = np.concatenate([self.pending, np.zeros((m, 6, 6))])
         self._mean = self._cov = None
 
     def keep(self, mask: np.ndarray) -> None:
         self.particles = self.particles[mask]
         self.weights = self.weights[mask]
         self.updates = self.updates[mask]
+        self.pending = self.pending[mask]
         self._mean = None if self._mean is None else self._mean[mask]
         self._cov = None if self._cov is None else self._cov[mask]
 
@@ -127,17 +136,35 @@ class BatchedParticleFilter:
             self._noise_L = _cholesky(process_noise(dt, self.q))
             self._noise_dt = dt
         p = self.particles
-        p[:, :, :3] += dt * p[:, :, 3:]
-        p += self.rng.normal(size=p.shape) @ self._noise_L.T
+        if self.proposal == "prior":
+            p[:, :, :3] += dt * p[:, :, 3:]
+            p += self.rng.normal(size=p.shape) @ self._noise_L.T
+        else:
+            # the noise of the previous step for tracks that got no detection, then the
+            # deterministic motion; this step's noise waits for the update (or the next predict)
+            self._flush_pending()
+            p[:, :, :3] += dt * p[:, :, 3:]
+            self.pending[:] = process_noise(dt, self.q)
         self._mean = self._cov = None
+
+    def _flush_pending(self) -> None:
+        """Sample the process noise still pending (tracks not updated since their last predict)."""
+        rows = np.flatnonzero(self.pending.any(axis=(1, 2)))
+        if len(rows):
+            L = _cholesky(self.pending[rows])
+            e = self.rng.normal(size=(len(rows), self.n, 6))
+            self.particles[rows] += np.matmul(e, L.transpose(0, 2, 1))
+            self.pending[rows] = 0.0
 
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         if not len(rows):
             return
         p = self.particles[rows]  # (M, Np, 6)
         n = self.n
+        Q = self.pending[rows]  # (M, 6, 6); zero with the prior proposal
+        S_inv = inv3_sym(Q[:, :3, :3] + R)  # the detection's density given the last state
         d = p[:, :, :3] - z[:, None, :]
-        d2 = (np.matmul(d, inv3_sym(R)) * d).sum(axis=-1)
+        d2 = (np.matmul(d, S_inv) * d).sum(axis=-1)
         best = d2.min(axis=1)
         w = self.weights[rows] * np.exp(-0.5 * (d2 - best[:, None]))
         total = w.sum(axis=1, keepdims=True)
@@ -147,6 +174,16 @@ class BatchedParticleFilter:
         if low.any():
             p[low] = self._resample(p[low], w[low])
             w[low] = 1.0 / n
+        if self.proposal == "optimal":
+            # each particle drawn from p(x | its predicted state, z): a Kalman update of the
+            # pending process noise Q with the detection (gain K = Q H' S^-1, H = [I 0])
+            K = np.matmul(Q[:, :, :3], S_inv)  # (M, 6, 3)
+            d = z[:, None, :] - p[:, :, :3]
+            p += np.matmul(d, K.transpose(0, 2, 1))
+            P = Q - np.matmul(K, Q[:, :3, :])
+            e = self.rng.normal(size=p.shape)
+            p += np.matmul(e, _cholesky(0.5 * (P + P.transpose(0, 2, 1))).transpose(0, 2, 1))
+            self.pending[rows] = 0.0
         if dead.any():
             self.reseeds += int(dead.sum())
             p[dead, :, :3] = self._draw_positions(z[dead], R[dead])
@@ -176,6 +213,7 @@ class BatchedParticleFilter:
     def _estimates(self) -> tuple[np.ndarray, np.ndarray]:
         if self._mean is None:
             self._mean, self._cov = _moments(self.particles, self.weights)
+            self._cov = self._cov + self.pending  # noise not yet sampled (zero-mean)
         return self._mean, self._cov
 
     @property
