@@ -7,11 +7,21 @@ Per track ``num_particles`` particles of the constant-velocity state (x, y, z, v
   from N(v0, ``init_velocity_var`` I) with v0 zero or the scene's common motion
   (:mod:`.scene_motion`), as the Kalman filter starts;
 - predict: ``x += v dt`` plus a sample of the white-acceleration process noise Q(dt, q) (the
-  Kalman filter's model and density q);
-- update: weights multiplied by the detection's Gaussian likelihood N(z; position, R) (R: the
-  detection's covariance); when the effective sample size falls below ``resample_fraction`` of
-  the particles, systematic resampling, then a small regularisation jitter (``roughening`` times
-  the posterior spread) so that resampled copies do not collapse onto one point. When the detection
+  Kalman filter's model and density q). With ``proposal="optimal"`` (default) the noise is not
+  sampled yet: it stays pending until the track's next update (or next predict, when no
+  detection came), and the reported covariance includes it;
+- update, ``proposal="prior"`` (bootstrap): weights multiplied by the detection's Gaussian
+  likelihood N(z; position, R) (R: the detection's covariance);
+  ``proposal="optimal"`` (the locally optimal importance distribution, Doucet, Godsill & Andrieu
+  2000; exact here because the detection is linear-Gaussian in the state): weights multiplied by
+  the detection's density given the particle's noise-free prediction, N(z; position, Q_pos + R),
+  then every particle drawn from p(x | its prediction, z) = a Kalman update of the pending noise
+  (gain K = Q H' (H Q H' + R)^-1, covariance (I - K H) Q). With a precise detection the bootstrap
+  leaves few particles near it (the weights degenerate); here every particle moves to it.
+  In both: when the effective sample size falls below ``resample_fraction`` of
+  the particles, systematic resampling (before the draw, with the optimal proposal), then a small
+  regularisation jitter (``roughening`` times the posterior spread) so that resampled copies do
+  not collapse onto one point. When the detection
   is implausible for every particle (smallest squared Mahalanobis distance > ``reseed_gate``) the
   track's positions are re-drawn around it (velocities kept).
 
