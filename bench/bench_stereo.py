@@ -27,7 +27,12 @@ from stereo_depth_node.disparity import (
     d1_error,
     interpolate_background,
 )
-from stereo_depth_node.ranging import RangingParams, range_boxes, robust_disparity
+from stereo_depth_node.ranging import (
+    RangingParams,
+    position_covariance,
+    range_boxes,
+    robust_disparity,
+)
 from stereo_depth_node.region_matching import box_disparity, refine_shift, to_gray
 from stereo_depth_node.reprojection import StereoGeometry
 from vehicle_common.kitti import TrackingSequence, list_object_frames, read_png
@@ -783,6 +788,125 @@ def bench_centre_real() -> None:
                 )
 
 
+COV_BUCKETS = ((5.0, 10.0), (10.0, 20.0), (20.0, 30.0), (30.0, 45.0), (45.0, 60.0), (60.0, 100.0))
+
+
+def covariance_errors():
+    """TUNING data only. Disparity errors [px] of the default estimator (c) after the default
+    bias model on the car-sized surface regions of the KITTI 2015 fit pairs, with their true
+    disparity; and the centre step's signed along-ray and lateral errors [m] with the car's
+    distance, for each labelled Car of the object frames (true visible surface, as
+    ``centre_real``)."""
+    rp = RangingParams()
+    rows, _ = region_records()
+    fit = np.isin(rows[:, 0], FIT_PAIRS) & np.isfinite(rows[:, 4])
+    bias = rp.disparity_bias + rp.disparity_bias_column * column_x2(rows[:, 7])
+    e_d = (rows[:, 4] - rows[:, 1] - bias)[fit]
+    exact = replace(rp, refine="none", disparity_bias=0.0, disparity_bias_column=0.0)
+    steps = []
+    for r in centre_step_records({"default": exact}):
+        p, c = r["default"], r["com"]
+        if r["source"] != "object" or p is None:
+            continue
+        ray = c / np.linalg.norm(c)
+        err = np.asarray(p) - c
+        along = float(err @ ray)
+        steps.append((float(np.linalg.norm(c)), along, float(np.linalg.norm(err - along * ray))))
+    return rows[fit, 1], e_d, np.array(steps)
+
+
+def _spread0(x: np.ndarray) -> float:
+    """Robust spread about zero (1.4826 x median |x|): what a filter sees, bias included."""
+    return float(1.4826 * np.median(np.abs(x))) if len(x) else float("nan")
+
+
+def _depth_var(z: np.ndarray, p: RangingParams, fb: float) -> np.ndarray:
+    """The depth variance ``position_covariance`` reports at depth z on the optical axis."""
+    return (z * z * p.sigma_d / fb) ** 2 + p.depth_offset_std**2
+
+
+def consistent_sigma_d(z: np.ndarray, dz: np.ndarray, fb: float) -> float:
+    """sigma_d [px] that makes the median of the regions' dz^2 / var(z) the chi2(1) median
+    (0.455), var(z) the disparity term alone (the regions' depths have no centre step; bisection,
+    robust to the few mixed-surface regions)."""
+    lo, hi = 1e-3, 5.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        p = replace(RangingParams(), sigma_d=mid, depth_offset_std=0.0)
+        if np.median(dz**2 / _depth_var(z, p, fb)) > CHI2_1_MEDIAN:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+CHI2_1_MEDIAN = 0.4549
+
+
+def bench_covariance() -> None:
+    """The depth std the ranging reports (``position_covariance``) against the errors it makes,
+    per distance bin, on tuning data; and the sigma_d / depth_offset_std / sigma_pixel those
+    errors give."""
+    rp = RangingParams()
+    fb = KITTI_GEO.fx * KITTI_GEO.baseline
+    d_true, e_d, steps = covariance_errors()
+    print("\n## Measurement covariance vs real errors (TUNING data: KITTI 2015 pairs", FIT_PAIRS)
+    print("regions, estimator c after the default bias model; object frames 000000..000100, the")
+    print("centre step on the true visible surface). Spreads = 1.4826 median |error| (about 0).")
+    far = d_true < 40
+    print(
+        f"disparity error (< 40 px, n={int(far.sum())}): median {np.median(e_d[far]):+.2f} px, "
+        f"spread {_spread0(e_d[far]):.2f} px (< 20 px: {_spread0(e_d[d_true < 20]):.2f}, "
+        f"20-40 px: {_spread0(e_d[(d_true >= 20) & far]):.2f})"
+    )
+    along, lateral = steps[:, 1], steps[:, 2]
+    lat_px = lateral * KITTI_GEO.fx / steps[:, 0]
+    print(
+        f"centre step (n={len(steps)}): along-ray spread {_spread0(along):.2f} m, lateral spread "
+        f"{_spread0(lateral):.2f} m = {_spread0(lat_px):.2f} px"
+    )
+    z_reg = fb / d_true
+    dz_reg = fb / (d_true + e_d) - z_reg
+    offset = _spread0(along)
+    sigma_d = consistent_sigma_d(z_reg, dz_reg, fb)
+    fitted = replace(rp, sigma_d=sigma_d, depth_offset_std=offset)
+    print(
+        f"consistent values (depth_offset_std = the centre step's along-ray spread; sigma_d such "
+        f"that the regions' squared depth errors over the disparity term have the chi2(1) "
+        f"median 0.455): "
+        f"sigma_d {sigma_d:.3f} px (default {rp.sigma_d}), depth_offset_std {offset:.3f} m "
+        f"(default {rp.depth_offset_std}); sigma_pixel: lateral spread above (default "
+        f"{rp.sigma_pixel})"
+    )
+    for name, p in (("defaults", rp), ("consistent values", fitted)):
+        r_reg = dz_reg**2 / _depth_var(z_reg, replace(p, depth_offset_std=0.0), fb)
+        r_car = along**2 / p.depth_offset_std**2
+        print(
+            f"  {name}: squared normalised depth error, median / share < 1 (chi2(1): 0.455 / "
+            f"0.68): regions (disparity term) {np.median(r_reg):.3f} / {np.mean(r_reg < 1):.2f}, "
+            f"cars (centre step) {np.median(r_car):.3f} / {np.mean(r_car < 1):.2f}"
+        )
+    print(
+        "| range [m] | regions | cars | actual depth std [m] | reported (defaults) | ratio | "
+        "reported (consistent values) | ratio |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for lo, hi in COV_BUCKETS:
+        sel = (z_reg >= lo) & (z_reg < hi)
+        near = (steps[:, 0] >= lo) & (steps[:, 0] < hi)
+        step_sd = _spread0(along[near]) if near.sum() >= 5 else _spread0(along)
+        actual = math.hypot(_spread0(dz_reg[sel]), step_sd) if sel.sum() >= 5 else float("nan")
+        zm = 0.5 * (lo + hi)
+        rep, rep_fit = (
+            math.sqrt(position_covariance(KITTI_GEO.cx, KITTI_GEO.cy, zm, KITTI_GEO, p)[2, 2])
+            for p in (rp, fitted)
+        )
+        print(
+            f"| {lo:.0f}-{hi:.0f} | {int(sel.sum())} | {int(near.sum())} | {actual:.2f} | "
+            f"{rep:.2f} | {actual / rep:.2f} | {rep_fit:.2f} | {actual / rep_fit:.2f} |"
+        )
+
+
 def _centre_cell(recs, name: str) -> str:
     errs = []
     for r in recs:
@@ -870,6 +994,7 @@ def main() -> int:
             "centre",
             "centre_real",
             "timing",
+            "covariance",
             "all",
         ],
     )
@@ -896,6 +1021,8 @@ def main() -> int:
         bench_centre_real()
     if args.section in ("centre", "all"):
         bench_centre(DEFAULT, args.synth)
+    if args.section in ("covariance", "all"):
+        bench_covariance()
     if args.section in ("timing", "all"):
         bench_timing(variants, args.repeats)
     return 0
