@@ -19,13 +19,15 @@ Per track ``num_particles`` particles of the constant-velocity state (x, y, z, v
   (gain K = Q H' (H Q H' + R)^-1, covariance (I - K H) Q). With a precise detection the bootstrap
   leaves few particles near it (the weights degenerate); here every particle moves to it.
   In both: when the effective sample size falls below ``resample_fraction`` of
-  the particles, systematic resampling (before the draw, with the optimal proposal), then a small
-  regularisation jitter (``roughening`` times the posterior spread) so that resampled copies do
-  not collapse onto one point. When the detection
+  the particles, systematic resampling (before the draw, with the optimal proposal), then an
+  optional regularisation jitter (``roughening`` times the posterior spread; default 0: with the
+  optimal proposal every resampled copy gets its own draw of the noise, and the jitter only
+  inflates the covariance; the bootstrap proposal needs about 0.2). When the detection
   is implausible for every particle (smallest squared Mahalanobis distance > ``reseed_gate``) the
   track's positions are re-drawn around it (velocities kept).
 
-Estimates are weighted particle means; covariances the weighted sample covariances.
+Estimates are weighted particle means; covariances the weighted sample covariances (plus the
+pending process noise).
 
 Departures from the paper (Chan et al. 2019: 100 particles within 1 m, a fixed 9 m^2 weighting
 Gaussian, velocity = mean of the last 3 finite differences of the estimates): on real KITTI
@@ -73,7 +75,7 @@ class BatchedParticleFilter:
         init_velocity_var: float = 50.0,
         init_velocity: str = "zero",
         init_position_from_detection: bool = False,
-        roughening: float = 0.2,
+        roughening: float = 0.0,
         resample_fraction: float = 0.5,
         reseed_gate: float = 100.0,
         proposal: str = "optimal",
