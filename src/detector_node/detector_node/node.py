@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import sys
 
+import numpy as np
 import rclpy
+from kitti_player_node.frame_accounting import FrameCounter, LatestFrameWorker
 from kitti_player_node.frame_messages import kitti_objects_from_message, stamp_ns, xyxy_to_bbox
 from kitti_player_node.image_conversion import ImageConversionError, image_to_rgb
 from kitti_player_node.node_parameters import declare_parameters
-from rclpy.executors import ExternalShutdownException
+from kitti_player_node.node_runtime import NodeHealth, StopRequest, spin_until_stopped
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2D, VehicleDetection2DArray
 
@@ -67,6 +70,8 @@ class VehicleDetectorNode(Node):
         p = declare_parameters(self, PARAMETERS)  # ValueError names a mistyped parameter
         self.backend = str(p["backend"])
         types = tuple(p["vehicle_types"])
+        self.frames = FrameCounter()  # images in, detection arrays out, images skipped
+        self.worker: LatestFrameWorker | None = None
         self.pub = self.create_publisher(VehicleDetection2DArray, DETECTIONS_TOPIC, 10)
         if self.backend == "cnn":
             import torch
@@ -87,6 +92,11 @@ class VehicleDetectorNode(Node):
                 f"cnn backend: {c.size} model (width {c.width}, depth {c.depth}), input "
                 f"{c.input_width}x{c.input_height}, device {self.cnn.device}"
             )
+            # the first inference's set-up cost is paid here, before the graph is ready
+            self.cnn.detect(np.zeros((c.input_height, c.input_width, 3), np.uint8))
+            # latest-frame policy: the newest image is detected, an image still waiting when a
+            # newer one arrives is skipped and counted (never a growing queue)
+            self.worker = LatestFrameWorker(self._detect, self.frames, "detector", self._failed)
         elif self.backend == "oracle":
             from .oracle import OracleDetector, StampPairing
 
@@ -105,19 +115,34 @@ class VehicleDetectorNode(Node):
         else:
             raise ValueError(f"parameter backend: expected 'cnn' or 'oracle', got {self.backend!r}")
         self.create_subscription(Image, IMAGE_TOPIC, self._on_image, 5)
+        self.health = NodeHealth(
+            self, self.frames, busy=lambda: bool(self.worker and self.worker.busy)
+        )
 
     def _on_image(self, msg: Image) -> None:
+        self.frames.received()
         if self.backend == "oracle":
             for image, labels in self.pairing.add_image(stamp_ns(msg.header), msg):
                 self._publish_oracle(image, labels)
             return
+        self.worker.submit(msg)
+
+    def _failed(self, exc: Exception, msg: Image) -> None:
+        self.get_logger().warning(f"{IMAGE_TOPIC}: detection failed: {exc}; no detections")
+        self._publish(detections_message(msg.header, []))
+
+    def _publish(self, out: VehicleDetection2DArray) -> None:
+        self.pub.publish(out)
+        self.frames.published()
+
+    def _detect(self, msg: Image) -> None:
         try:
             rgb = image_to_rgb(msg)
         except ImageConversionError as exc:
             self.get_logger().warning(f"{IMAGE_TOPIC}: {exc}; publishing no detections")
-            self.pub.publish(detections_message(msg.header, []))
+            self._publish(detections_message(msg.header, []))
             return
-        self.pub.publish(detections_message(msg.header, self.cnn.detect(rgb)))
+        self._publish(detections_message(msg.header, self.cnn.detect(rgb)))
 
     def _on_labels(self, msg: KittiFrameLabels) -> None:
         for image, labels in self.pairing.add_labels(stamp_ns(msg.header), msg):
@@ -134,22 +159,28 @@ class VehicleDetectorNode(Node):
             dets = self.oracle.detect(
                 kitti_objects_from_message(labels), (int(image.width), int(image.height))
             )
-        self.pub.publish(detections_message(image.header, dets))
+        self._publish(detections_message(image.header, dets))
 
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``vehicle_detector``."""
-    rclpy.init(args=args if args is not None else sys.argv)
+    rclpy.init(
+        args=args if args is not None else sys.argv,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
+    stop = StopRequest.install()
     try:
         node = VehicleDetectorNode()
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    except KeyboardInterrupt:  # stopped while loading
+        rclpy.try_shutdown()
+        return 0
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        drain = [node.worker.stop] if node.worker else []
+        spin_until_stopped(node, stop, node.health, on_stop=drain)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -12,13 +12,16 @@ import sys
 import time
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, TrackedVehicleArray
 
+from . import graph_readiness
+from .frame_accounting import FrameCounter
 from .frame_messages import (
     LEFT_FRAME,
     RIGHT_FRAME,
@@ -27,9 +30,11 @@ from .frame_messages import (
     stamp_ns,
     stereo_camera_infos,
 )
+from .graph_readiness import NodeReport, unready_topics
 from .image_conversion import numpy_to_image
 from .kitti import KittiFormatError, TrackingSequence
 from .node_parameters import declare_parameters
+from .node_runtime import DIAGNOSTICS_TOPIC, NodeHealth, StopRequest, reports_from_message
 from .playback import (
     FrameEvent,
     PlaybackScheduler,
@@ -50,13 +55,16 @@ PARAMETERS = {
     "lockstep": False,
     "lockstep_topic": "/vehicles/tracks",
     "lockstep_timeout": 10.0,
+    # published frames that may be unacknowledged at a time (1: one frame in the graph at a time)
+    "lockstep_window": 1,
     "snr_db": 0.0,
     "drop_probability": 0.0,
     "seed": 0,
     "start_time": 1.0,
     "wait_for_subscribers": 0,
-    # "topic:N,topic:N": before the first frame, wait until each published topic has N matched
-    # subscriptions (the process launcher sets it from the graph description)
+    # "topic:N,topic:N": before the first frame, wait until each topic of the graph has N matched
+    # subscriptions, the player's own topics and those of the other nodes (as they report them
+    # on /diagnostics); the launchers set it from the graph description
     "wait_for_topics": "",
     "exit_when_done": True,
 }
@@ -64,13 +72,10 @@ PARAMETERS = {
 
 def parse_topic_counts(spec: str) -> dict[str, int]:
     """``"/a:2,/b:1"`` -> ``{"/a": 2, "/b": 1}``; raises PlayerError for a malformed entry."""
-    counts = {}
-    for entry in filter(None, (e.strip() for e in spec.split(","))):
-        topic, sep, n = entry.rpartition(":")
-        if not sep or not topic or not n.isdigit():
-            raise PlayerError(f"wait_for_topics: expected TOPIC:COUNT, got {entry!r}")
-        counts[topic] = int(n)
-    return counts
+    try:
+        return graph_readiness.parse_topic_counts(spec)
+    except ValueError as exc:
+        raise PlayerError(f"wait_for_topics: {exc}") from None
 
 
 class PlayerError(RuntimeError):
@@ -101,9 +106,10 @@ class KittiPlayerNode(Node):
                 lockstep_timeout=float(p["lockstep_timeout"]) if p["lockstep"] else None,
                 drop_probability=float(p["drop_probability"]),
                 seed=int(p["seed"]),
+                lockstep_window=int(p["lockstep_window"]),
             )
         except ValueError as exc:
-            raise PlayerError(f"drop_probability: {exc}") from None
+            raise PlayerError(f"drop_probability/lockstep_window: {exc}") from None
 
         self.pub_left = self.create_publisher(Image, "/stereo/left/image_rect", 5)
         self.pub_right = self.create_publisher(Image, "/stereo/right/image_rect", 5)
@@ -121,9 +127,15 @@ class KittiPlayerNode(Node):
         self._summary_logged = False
         self._last_wait_log = 0.0
         self._expected = parse_topic_counts(p["wait_for_topics"])
-        unknown = set(self._expected) - {pub.topic_name for pub in self.publishers_list}
-        if unknown:
-            raise PlayerError(f"wait_for_topics: not published by the player: {sorted(unknown)}")
+        self.frames = FrameCounter()  # frames scheduled, published, dropped (drop_probability)
+        self.health = NodeHealth(self, self.frames)
+        # the other nodes' reports: matched subscriptions of the topics they publish
+        self._reports: dict[str, NodeReport] = {}
+        self._report_sub = None
+        if set(self._expected) - {pub.topic_name for pub in self.publishers_list}:
+            self._report_sub = self.create_subscription(
+                DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_reports, 50
+            )
         self.timer = self.create_timer(min(0.01, period / 2) if period > 0 else 0.002, self._tick)
         self.get_logger().info(
             f"sequence {self.sequence.sequence}: {len(frames)} frames "
@@ -151,6 +163,23 @@ class KittiPlayerNode(Node):
             self.pub_right,
         ]
 
+    def _on_reports(self, msg: DiagnosticArray) -> None:
+        for report in reports_from_message(msg):
+            self._reports[report.node] = report
+
+    def _unready(self) -> list[str]:
+        """Topics of the graph not yet matched as expected (own publishers: also every
+        subscription the ROS graph already knows of)."""
+        own = {p.topic_name: p.get_subscription_count() for p in self.publishers_list}
+        unmatched = unready_topics(self._expected, own, self._reports.values())
+        listed = {u.split(" ")[0] for u in unmatched}
+        for p in self.publishers_list:
+            if p.topic_name not in listed and own[p.topic_name] < self.count_subscribers(
+                p.topic_name
+            ):
+                unmatched.append(f"{p.topic_name} (unmatched subscriber)")
+        return unmatched
+
     def _on_lockstep(self, msg: TrackedVehicleArray) -> None:
         stamp = stamp_ns(msg.header)
         if self.scheduler.acknowledge(stamp):
@@ -163,14 +192,8 @@ class KittiPlayerNode(Node):
         if not self._started:
             want = int(self.params["wait_for_subscribers"])
             have = self.pub_left.get_subscription_count()
-            # every subscription the ROS graph already knows of, and the expected number per
-            # topic, must be matched, so that no subscriber misses the first frame
-            unmatched = [
-                p.topic_name
-                for p in self.publishers_list
-                if p.get_subscription_count()
-                < max(self.count_subscribers(p.topic_name), self._expected.get(p.topic_name, 0))
-            ]
+            # every edge of the graph must be matched, so that no node misses the first frame
+            unmatched = self._unready()
             if have < want or unmatched:
                 if now - self._last_wait_log > 2.0:
                     self._last_wait_log = now
@@ -180,6 +203,11 @@ class KittiPlayerNode(Node):
                     )
                 return
             self._started = True
+            if self._report_sub is not None:
+                self.destroy_subscription(self._report_sub)
+                self._report_sub = None
+            if self._expected:
+                self.get_logger().info("every edge of the graph matched: playing")
         timeouts = self.scheduler.stats.lockstep_timeouts
         event = self.scheduler.poll(now)
         if self.scheduler.stats.lockstep_timeouts > timeouts:
@@ -188,13 +216,17 @@ class KittiPlayerNode(Node):
                 f"{self.params['lockstep_timeout']} s, going on"
             )
         if event is not None:
-            if not event.dropped:
+            self.frames.received()
+            if event.dropped:
+                self.frames.dropped()
+            else:
                 try:
                     self._publish(event)
                 except KittiFormatError as exc:
                     self.error = str(exc)  # main() prints it as the one error line
                     self.done = True
                     return
+                self.frames.published()
             stats = self.scheduler.stats
             if (stats.published + stats.dropped) % 10 == 0:
                 self.get_logger().info(
@@ -247,8 +279,13 @@ class KittiPlayerNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console script ``kitti_player``; returns the exit code (2 for a bad dataset/parameter)."""
-    rclpy.init(args=args)
+    """Console script ``kitti_player``; returns the exit code (2 for a bad dataset/parameter).
+    SIGINT/SIGTERM: no frame is published after the signal, the frames already published are
+    flushed to their subscribers, and the process exits with 0."""
+    from .node_runtime import spin_until_stopped
+
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopRequest.install()
     node = None
     try:
         try:
@@ -256,16 +293,12 @@ def main(args: list[str] | None = None) -> int:
         except (KittiFormatError, PlayerError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while rclpy.ok() and not node.done:
-            executor.spin_once(timeout_sec=0.1)
+        spin_until_stopped(node, stop, node.health, on_stop=[node.flush], done=lambda: node.done)
         if node.error is not None:
             print(f"error: {node.error}", file=sys.stderr)
             return 2
-        node.flush()
         return 0
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except KeyboardInterrupt:  # stopped during start-up
         return 0
     finally:
         if node is not None:

@@ -14,9 +14,11 @@ import dataclasses
 import sys
 
 import numpy as np
+from kitti_player_node.frame_accounting import FrameCounter, LatestFrameWorker
 from kitti_player_node.frame_messages import bbox_to_xyxy, stamp_ns
 from kitti_player_node.image_conversion import (
     ImageConversionError,
+    byte_array,
     image_to_rgb,
     numpy_to_image,
 )
@@ -78,6 +80,7 @@ class _Frame:
     header: object
     disparity: np.ndarray | None
     geometry: StereoGeometry | None
+    skipped: bool = False  # superseded by a newer pair (latest-frame policy): no 3D array
 
 
 def build_point_cloud(points: np.ndarray, colours: np.ndarray | None, header):
@@ -103,7 +106,7 @@ def build_point_cloud(points: np.ndarray, colours: np.ndarray | None, header):
     msg.point_step = 4 * data.shape[1]
     msg.row_step = msg.point_step * msg.width
     msg.is_dense = True
-    msg.data = data.tobytes()
+    msg.data = byte_array(data)
     return msg
 
 
@@ -149,6 +152,13 @@ def _make_node_class():
             self.unranged_detections = 0
             self.frames_processed = 0
             self.frames_failed = 0
+            # frames = detection arrays: in, 3D arrays out, dropped with their skipped pair.
+            # Everything after stereo pairing runs in order in one worker thread; a pair still
+            # waiting when a newer one is complete is skipped (latest-frame policy).
+            self.frames = FrameCounter()
+            self.worker = LatestFrameWorker(
+                self._work, name="stereo", on_error=self._work_failed, skip=self._skip_pair
+            )
 
             self.pub_disparity = self.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)
             self.pub_points = None
@@ -168,6 +178,13 @@ def _make_node_class():
                 self._on_detections,
                 QoSProfile(depth=10),
             )
+            from kitti_player_node.node_runtime import NodeHealth
+
+            self.health = NodeHealth(self, self.frames, busy=lambda: self.worker.busy)
+
+        def destroy_node(self):
+            self.worker.stop()  # the frames in hand and waiting are finished first
+            super().destroy_node()
 
         # ------------------------------------------------------------------ parameters
         def _declare(self, name: str, default):
@@ -252,12 +269,33 @@ def _make_node_class():
                 )
                 # its detection array (waiting or still to come) gets an empty 3D array
                 header = next(iter(ev.values.values())).header
-                self._add_to_frame_sync(ev.stamp, "frame", _Frame(header, None, None))
+                self.worker.submit(("frame", ev.stamp, _Frame(header, None, None)), frame=False)
             if group is not None:
-                self._process_pair(group["left"], group["right"])
+                self.worker.submit(("pair", group["left"], group["right"]))
 
         def _on_detections(self, msg) -> None:
-            self._add_to_frame_sync(stamp_ns(msg.header), "detections", msg)
+            self.frames.received()
+            self.worker.submit(("detections", stamp_ns(msg.header), msg), frame=False)
+
+        def _work(self, item) -> None:
+            kind, a, b = item
+            if kind == "pair":
+                self._process_pair(a, b)
+            else:
+                self._add_to_frame_sync(a, kind, b)
+
+        def _skip_pair(self, item) -> None:
+            left = item[1]
+            self._add_to_frame_sync(
+                stamp_ns(left.header), "frame", _Frame(left.header, None, None, True)
+            )
+
+        def _work_failed(self, exc: Exception, item) -> None:
+            self.get_logger().warning(f"stereo processing failed: {exc}")
+            if item[0] == "pair":
+                self._add_to_frame_sync(
+                    stamp_ns(item[1].header), "frame", _Frame(item[1].header, None, None)
+                )
 
         def _add_to_frame_sync(self, key, slot, value) -> None:
             group = self.frame_sync.add(key, slot, value)
@@ -336,8 +374,12 @@ def _make_node_class():
             out = self._msg_types[2]()
             out.header = det_msg.header
             self.pub_det3d.publish(out)
+            self.frames.published()
 
         def _publish_detections(self, frame: _Frame, det_msg) -> None:
+            if frame.skipped:
+                self.frames.dropped()
+                return
             _, VehicleDetection3D, VehicleDetection3DArray = self._msg_types
             out = VehicleDetection3DArray()
             out.header = frame.header if frame.disparity is not None else det_msg.header
@@ -367,6 +409,7 @@ def _make_node_class():
                 m.valid_pixel_fraction = float(r.valid_pixel_fraction)
                 out.detections.append(m)
             self.pub_det3d.publish(out)
+            self.frames.published()
 
     return StereoDepthNode
 
@@ -380,20 +423,23 @@ def main(args=None) -> int:
     """Console script ``stereo_depth``."""
     import cv2
     import rclpy
-    from rclpy.executors import ExternalShutdownException
+    from kitti_player_node.node_runtime import StopRequest, spin_until_stopped
+    from rclpy.signals import SignalHandlerOptions
 
     cv2.setNumThreads(2)
-    rclpy.init(args=args)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopRequest.install()
     try:
         node = create_node()
     except ValueError as exc:
         print(f"error: parameters: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    except KeyboardInterrupt:  # stopped during start-up
+        rclpy.try_shutdown()
+        return 0
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_stopped(node, stop, node.health, on_stop=[node.worker.stop])
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

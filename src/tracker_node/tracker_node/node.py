@@ -15,6 +15,7 @@ import sys
 from dataclasses import fields
 
 import numpy as np
+from kitti_player_node.frame_accounting import FrameCounter
 from kitti_player_node.frame_messages import bbox_to_xyxy, stamp_ns, xyxy_to_bbox
 
 from .config import NODE_NAME, TrackerConfig, TrackerConfigError
@@ -177,6 +178,10 @@ def _make_node_class():
                     CameraInfo, "/stereo/left/camera_info", self.on_camera_info, 5
                 )
             self.shown_ids: set[int] = set()
+            from kitti_player_node.node_runtime import NodeHealth
+
+            self.frames = FrameCounter()  # detection arrays in, track arrays out
+            self.health = NodeHealth(self, self.frames)
 
         def on_camera_info(self, msg) -> None:
             P = np.asarray(msg.p, float).reshape(3, 4)
@@ -188,6 +193,7 @@ def _make_node_class():
             self.tracker.set_projection(P, (msg.width, msg.height))
 
         def on_detections(self, msg) -> None:
+            self.frames.received()
             try:
                 dets, problems = detections_from_msg(msg)
             except (ValueError, TypeError) as exc:
@@ -198,6 +204,7 @@ def _make_node_class():
             stamp = stamp_ns(msg.header) * 1e-9
             tracks = self.tracker.step(dets, stamp)
             self.pub.publish(tracks_to_msg(tracks, msg.header))
+            self.frames.published()
             ids = {int(t) for t in tracks.track_id}
             ended = sorted(self.shown_ids - ids)
             self.shown_ids = ids
@@ -213,19 +220,24 @@ def create_node(**kwargs):
 
 def main(args: list[str] | None = None) -> int:
     import rclpy
-    from rclpy.executors import ExternalShutdownException
+    from kitti_player_node.node_runtime import StopRequest, spin_until_stopped
+    from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=args if args is not None else sys.argv)
+    rclpy.init(
+        args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO
+    )
+    stop = StopRequest.install()
     try:
         node = create_node()
     except TrackerConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    except KeyboardInterrupt:  # stopped during start-up
+        rclpy.try_shutdown()
+        return 0
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_stopped(node, stop, node.health)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -14,8 +14,11 @@ from dataclasses import dataclass, field, replace
 class NodeSpec:
     """One node process of the graph.
 
-    ``source`` nodes produce the data (the player); the launcher starts them only after every
-    other node's subscriptions are up, so no frame is published into an unready graph.
+    ``source`` nodes produce the data (the player). They are told, through ``wait_parameter``,
+    how many subscriptions every topic of the graph must have matched (:func:`edge_counts`) and
+    publish nothing before (the other nodes report their matches on /diagnostics), so no frame
+    is published into an unready graph whatever the start order; the process launcher also
+    starts them last.
     ``finishes`` nodes may exit on their own with code 0 (the player at the end of a sequence).
     """
 
@@ -29,7 +32,7 @@ class NodeSpec:
     optional: bool = False
     extra_args: tuple[str, ...] = field(default=())
     #: parameter through which a source node is told how many subscriptions to wait for per
-    #: published topic ("topic:N,topic:N") before it publishes its first message
+    #: topic of the graph ("topic:N,topic:N") before it publishes its first message
     wait_parameter: str | None = None
 
 
@@ -117,9 +120,36 @@ def with_detector_backend(nodes: list[NodeSpec], backend: str) -> list[NodeSpec]
     return [spec if n.name == DETECTOR.name else n for n in nodes]
 
 
-def expected_subscriptions(source: NodeSpec, nodes: list[NodeSpec]) -> dict[str, int]:
-    """For each topic ``source`` publishes: how many of the other ``nodes`` subscribe to it."""
-    return {
-        topic: sum(topic in n.subscribes for n in nodes if n.name != source.name)
-        for topic in source.publishes
-    }
+def edge_counts(nodes: list[NodeSpec], extra: dict[str, int] | None = None) -> dict[str, int]:
+    """For every topic published by one of ``nodes``: how many of the other ``nodes`` subscribe
+    to it (plus ``extra`` subscribers outside the graph, e.g. the demo's progress display). Topics
+    nobody subscribes to are left out. These are the edges a source waits for."""
+    counts: dict[str, int] = {}
+    for pub in nodes:
+        for topic in pub.publishes:
+            n = sum(topic in s.subscribes for s in nodes if s.name != pub.name)
+            n += (extra or {}).get(topic, 0)
+            if n:
+                counts[topic] = max(counts.get(topic, 0), n)
+    return counts
+
+
+def source_parameters(
+    nodes: list[NodeSpec], extra: dict[str, int] | None = None
+) -> dict[str, dict[str, str]]:
+    """``{source node: {wait_parameter: "topic:N,..."}}`` for the sources among ``nodes``: every
+    edge of the graph (:func:`edge_counts`) must be matched before they publish."""
+    spec = ",".join(f"{t}:{n}" for t, n in edge_counts(nodes, extra).items())
+    return {n.name: {n.wait_parameter: spec} for n in nodes if n.source and n.wait_parameter}
+
+
+def parameter_value(params_file, node: str, name: str, default):
+    """A parameter's value in a ROS parameter YAML file (``default`` when absent)."""
+    from pathlib import Path
+
+    if not params_file or not Path(params_file).is_file():
+        return default
+    import yaml
+
+    data = yaml.safe_load(Path(params_file).read_text()) or {}
+    return data.get(node, {}).get("ros__parameters", {}).get(name, default)
