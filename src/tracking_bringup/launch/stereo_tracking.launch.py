@@ -26,6 +26,8 @@ def _graph_nodes(context):
     nodes = [n for n in graph.PIPELINE if record or not n.optional]
     backend = graph.parameter_value(params, graph.DETECTOR.name, "backend", "cnn")
     nodes = graph.with_detector_backend(nodes, str(backend))
+    lockstep = graph.parameter_value(params, graph.PLAYER.name, "lockstep", False)
+    nodes = graph.with_lockstep(nodes, graph.as_bool(lockstep))
     waits = graph.source_parameters(nodes)  # every edge of the graph, for the player
     share = get_package_share_directory("tracking_bringup")
     env = {k: v for k, v in graph_environment({}).items() if k != "PYTHONUNBUFFERED"}

@@ -120,6 +120,17 @@ def with_detector_backend(nodes: list[NodeSpec], backend: str) -> list[NodeSpec]
     return [spec if n.name == DETECTOR.name else n for n in nodes]
 
 
+def with_lockstep(nodes: list[NodeSpec], lockstep: bool) -> list[NodeSpec]:
+    """``nodes`` with the player's lockstep subscription (the tracks) only when it is on."""
+    spec = PLAYER if lockstep else replace(PLAYER, subscribes=())
+    return [spec if n.name == PLAYER.name else n for n in nodes]
+
+
+def as_bool(value) -> bool:
+    """A boolean parameter value from a YAML file or a ``-p`` override string."""
+    return value if isinstance(value, bool) else str(value).strip().lower() == "true"
+
+
 def edge_counts(nodes: list[NodeSpec], extra: dict[str, int] | None = None) -> dict[str, int]:
     """For every topic published by one of ``nodes``: how many of the other ``nodes`` subscribe
     to it (plus ``extra`` subscribers outside the graph, e.g. the demo's progress display). Topics

@@ -196,7 +196,7 @@ class GraphLauncher:
                     + _tail(run.log_path),
                     node=name,
                 )
-            self._spin(poll)
+            self.spin_reports(poll)
 
     def request_stop(self, *_args) -> None:
         """Ask :meth:`wait` to return (signal handler)."""
@@ -282,7 +282,7 @@ class GraphLauncher:
         deadline = time.monotonic() + self.drain_timeout
         last, changed = None, time.monotonic()
         while True:
-            self._spin(0.05)
+            self.spin_reports(0.05)
             now = time.monotonic()
             live = {
                 n: r
@@ -298,7 +298,7 @@ class GraphLauncher:
             if now > deadline:
                 return False
 
-    def _spin(self, timeout: float) -> None:
+    def spin_reports(self, timeout: float) -> None:
         """Take the observer's messages (node reports) for up to ``timeout`` seconds."""
         if self._executor is None:
             time.sleep(timeout)
@@ -388,7 +388,7 @@ class GraphLauncher:
                     + ", ".join(missing),
                     node=node,
                 )
-            self._spin(0.1)
+            self.spin_reports(0.1)
 
 
 def _tail(path: Path, lines: int = 15) -> str:
@@ -407,7 +407,8 @@ def graph_processes(
 ) -> list[ProcessSpec]:
     """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings.
 
-    The detector's subscriptions follow its ``backend`` parameter (file or override), and each
+    The detector's subscriptions follow its ``backend`` parameter, the player's its ``lockstep``
+    parameter (file or override; the node's default is off), and each
     source node is told how many subscriptions to wait for on every edge of the graph (plus
     ``extra_subscriptions`` per topic from outside the graph, e.g. a progress display)."""
     per_node: dict[str, list[str]] = {n.name: [] for n in nodes}
@@ -422,6 +423,8 @@ def graph_processes(
     nodes = graph.with_detector_backend(
         list(nodes), _parameter(params_file, per_node, graph.DETECTOR.name, "backend", "cnn")
     )
+    lockstep = _parameter(params_file, per_node, graph.PLAYER.name, "lockstep", False)
+    nodes = graph.with_lockstep(nodes, graph.as_bool(lockstep))
     for name, params in graph.source_parameters(nodes, extra_subscriptions).items():
         per_node[name] += [f"{k}:={v}" for k, v in params.items()]
     return [
