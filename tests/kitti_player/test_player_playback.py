@@ -169,3 +169,29 @@ def test_lockstep_window_keeps_frames_in_flight():
     assert sched.finished
     with pytest.raises(ValueError, match="lockstep_window"):
         PlaybackScheduler([0], 1.0, 0.0, lockstep_timeout=1.0, lockstep_window=0)
+
+
+def test_frame_prefetcher_reads_ahead_and_falls_back():
+    import threading
+
+    from kitti_player_node.playback import FramePrefetcher
+
+    reads, threads = [], []
+
+    def read(frame):
+        if frame == 9:
+            raise OSError("frame 9: unreadable")
+        reads.append(frame)
+        threads.append(threading.current_thread().name)
+        return frame * 10
+
+    pre = FramePrefetcher(read)
+    pre.prefetch(1)
+    assert pre.get(1) == 10 and threads[-1].startswith("prefetch")
+    pre.prefetch(2)
+    assert pre.get(3) == 30 and threads[-1] == threading.current_thread().name  # not prefetched
+    pre.prefetch(9)
+    with pytest.raises(OSError, match="frame 9"):
+        pre.get(9)
+    pre.close()
+    assert sorted(reads) == [1, 2, 3]

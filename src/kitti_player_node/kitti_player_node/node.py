@@ -37,6 +37,7 @@ from .node_parameters import declare_parameters
 from .node_runtime import DIAGNOSTICS_TOPIC, NodeHealth, StopRequest, reports_from_message
 from .playback import (
     FrameEvent,
+    FramePrefetcher,
     PlaybackScheduler,
     add_snr_noise,
     frame_noise_rng,
@@ -127,6 +128,8 @@ class KittiPlayerNode(Node):
         self._summary_logged = False
         self._last_wait_log = 0.0
         self._expected = parse_topic_counts(p["wait_for_topics"])
+        self.reader = FramePrefetcher(self.sequence.read_stereo)
+        self.reader.prefetch(self.scheduler.next_frame)
         self.frames = FrameCounter()  # frames scheduled, published, dropped (drop_probability)
         self.health = NodeHealth(self, self.frames)
         # the other nodes' reports: matched subscriptions of the topics they publish
@@ -238,7 +241,8 @@ class KittiPlayerNode(Node):
                 self.done = True
 
     def _publish(self, event: FrameEvent) -> None:
-        left, right = self.sequence.read_stereo(event.frame)
+        left, right = self.reader.get(event.frame)
+        self.reader.prefetch(self.scheduler.next_frame)  # read while the graph works
         snr = float(self.params["snr_db"])
         if snr_enabled(snr):
             rng = frame_noise_rng(self.params["seed"], event.frame, event.loop_pass)
@@ -302,6 +306,7 @@ def main(args: list[str] | None = None) -> int:
         return 0
     finally:
         if node is not None:
+            node.reader.close()
             node.destroy_node()
         rclpy.try_shutdown()
 

@@ -47,6 +47,7 @@ _NODE_PARAMS = {
     "points_max_depth": 80.0,
     "points_rgb": False,
     "sync_cache_size": 10,
+    "num_threads": 2,  # OpenCV threads of the matcher (cv2.setNumThreads, process-wide)
     "match_rows": [0, 0],  # [top, bottom) rows to match; bottom <= top means all rows
 }
 
@@ -137,6 +138,9 @@ def _make_node_class():
             self.points_decimation = int(p["points_decimation"])
             self.points_max_depth = float(p["points_max_depth"])
             self.points_rgb = bool(p["points_rgb"])
+            import cv2
+
+            cv2.setNumThreads(max(1, int(p["num_threads"])))
             if len(p["match_rows"]) != 2:
                 raise ValueError(f"parameter match_rows: {p['match_rows']} needs [top, bottom]")
             self.match_rows = (int(p["match_rows"][0]), int(p["match_rows"][1]))
@@ -421,12 +425,10 @@ def create_node(**kwargs):
 
 def main(args=None) -> int:
     """Console script ``stereo_depth``."""
-    import cv2
     import rclpy
     from kitti_player_node.node_runtime import StopRequest, spin_until_stopped
     from rclpy.signals import SignalHandlerOptions
 
-    cv2.setNumThreads(2)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = StopRequest.install()
     try:
