@@ -107,7 +107,10 @@ sys.exit(run_graph([talker, listener], {str(tmp_path)!r}, ready_timeout=30))
         return found
 
     assert len(children()) == 2
-    time.sleep(0.5)
+    log = tmp_path / "listener.log"
+    end = time.monotonic() + 30  # messages flow (bounded: a loaded machine is slow)
+    while "heard: hello" not in log.read_text() and time.monotonic() < end:
+        time.sleep(0.1)
     proc.send_signal(signal.SIGINT)
     assert proc.wait(timeout=60) == 0
     assert children() == []

@@ -40,12 +40,19 @@ class _Recorder:
         self.args, self.kwargs = args, kwargs
 
 
+class _LaunchConfiguration(_Recorder):
+    """Stands in for LaunchConfiguration: ``perform(context)`` looks the argument up."""
+
+    def perform(self, context):
+        return context[self.args[0]]
+
+
 def _load_launch_description():
     stubs = {
         "launch": {"LaunchDescription": _Recorder},
-        "launch.actions": {"DeclareLaunchArgument": _Recorder},
+        "launch.actions": {"DeclareLaunchArgument": _Recorder, "OpaqueFunction": _Recorder},
         "launch.conditions": {"IfCondition": _Recorder},
-        "launch.substitutions": {"LaunchConfiguration": _Recorder},
+        "launch.substitutions": {"LaunchConfiguration": _LaunchConfiguration},
         "launch_ros.actions": {"Node": type("Node", (_Recorder,), {})},
         "launch_ros": {},
         "ament_index_python.packages": {
@@ -70,9 +77,16 @@ def _load_launch_description():
                 sys.modules[name] = mod
 
 
+def _launched_nodes(description, params_file=PARAMS_FILE, record="true"):
+    """The Node actions the launch file's OpaqueFunction returns for these launch arguments."""
+    (opaque,) = [a for a in description.args[0] if "function" in a.kwargs]
+    actions = opaque.kwargs["function"]({"params_file": str(params_file), "record": record})
+    return [a for a in actions if type(a).__name__ == "Node"]
+
+
 def test_launch_file_matches_graph_entry_points_and_params():
     description = _load_launch_description()
-    nodes = [a for a in description.args[0] if type(a).__name__ == "Node"]
+    nodes = _launched_nodes(description)
     described = [(n.kwargs["name"], n.kwargs["package"], n.kwargs["executable"]) for n in nodes]
     assert described == [(s.name, s.package, s.executable) for s in graph.PIPELINE]
     params = yaml.safe_load(PARAMS_FILE.read_text())
@@ -116,3 +130,30 @@ def test_colcon_build_of_the_workspace(tmp_path):
     )
     assert check.returncode == 0, check.stderr
     assert check.stdout.startswith(str(site)), check.stdout
+
+
+def test_launch_file_gives_the_player_every_edge_of_the_graph(tmp_path):
+    """ros2 launch starts every node at once: the player must be told every edge of the graph
+    actually launched (recorder or not, detector backend and lockstep from the parameter file)."""
+    description = _load_launch_description()
+
+    def player_wait(nodes):
+        (player,) = [n for n in nodes if n.kwargs["name"] == graph.PLAYER.name]
+        return player.kwargs["parameters"][1]["wait_for_topics"]
+
+    full = player_wait(_launched_nodes(description))
+    assert "/vehicles/detections_3d:2" in full  # stereo -> tracker and recorder
+    assert "/vehicles/tracks:2" in full  # tracker -> recorder and the player (lockstep)
+    assert "/vehicles/detections_2d:2" in full
+    no_bag = _launched_nodes(description, record="false")
+    assert graph.RECORDER.name not in [n.kwargs["name"] for n in no_bag]
+    assert "/vehicles/detections_3d:1" in player_wait(no_bag)
+    assert "/clock" not in player_wait(no_bag)  # only the recorder subscribes to it
+    params = yaml.safe_load(PARAMS_FILE.read_text())
+    params["kitti_player"]["ros__parameters"]["lockstep"] = False
+    params["vehicle_detector"]["ros__parameters"]["backend"] = "oracle"
+    other = tmp_path / "params.yaml"
+    other.write_text(yaml.safe_dump(params))
+    wait = player_wait(_launched_nodes(description, params_file=other))
+    assert "/vehicles/tracks:1" in wait  # no lockstep subscription to wait for
+    assert "/kitti/ground_truth:2" in wait  # the oracle detector reads the ground truth

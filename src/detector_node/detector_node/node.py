@@ -119,6 +119,11 @@ class VehicleDetectorNode(Node):
             self, self.frames, busy=lambda: bool(self.worker and self.worker.busy)
         )
 
+    def destroy_node(self):
+        if self.worker is not None:
+            self.worker.stop()  # the image in hand and the one waiting are finished first
+        super().destroy_node()
+
     def _on_image(self, msg: Image) -> None:
         self.frames.received()
         if self.backend == "oracle":
