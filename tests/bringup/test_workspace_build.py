@@ -157,3 +157,28 @@ def test_launch_file_gives_the_player_every_edge_of_the_graph(tmp_path):
     wait = player_wait(_launched_nodes(description, params_file=other))
     assert "/vehicles/tracks:1" in wait  # no lockstep subscription to wait for
     assert "/kitti/ground_truth:2" in wait  # the oracle detector reads the ground truth
+
+
+def test_lockstep_window_sets_the_frame_queue_of_latest_frame_nodes():
+    """K frames in flight in lockstep: the detector and stereo keep K waiting frames (nothing
+    skipped); a -p override of the user's wins; off in real-time playback."""
+    from tracking_bringup.launcher import graph_processes
+
+    def argv_of(overrides):
+        procs = graph_processes(graph.PIPELINE, PARAMS_FILE, overrides)
+        return {p.name: " ".join(p.argv) for p in procs}
+
+    on = argv_of(["kitti_player.lockstep:=true", "kitti_player.lockstep_window:=3"])
+    assert "frame_queue:=3" in on[graph.DETECTOR.name]
+    assert "frame_queue:=3" in on[graph.STEREO.name]
+    assert "frame_queue" not in on[graph.TRACKER.name]
+    mine = argv_of(
+        [
+            "kitti_player.lockstep:=true",
+            "kitti_player.lockstep_window:=3",
+            "stereo_depth.frame_queue:=1",
+        ]
+    )[graph.STEREO.name]
+    assert mine.index("frame_queue:=3") < mine.index("frame_queue:=1")  # the later one wins
+    off = argv_of(["kitti_player.lockstep:=false", "kitti_player.lockstep_window:=3"])
+    assert "frame_queue" not in off[graph.DETECTOR.name]

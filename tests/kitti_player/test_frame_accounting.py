@@ -121,3 +121,32 @@ def test_topic_counts_parse_and_format():
     assert format_topic_counts({"/a": 2, "/b": 0}) == "/a:2"
     with pytest.raises(ValueError, match="'/a'"):
         parse_topic_counts("/a")
+
+
+def test_max_waiting_keeps_that_many_newest_frames():
+    """Lockstep with K frames in flight: K frames may wait, none is skipped; one more is."""
+    gate = threading.Event()
+    done, skipped = [], []
+
+    def process(frame):
+        gate.wait(5)
+        done.append(frame)
+
+    worker = LatestFrameWorker(process, skip=skipped.append, max_waiting=2)
+    worker.submit(0)
+    time.sleep(0.02)
+    worker.submit(1)
+    worker.submit(2)  # two waiting: kept
+    gate.set()
+    worker.wait_idle(5)
+    assert done == [0, 1, 2] and skipped == []
+    gate.clear()
+    worker.submit(3)
+    time.sleep(0.02)
+    for frame in (4, 5, 6):  # three waiting: the oldest is skipped
+        worker.submit(frame)
+    gate.set()
+    worker.stop()
+    assert done == [0, 1, 2, 3, 5, 6] and skipped == [4]
+    with pytest.raises(ValueError, match="max_waiting"):
+        LatestFrameWorker(process, max_waiting=0)

@@ -38,6 +38,9 @@ PARAMETERS = {
     "input_width": 0,
     "input_height": 0,
     "num_threads": 2,
+    # newest images kept waiting while one is detected (1: latest-frame policy; the launcher sets
+    # the player's lockstep_window in lockstep so that nothing is skipped)
+    "frame_queue": 1,
     "vehicle_types": ["Car", "Van"],
     "oracle_box_noise_px": 0.0,
     "oracle_score": 1.0,
@@ -96,7 +99,13 @@ class VehicleDetectorNode(Node):
             self.cnn.detect(np.zeros((c.input_height, c.input_width, 3), np.uint8))
             # latest-frame policy: the newest image is detected, an image still waiting when a
             # newer one arrives is skipped and counted (never a growing queue)
-            self.worker = LatestFrameWorker(self._detect, self.frames, "detector", self._failed)
+            self.worker = LatestFrameWorker(
+                self._detect,
+                self.frames,
+                "detector",
+                self._failed,
+                max_waiting=max(1, int(p["frame_queue"])),
+            )
         elif self.backend == "oracle":
             from .oracle import OracleDetector, StampPairing
 

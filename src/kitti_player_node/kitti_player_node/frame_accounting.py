@@ -70,12 +70,14 @@ class FrameCounter:
 class LatestFrameWorker:
     """Processes submitted items in order in its own thread, skipping stale frames.
 
-    Items are submitted as frames (``frame=True``: superseded by a newer frame) or as other
+    Items are submitted as frames (``frame=True``: superseded by newer frames) or as other
     items (always processed, e.g. the small messages a frame is combined with). When the worker
-    takes a frame while a newer frame is already waiting, it calls ``skip(item)`` instead of
-    ``process(item)`` and counts a drop on ``counter``: the newest frame is processed, the queue
-    of frames never grows beyond one. An exception in ``process`` goes to ``on_error(exc, item)``
-    (default: one line on stderr) and the worker goes on.
+    takes a frame while ``max_waiting`` newer frames are already waiting, it calls
+    ``skip(item)`` instead of ``process(item)`` and counts a drop on ``counter``: with the
+    default of 1, the newest frame is processed and the queue of frames never grows beyond one;
+    lockstep playback with K frames in flight uses ``max_waiting = K`` and never skips. An
+    exception in ``process`` goes to ``on_error(exc, item)`` (default: one line on stderr) and
+    the worker goes on.
     """
 
     def __init__(
@@ -85,7 +87,11 @@ class LatestFrameWorker:
         name: str = "frame-worker",
         on_error: Callable[[BaseException, Any], None] | None = None,
         skip: Callable[[Any], None] | None = None,
+        max_waiting: int = 1,
     ) -> None:
+        if max_waiting < 1:
+            raise ValueError(f"max_waiting {max_waiting} must be >= 1")
+        self.max_waiting = int(max_waiting)
         self._process = process
         self._skip = skip
         self._on_error = on_error or _print_error
@@ -119,7 +125,7 @@ class LatestFrameWorker:
             item, frame = self._queue.popleft()
             self._frames_waiting -= frame
             self._busy = True
-            return True, item, frame and self._frames_waiting > 0
+            return True, item, frame and self._frames_waiting >= self.max_waiting
 
     def _run(self) -> None:
         while True:

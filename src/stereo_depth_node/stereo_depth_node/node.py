@@ -48,6 +48,7 @@ _NODE_PARAMS = {
     "points_rgb": False,
     "sync_cache_size": 10,
     "num_threads": 2,  # OpenCV threads of the matcher (cv2.setNumThreads, process-wide)
+    "frame_queue": 1,  # newest stereo pairs kept waiting (1: latest-frame policy)
     "match_rows": [0, 0],  # [top, bottom) rows to match; bottom <= top means all rows
 }
 
@@ -161,7 +162,11 @@ def _make_node_class():
             # waiting when a newer one is complete is skipped (latest-frame policy).
             self.frames = FrameCounter()
             self.worker = LatestFrameWorker(
-                self._work, name="stereo", on_error=self._work_failed, skip=self._skip_pair
+                self._work,
+                name="stereo",
+                on_error=self._work_failed,
+                skip=self._skip_pair,
+                max_waiting=max(1, int(p["frame_queue"])),
             )
 
             self.pub_disparity = self.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)

@@ -28,7 +28,10 @@ def _graph_nodes(context):
     nodes = graph.with_detector_backend(nodes, str(backend))
     lockstep = graph.parameter_value(params, graph.PLAYER.name, "lockstep", False)
     nodes = graph.with_lockstep(nodes, graph.as_bool(lockstep))
-    waits = graph.source_parameters(nodes)  # every edge of the graph, for the player
+    extra = graph.source_parameters(nodes)  # every edge of the graph, for the player
+    if graph.as_bool(lockstep):  # K frames in flight may wait at a latest-frame node
+        window = graph.parameter_value(params, graph.PLAYER.name, "lockstep_window", 1)
+        extra.update(graph.frame_queue_parameters(nodes, int(window)))
     share = get_package_share_directory("tracking_bringup")
     env = {k: v for k, v in graph_environment({}).items() if k != "PYTHONUNBUFFERED"}
     env["FASTRTPS_DEFAULT_PROFILES_FILE"] = os.path.join(share, "config", "fastdds_profile.xml")
@@ -37,7 +40,7 @@ def _graph_nodes(context):
             package=spec.package,
             executable=spec.executable,
             name=spec.name,
-            parameters=[params, waits[spec.name]] if spec.name in waits else [params],
+            parameters=[params, extra[spec.name]] if spec.name in extra else [params],
             additional_env=env,
             output="screen",
         )

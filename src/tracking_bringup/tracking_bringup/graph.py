@@ -34,6 +34,9 @@ class NodeSpec:
     #: parameter through which a source node is told how many subscriptions to wait for per
     #: topic of the graph ("topic:N,topic:N") before it publishes its first message
     wait_parameter: str | None = None
+    #: the node processes the newest frame and skips older waiting ones (``frame_queue``
+    #: parameter: how many newest frames may wait)
+    latest_frame: bool = False
 
 
 LEFT_IMAGE = "/stereo/left/image_rect"
@@ -64,6 +67,7 @@ DETECTOR = NodeSpec(
     executable="vehicle_detector",
     subscribes=(LEFT_IMAGE,),
     publishes=(DETECTIONS_2D,),
+    latest_frame=True,
 )
 STEREO = NodeSpec(
     name="stereo_depth",
@@ -71,6 +75,7 @@ STEREO = NodeSpec(
     executable="stereo_depth",
     subscribes=(LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO, DETECTIONS_2D),
     publishes=(DETECTIONS_3D, DISPARITY),
+    latest_frame=True,
 )
 TRACKER = NodeSpec(
     name="vehicle_tracker",
@@ -164,3 +169,9 @@ def parameter_value(params_file, node: str, name: str, default):
 
     data = yaml.safe_load(Path(params_file).read_text()) or {}
     return data.get(node, {}).get("ros__parameters", {}).get(name, default)
+
+
+def frame_queue_parameters(nodes: list[NodeSpec], lockstep_window: int) -> dict[str, dict]:
+    """In lockstep with ``lockstep_window`` K frames in flight, up to K frames may wait at a
+    latest-frame node: ``{node: {"frame_queue": K}}`` so that none is skipped."""
+    return {n.name: {"frame_queue": int(lockstep_window)} for n in nodes if n.latest_frame}

@@ -423,8 +423,15 @@ def graph_processes(
     nodes = graph.with_detector_backend(
         list(nodes), _parameter(params_file, per_node, graph.DETECTOR.name, "backend", "cnn")
     )
-    lockstep = _parameter(params_file, per_node, graph.PLAYER.name, "lockstep", False)
-    nodes = graph.with_lockstep(nodes, graph.as_bool(lockstep))
+    lockstep = graph.as_bool(
+        _parameter(params_file, per_node, graph.PLAYER.name, "lockstep", False)
+    )
+    nodes = graph.with_lockstep(nodes, lockstep)
+    if lockstep:  # K frames in flight: K may wait at a latest-frame node, none is skipped
+        window = int(_parameter(params_file, per_node, graph.PLAYER.name, "lockstep_window", 1))
+        for name, params in graph.frame_queue_parameters(nodes, window).items():
+            # first, so that a -p override of the user's (later on the command line) wins
+            per_node[name][:0] = [f"{k}:={v}" for k, v in params.items()]
     for name, params in graph.source_parameters(nodes, extra_subscriptions).items():
         per_node[name] += [f"{k}:={v}" for k, v in params.items()]
     return [
