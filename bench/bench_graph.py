@@ -189,6 +189,57 @@ def _figures(times, reports, cpu0, cpu1, wall) -> dict:
     }
 
 
+def offline_stage_times(root: Path, sequence: str, repeats: int = 5) -> dict[str, float]:
+    """Median ms per frame of each stage run alone in this process (same core functions and
+    thread counts as the graph's nodes), the baseline the graph's latency is compared with."""
+    import cv2
+    import torch
+    from detector_node.inference import CnnDetector
+    from kitti_player_node.image_conversion import image_to_rgb, numpy_to_image
+    from kitti_player_node.kitti import TrackingSequence
+    from stereo_depth_node.disparity import DisparityParams, compute_disparity
+
+    seq = TrackingSequence.open(root, sequence)
+    frames = seq.frame_ids[:repeats]
+    left, right = seq.read_stereo(frames[0])
+    det_threads = int(graph.parameter_value(PARAMS_FILE, graph.DETECTOR.name, "num_threads", 2))
+    cv_threads = int(graph.parameter_value(PARAMS_FILE, graph.STEREO.name, "num_threads", 2))
+
+    def median_ms(fn) -> float:
+        fn()  # warm-up
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return float(np.median(times) * 1e3)
+
+    torch.set_num_threads(det_threads)
+    detector = CnnDetector.from_checkpoint("", "cpu")
+    cv2.setNumThreads(cv_threads)
+    params = DisparityParams()  # the node's defaults = the parameter file's
+    return {
+        "read pair (2 PNG)": median_ms(lambda: seq.read_stereo(frames[-1])),
+        "image message, build + convert": median_ms(
+            lambda: image_to_rgb(numpy_to_image(left, "rgb8"))
+        ),
+        "image message from bytes (before)": median_ms(lambda: _image_from_bytes(left)),
+        f"detect (CNN, {det_threads} thread)": median_ms(lambda: detector.detect(left)),
+        f"disparity ({cv_threads} threads)": median_ms(
+            lambda: compute_disparity(left, right, params)
+        ),
+    }
+
+
+def _image_from_bytes(rgb: np.ndarray):
+    """How images were built before: ``data = bytes`` (copied once more by the setter)."""
+    from sensor_msgs.msg import Image
+
+    msg = Image(height=rgb.shape[0], width=rgb.shape[1], encoding="rgb8", step=rgb.shape[1] * 3)
+    msg.data = rgb.tobytes()
+    return msg
+
+
 def _prepare_synthetic(frames: int) -> tuple[Path, str]:
     from kitti_player_node.synthetic import generate_sequence
 
@@ -238,6 +289,7 @@ def main(argv=None) -> int:
     parser.add_argument("--no-realtime", action="store_true")
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NODE.PARAM:=VALUE")
     parser.add_argument("--json", help="write the figures to this file")
+    parser.add_argument("--no-offline", action="store_true", help="skip the per-stage baseline")
     args = parser.parse_args(argv)
     apply_graph_environment()
     datasets = []
@@ -253,6 +305,10 @@ def main(argv=None) -> int:
     modes = ([] if args.no_realtime else [("realtime", False, 1)]) + [
         (f"lockstep {w}", True, w) for w in windows
     ]
+    offline = {}
+    if datasets and not args.no_offline:
+        print("[bench] offline stage times ...", file=sys.stderr, flush=True)
+        offline = offline_stage_times(datasets[0][1], datasets[0][2])
     rows, stamp = [], time.strftime("%Y%m%d_%H%M%S")
     for label, root, seq in datasets:
         for mode, lockstep, window in modes:
@@ -264,11 +320,16 @@ def main(argv=None) -> int:
     print(f"machine: {os.cpu_count()} CPUs, load average {' '.join(load)} (1/5/15 min)")
     if args.param:
         print("parameters: " + " ".join(args.param))
+    if offline:
+        print(
+            f"each stage alone on one {datasets[0][0]} frame (median ms): "
+            + ", ".join(f"{k} {v:.1f}" for k, v in offline.items())
+        )
     print(_table(rows))
     if args.json:
-        Path(args.json).write_text(
-            json.dumps([{"data": d, "mode": m, **f} for d, m, f in rows], indent=1)
-        )
+        out = {"offline_ms": offline, "load": load, "parameters": args.param}
+        out["runs"] = [{"data": d, "mode": m, **f} for d, m, f in rows]
+        Path(args.json).write_text(json.dumps(out, indent=1))
     return 0
 
 
