@@ -107,8 +107,56 @@ sys.exit(run_graph([talker, listener], {str(tmp_path)!r}, ready_timeout=30))
         return found
 
     assert len(children()) == 2
-    time.sleep(0.5)
+    log = tmp_path / "listener.log"
+    end = time.monotonic() + 30  # messages flow (bounded: a loaded machine is slow)
+    while "heard: hello" not in log.read_text() and time.monotonic() < end:
+        time.sleep(0.1)
     proc.send_signal(signal.SIGINT)
     assert proc.wait(timeout=60) == 0
     assert children() == []
     assert "heard: hello" in (tmp_path / "listener.log").read_text()
+
+
+def test_sigint_during_start_up_stops_at_once(tmp_path):
+    """Ctrl-C while the launcher waits for readiness (here: a node that never becomes ready,
+    with a 60 s readiness timeout) stops every child at once and exits with 130."""
+    import signal
+    import subprocess
+    import time
+
+    script = f"""
+import sys
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+from test_launcher import spec
+from tracking_bringup.launcher import run_graph
+never = spec("listener", publishes=("/nothing",))
+sys.exit(run_graph([never], {str(tmp_path)!r}, ready_timeout=60))
+"""
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    log = tmp_path / "listener.log"
+    end = time.monotonic() + 30
+    while not (log.is_file() and log.stat().st_size) and time.monotonic() < end:
+        time.sleep(0.05)
+    time.sleep(1.0)  # the child is up, readiness is being waited for
+    child = launcher_child_pids(proc.pid)
+    assert child
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    out = proc.communicate(timeout=30)[0]
+    assert time.monotonic() - t0 < 5.0
+    assert proc.returncode == 130, out
+    assert "interrupted during start-up" in out
+    assert not any(alive(p) for p in child)
+
+
+def launcher_child_pids(parent: int) -> list[int]:
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            if ppid == parent:
+                pids.append(int(d.name))
+    return pids
