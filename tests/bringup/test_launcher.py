@@ -160,3 +160,34 @@ def launcher_child_pids(parent: int) -> list[int]:
             if ppid == parent:
                 pids.append(int(d.name))
     return pids
+
+
+def test_node_reports_are_filed_by_node_name_within_the_graphs_namespace(tmp_path):
+    """Every graph reports on the absolute /diagnostics; a launcher of the graph in /rig2 files
+    its own nodes' reports under their names and ignores another rig's and foreign statuses."""
+    from types import SimpleNamespace as NS
+
+    from tracking_bringup.launcher import graph_processes
+    from vehicle_common.graph_readiness import REPORT_ID
+
+    from tracking_bringup import graph
+
+    processes = graph_processes(graph.PIPELINE, None, namespace="rig2")
+    assert {p.namespace for p in processes} == {"/rig2"}
+    launcher = GraphLauncher(processes, tmp_path)
+
+    def status(name, frames_in, hardware_id=REPORT_ID):
+        values = [NS(key="frames_in", value=str(frames_in)), NS(key="frames_out", value="0")]
+        return NS(name=name, hardware_id=hardware_id, values=values)
+
+    launcher._on_reports(
+        NS(
+            status=[
+                status("/rig2/vehicle_detector", 7),
+                status("/vehicle_detector", 99),  # the graph without a namespace
+                status("/rig3/stereo_depth", 99),
+                status("/rig2/stereo_depth", 5, hardware_id="some_driver"),  # not a report
+            ]
+        )
+    )
+    assert {n: r.counts.received for n, r in launcher.reports.items()} == {graph.DETECTOR.name: 7}

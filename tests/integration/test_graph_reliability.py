@@ -21,12 +21,16 @@ pytestmark = pytest.mark.slow
 FRAMES_0005 = 16
 
 
-def _bag_counts(bag: Path) -> dict[str, int]:
+def _bag_counts(bag: Path, namespace: str = "") -> dict[str, int]:
+    """Messages per topic, by the graph's relative names (the bag holds the resolved ones)."""
     from rosbags.highlevel import AnyReader
 
     with AnyReader([bag]) as reader:
-        # by the graph's relative topic names (the bag holds the resolved ones)
-        return {c.topic.lstrip("/"): c.msgcount for c in reader.connections}
+        return {
+            c.topic.removeprefix(namespace + "/"): c.msgcount
+            for c in reader.connections
+            if c.topic.startswith(namespace + "/")
+        }
 
 
 def _overrides(root: Path, bag: Path, *extra: str) -> list[str]:
@@ -52,18 +56,21 @@ def test_simultaneous_start_loses_no_frame(kitti_tracking_root, tmp_path):
     """All nodes started at once, as ``ros2 launch`` does, with the parameters the launch file
     gives (``graph.plan``): the player publishes frame 0 only when every edge is
     matched (stereo -> tracker, tracker -> recorder, tracker -> player, ...), so all 16 frames
-    are tracked and lockstep never times out. (Before: 15/16 and a 10 s lockstep timeout.)"""
+    are tracked and lockstep never times out. (Before: 15/16 and a 10 s lockstep timeout.)
+    The graph runs in a namespace: the edges are the namespaced topics the nodes report."""
     bag = tmp_path / "bag"
+    namespace = "/rig2"
     processes = graph_processes(
         graph.PIPELINE,
         PARAMS_FILE,
         _overrides(kitti_tracking_root, bag, "kitti_player.lockstep:=true"),
+        namespace=namespace,
     )
     launcher = GraphLauncher(processes, tmp_path / "logs", staged=False, ready_timeout=120)
     with launcher:
         launcher.wait(until_finished=True)
     assert launcher.drained is True
-    counts = _bag_counts(bag)
+    counts = _bag_counts(bag, namespace)
     for topic in (graph.GROUND_TRUTH, graph.DETECTIONS_2D, graph.DETECTIONS_3D, graph.TRACKS):
         assert counts.get(topic) == FRAMES_0005, (topic, counts)
     player_log = (tmp_path / "logs" / "kitti_player.log").read_text()
