@@ -107,8 +107,87 @@ sys.exit(run_graph([talker, listener], {str(tmp_path)!r}, ready_timeout=30))
         return found
 
     assert len(children()) == 2
-    time.sleep(0.5)
+    log = tmp_path / "listener.log"
+    end = time.monotonic() + 30  # messages flow (bounded: a loaded machine is slow)
+    while "heard: hello" not in log.read_text() and time.monotonic() < end:
+        time.sleep(0.1)
     proc.send_signal(signal.SIGINT)
     assert proc.wait(timeout=60) == 0
     assert children() == []
     assert "heard: hello" in (tmp_path / "listener.log").read_text()
+
+
+def test_sigint_during_start_up_stops_at_once(tmp_path):
+    """Ctrl-C while the launcher waits for readiness (here: a node that never becomes ready,
+    with a 60 s readiness timeout) stops every child at once and exits with 130."""
+    import signal
+    import subprocess
+    import time
+
+    script = f"""
+import sys
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+from test_launcher import spec
+from tracking_bringup.launcher import run_graph
+never = spec("listener", publishes=("/nothing",))
+sys.exit(run_graph([never], {str(tmp_path)!r}, ready_timeout=60))
+"""
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    log = tmp_path / "listener.log"
+    end = time.monotonic() + 30
+    while not (log.is_file() and log.stat().st_size) and time.monotonic() < end:
+        time.sleep(0.05)
+    time.sleep(1.0)  # the child is up, readiness is being waited for
+    child = launcher_child_pids(proc.pid)
+    assert child
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    out = proc.communicate(timeout=30)[0]
+    assert time.monotonic() - t0 < 5.0
+    assert proc.returncode == 130, out
+    assert "interrupted during start-up" in out
+    assert not any(alive(p) for p in child)
+
+
+def launcher_child_pids(parent: int) -> list[int]:
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            if ppid == parent:
+                pids.append(int(d.name))
+    return pids
+
+
+def test_node_reports_are_filed_by_node_name_within_the_graphs_namespace(tmp_path):
+    """Every graph reports on the absolute /diagnostics; a launcher of the graph in /rig2 files
+    its own nodes' reports under their names and ignores another rig's and foreign statuses."""
+    from types import SimpleNamespace as NS
+
+    from tracking_bringup.launcher import graph_processes
+    from vehicle_common.graph_readiness import REPORT_ID
+
+    from tracking_bringup import graph
+
+    processes = graph_processes(graph.PIPELINE, None, namespace="rig2")
+    assert {p.namespace for p in processes} == {"/rig2"}
+    launcher = GraphLauncher(processes, tmp_path)
+
+    def status(name, frames_in, hardware_id=REPORT_ID):
+        values = [NS(key="frames_in", value=str(frames_in)), NS(key="frames_out", value="0")]
+        return NS(name=name, hardware_id=hardware_id, values=values)
+
+    launcher._on_reports(
+        NS(
+            status=[
+                status("/rig2/vehicle_detector", 7),
+                status("/vehicle_detector", 99),  # the graph without a namespace
+                status("/rig3/stereo_depth", 99),
+                status("/rig2/stereo_depth", 5, hardware_id="some_driver"),  # not a report
+            ]
+        )
+    )
+    assert {n: r.counts.received for n, r in launcher.reports.items()} == {graph.DETECTOR.name: 7}

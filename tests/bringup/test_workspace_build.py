@@ -138,7 +138,7 @@ def test_launch_file_and_launcher_agree_on_namespace_wait_for_topics_and_oracle(
         assert node.kwargs["namespace"] == namespace
         ns_args = [proc.argv[i + 1] for i, a in enumerate(proc.argv) if a == "-r"]
         assert (f"__ns:={namespace}" in ns_args) == bool(namespace)
-        extra = {k: v for d in node.kwargs["parameters"][1:] for k, v in d.items()}
+        extra = {k: str(v) for d in node.kwargs["parameters"][1:] for k, v in d.items()}
         assert extra == _argv_parameters(proc.argv)
         assert node.kwargs["parameters"][0] == str(params_file)
         # the readiness check looks for the namespaced topics
@@ -183,3 +183,59 @@ def test_colcon_build_of_the_workspace(tmp_path):
     )
     assert check.returncode == 0, check.stderr
     assert check.stdout.startswith(str(site)), check.stdout
+
+
+def test_launch_file_gives_the_player_every_edge_of_the_graph(tmp_path):
+    """ros2 launch starts every node at once: the player must be told every edge of the graph
+    actually launched (recorder or not, detector backend and lockstep from the parameter file)."""
+    description = _load_launch_description()
+
+    def player_wait(nodes):
+        (player,) = [n for n in nodes if n.kwargs["name"] == graph.PLAYER.name]
+        spec = player.kwargs["parameters"][1]["wait_for_topics"]
+        return {t: int(n) for t, n in (e.rsplit(":", 1) for e in spec.split(","))}
+
+    full = player_wait(_launch_nodes(description))
+    assert full[graph.DETECTIONS_3D] == 2  # stereo -> tracker and recorder
+    assert full[graph.TRACKS] == 2  # tracker -> recorder and the player (lockstep)
+    assert full[graph.DETECTIONS_2D] == 2
+    no_bag = _launch_nodes(description, record="false")
+    assert graph.RECORDER.name not in [n.kwargs["name"] for n in no_bag]
+    assert player_wait(no_bag)[graph.DETECTIONS_3D] == 1
+    assert graph.CLOCK not in player_wait(no_bag)  # only the recorder subscribes to it
+    params = yaml.safe_load(PARAMS_FILE.read_text())
+    params["kitti_player"]["ros__parameters"]["lockstep"] = False
+    params["vehicle_detector"]["ros__parameters"]["backend"] = "oracle"
+    other = tmp_path / "params.yaml"
+    other.write_text(yaml.safe_dump(params))
+    wait = player_wait(_launch_nodes(description, params_file=str(other)))
+    assert wait[graph.TRACKS] == 1  # no lockstep subscription to wait for
+    assert wait[graph.GROUND_TRUTH] == 2  # the oracle detector reads the ground truth
+
+
+def test_lockstep_window_sets_the_frame_queue_of_latest_frame_nodes():
+    """K frames in flight in lockstep: the detector and stereo keep K waiting frames (nothing
+    skipped); a -p override of the user's wins (the launchers then set none); off in real-time
+    playback; the launch file sets the same."""
+    from tracking_bringup.launcher import graph_processes
+
+    def argv_of(overrides):
+        procs = graph_processes(graph.PIPELINE, PARAMS_FILE, overrides)
+        return {p.name: " ".join(p.argv) for p in procs}
+
+    on = argv_of(["kitti_player.lockstep:=true", "kitti_player.lockstep_window:=3"])
+    assert "frame_queue:=3" in on[graph.DETECTOR.name]
+    assert "frame_queue:=3" in on[graph.STEREO.name]
+    assert "frame_queue" not in on[graph.TRACKER.name]
+    mine = argv_of(
+        [
+            "kitti_player.lockstep:=true",
+            "kitti_player.lockstep_window:=3",
+            "stereo_depth.frame_queue:=1",
+        ]
+    )[graph.STEREO.name]
+    assert "frame_queue:=1" in mine and "frame_queue:=3" not in mine
+    off = argv_of(["kitti_player.lockstep:=false", "kitti_player.lockstep_window:=3"])
+    assert "frame_queue" not in off[graph.DETECTOR.name]
+    bad = argv_of(["kitti_player.lockstep:=true", "kitti_player.lockstep_window:=0"])
+    assert "frame_queue" not in bad[graph.DETECTOR.name]  # the player reports the bad value

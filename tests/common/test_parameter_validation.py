@@ -19,10 +19,19 @@ from vehicle_common.node_parameters import (
 BAD_STARTS = [
     ("kitti_player_node.node", "kitti_player", ["-p", "rate:=.nan"], ["rate", "finite"]),
     ("kitti_player_node.node", "kitti_player", ["-p", "first_frame:=-3"], ["first_frame", ">= 0"]),
+    (
+        "kitti_player_node.node",
+        "kitti_player",
+        ["-p", "lockstep_window:=0"],
+        ["lockstep_window", ">= 1"],
+    ),
     ("detector_node.node", "vehicle_detector", ["-p", "input_width:=-32"], ["input_width"]),
     ("detector_node.node", "vehicle_detector", ["-p", "nms_iou:=2.0"], ["nms_iou", "<= 1.0"]),
+    ("detector_node.node", "vehicle_detector", ["-p", "frame_queue:=0"], ["frame_queue", ">= 1"]),
     ("stereo_depth_node.node", "stereo_depth", ["-p", "wls_lambda:=-5.0"], ["wls_lambda"]),
     ("stereo_depth_node.node", "stereo_depth", ["-p", "downscale:=8.7"], ["downscale"]),
+    ("stereo_depth_node.node", "stereo_depth", ["-p", "num_threads:=-2"], ["num_threads", ">= 1"]),
+    ("stereo_depth_node.node", "stereo_depth", ["-p", "frame_queue:=1.5"], ["frame_queue"]),
     (
         "tracker_node.node",
         "vehicle_tracker",

@@ -87,7 +87,11 @@ def _run_node(context, params, publish):
         ),
         10,
     ), "detector and test node did not match"
-    n = publish(pubs)
+
+    def received(k):  # for a publish(pubs, received) that sends one image at a time
+        assert _spin_until(ex, lambda: len(got) >= k, 30), f"got {len(got)} of {k} arrays"
+
+    n = publish(pubs, received) if publish.__code__.co_argcount == 2 else publish(pubs)
     assert _spin_until(ex, lambda: len(got) >= n, 30), f"got {len(got)} of {n} arrays"
     ex.spin_once(timeout_sec=0.2)
     ex.shutdown()
@@ -150,10 +154,12 @@ def test_cnn_backend_shipped_checkpoint_finds_synthetic_car(rclpy_context, tmp_p
     assert cars, "the synthetic frame has a labelled car"
     stamp = 7_300_000_000
 
-    def publish(pubs):
+    def publish(pubs, received):
         bad = numpy_to_image(rgb[:10, :10], "rgb8", header(stamp - 1, "left_camera_optical_frame"))
         bad.encoding = "weird"  # malformed: warning + empty array, node keeps running
         pubs["image"].publish(bad)
+        # one at a time: an image still waiting when a newer one arrives would be skipped
+        received(1)
         pubs["image"].publish(
             numpy_to_image(rgb, "rgb8", header(stamp, "left_camera_optical_frame"))
         )

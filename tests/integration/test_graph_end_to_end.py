@@ -60,6 +60,10 @@ def test_every_frame_tracked_and_recorded(synthetic_run):
     assert results["frames"] == FRAMES
     assert results["throughput"]["frames_with_tracks"] == FRAMES
     assert results["demo"]["frames_tracked"] == FRAMES  # seen live by the demo's progress bar
+    # every node accounted for every frame: nothing skipped in lockstep, nothing lost silently
+    nodes = results["demo"]["node_frames"]
+    for node in (graph.PLAYER, graph.DETECTOR, graph.STEREO, graph.TRACKER):
+        assert nodes[node.name] == {"in": FRAMES, "out": FRAMES, "dropped": 0}, nodes
     assert f"done: {FRAMES} frames published, 0 dropped, 0 lockstep timeouts" in (
         _player_summary(synthetic_run)
     )

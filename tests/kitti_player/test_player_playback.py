@@ -148,3 +148,50 @@ def test_loop_continues_stamps():
     stamps = [sched.poll(i).stamp_ns for i in range(7)]
     assert stamps == [1_000_000_000 + k * 100_000_000 for k in range(7)]
     assert not sched.finished
+
+
+def test_lockstep_window_keeps_frames_in_flight():
+    """A window of K lets K unacknowledged frames into the graph; an acknowledgement releases
+    every frame up to its stamp; the oldest frame's timeout frees its place."""
+    sched = PlaybackScheduler(
+        list(range(6)), 1.0, period_s=0.0, lockstep_timeout=1.0, lockstep_window=3
+    )
+    first = [sched.poll(0.0) for _ in range(4)]
+    assert [e.frame for e in first[:3]] == [0, 1, 2] and first[3] is None
+    assert sched.in_flight == 3
+    assert sched.acknowledge(first[1].stamp_ns)  # tracks of frame 1: frames 0 and 1 done
+    assert sched.in_flight == 1
+    assert [sched.poll(0.1).frame, sched.poll(0.1).frame, sched.poll(0.1)] == [3, 4, None]
+    assert sched.poll(1.05).frame == 5  # frame 2 (published at 0.0) timed out
+    assert sched.stats.lockstep_timeouts == 1
+    assert not sched.finished
+    assert sched.acknowledge(stamp_ns(1.0, 5))
+    assert sched.finished
+    with pytest.raises(ValueError, match="lockstep_window"):
+        PlaybackScheduler([0], 1.0, 0.0, lockstep_timeout=1.0, lockstep_window=0)
+
+
+def test_frame_prefetcher_reads_ahead_and_falls_back():
+    import threading
+
+    from kitti_player_node.playback import FramePrefetcher
+
+    reads, threads = [], []
+
+    def read(frame):
+        if frame == 9:
+            raise OSError("frame 9: unreadable")
+        reads.append(frame)
+        threads.append(threading.current_thread().name)
+        return frame * 10
+
+    pre = FramePrefetcher(read)
+    pre.prefetch(1)
+    assert pre.get(1) == 10 and threads[-1].startswith("prefetch")
+    pre.prefetch(2)
+    assert pre.get(3) == 30 and threads[-1] == threading.current_thread().name  # not prefetched
+    pre.prefetch(9)
+    with pytest.raises(OSError, match="frame 9"):
+        pre.get(9)
+    pre.close()
+    assert sorted(reads) == [1, 2, 3]

@@ -69,8 +69,13 @@ class Harness:
         self.left, self.right = textured_pair()
 
     def spin_until(self, cond, timeout=10.0):
+        """Spin until ``cond()``, checked when the node's worker thread has settled (what it
+        received is processed: its counters and outputs are complete)."""
         end = time.monotonic() + timeout
-        while not cond() and time.monotonic() < end:
+        while time.monotonic() < end:
+            self.node.worker.wait_idle(1.0)
+            if cond():
+                return True
             self.executor.spin_once(timeout_sec=0.05)
         return cond()
 

@@ -11,11 +11,13 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
+import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2DArray
+from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import kitti_objects_from_message, stamp_ns
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
 from vehicle_common.node_parameters import (
@@ -25,6 +27,7 @@ from vehicle_common.node_parameters import (
     param,
     parameter_error_line,
 )
+from vehicle_common.node_runtime import NodeHealth, StopRequest, spin_until_stopped
 
 from vehicle_common import topics
 
@@ -49,6 +52,9 @@ class DetectorParameters:
     input_width: int = param(0, low=0, multiple_of=32)
     input_height: int = param(0, low=0, multiple_of=32)
     num_threads: int = param(2, low=1)  # torch CPU threads
+    # newest images kept waiting while one is detected (1: latest-frame policy; the launchers
+    # set it to the player's lockstep_window in lockstep so that nothing is skipped)
+    frame_queue: int = param(1, low=1)
     vehicle_types: list = param(["Car", "Van"])  # oracle: label types republished
     oracle_box_noise_px: float = param(0.0, low=0.0)
     oracle_score: float = param(1.0, low=0.0, high=1.0)
@@ -65,6 +71,8 @@ class VehicleDetectorNode(Node):
         self.params = p = declare_config(self, DetectorParameters)
         self.backend = p.backend
         types = tuple(p.vehicle_types)
+        self.frames = FrameCounter()  # images in, detection arrays out, images skipped
+        self.worker: LatestFrameWorker | None = None
         self.pub = self.create_publisher(VehicleDetection2DArray, DETECTIONS_TOPIC, 10)
         if self.backend == "cnn":
             import torch
@@ -85,6 +93,17 @@ class VehicleDetectorNode(Node):
                 f"cnn backend: {c.size} model (width {c.width}, depth {c.depth}), input "
                 f"{c.input_width}x{c.input_height}, device {self.cnn.device}"
             )
+            # the first inference's set-up cost is paid here, before the graph is ready
+            self.cnn.detect(np.zeros((c.input_height, c.input_width, 3), np.uint8))
+            # latest-frame policy: the newest image is detected, an image still waiting when a
+            # newer one arrives is skipped and counted (never a growing queue)
+            self.worker = LatestFrameWorker(
+                self._detect,
+                self.frames,
+                "detector",
+                self._failed,
+                max_waiting=p.frame_queue,
+            )
         elif self.backend == "oracle":
             from .oracle import OracleDetector, StampPairing
 
@@ -101,19 +120,39 @@ class VehicleDetectorNode(Node):
                 "ORACLE backend: publishing ground-truth boxes as detections (ablation only)"
             )
         self.create_subscription(Image, IMAGE_TOPIC, self._on_image, 5)
+        self.health = NodeHealth(
+            self, self.frames, busy=lambda: bool(self.worker and self.worker.busy)
+        )
+
+    def destroy_node(self):
+        if self.worker is not None:
+            self.worker.stop()  # the image in hand and the one waiting are finished first
+        super().destroy_node()
 
     def _on_image(self, msg: Image) -> None:
+        self.frames.received()
         if self.backend == "oracle":
             for image, labels in self.pairing.add_image(stamp_ns(msg.header), msg):
                 self._publish_oracle(image, labels)
             return
+        self.worker.submit(msg)
+
+    def _failed(self, exc: Exception, msg: Image) -> None:
+        self.get_logger().warning(f"{IMAGE_TOPIC}: detection failed: {exc}; no detections")
+        self._publish(detections_message(msg.header, []))
+
+    def _publish(self, out: VehicleDetection2DArray) -> None:
+        self.pub.publish(out)
+        self.frames.published()
+
+    def _detect(self, msg: Image) -> None:
         try:
             rgb = image_to_rgb(msg)
         except ImageConversionError as exc:
             self.get_logger().warning(f"{IMAGE_TOPIC}: {exc}; publishing no detections")
-            self.pub.publish(detections_message(msg.header, []))
+            self._publish(detections_message(msg.header, []))
             return
-        self.pub.publish(detections_message(msg.header, self.cnn.detect(rgb)))
+        self._publish(detections_message(msg.header, self.cnn.detect(rgb)))
 
     def _on_labels(self, msg: KittiFrameLabels) -> None:
         for image, labels in self.pairing.add_labels(stamp_ns(msg.header), msg):
@@ -130,22 +169,28 @@ class VehicleDetectorNode(Node):
             dets = self.oracle.detect(
                 kitti_objects_from_message(labels), (int(image.width), int(image.height))
             )
-        self.pub.publish(detections_message(image.header, dets))
+        self._publish(detections_message(image.header, dets))
 
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``vehicle_detector``."""
-    rclpy.init(args=args if args is not None else sys.argv)
+    rclpy.init(
+        args=args if args is not None else sys.argv,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
+    stop = StopRequest.install()
     try:
         node = VehicleDetectorNode()
     except ParameterError as exc:
         print(parameter_error_line(NODE_NAME, exc), file=sys.stderr)
         rclpy.try_shutdown()
         return EXIT_BAD_PARAMETER
+    except KeyboardInterrupt:  # stopped while loading
+        rclpy.try_shutdown()
+        return 0
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        drain = [node.worker.stop] if node.worker else []
+        spin_until_stopped(node, stop, node.health, on_stop=drain)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

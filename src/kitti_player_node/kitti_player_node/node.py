@@ -14,12 +14,14 @@ import time
 from dataclasses import dataclass
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, TrackedVehicleArray
+from vehicle_common.frame_accounting import FrameCounter
 from vehicle_common.frame_messages import (
     LEFT_FRAME,
     RIGHT_FRAME,
@@ -28,6 +30,7 @@ from vehicle_common.frame_messages import (
     stamp_ns,
     stereo_camera_infos,
 )
+from vehicle_common.graph_readiness import NodeReport, unready_topics
 from vehicle_common.image_conversion import numpy_to_image
 from vehicle_common.kitti import KittiFormatError, TrackingSequence
 from vehicle_common.node_parameters import (
@@ -37,11 +40,19 @@ from vehicle_common.node_parameters import (
     param,
     parameter_error_line,
 )
+from vehicle_common.node_runtime import (
+    DIAGNOSTICS_TOPIC,
+    NodeHealth,
+    StopRequest,
+    reports_from_message,
+    spin_until_stopped,
+)
 
-from vehicle_common import topics
+from vehicle_common import graph_readiness, topics
 
 from .playback import (
     FrameEvent,
+    FramePrefetcher,
     PlaybackScheduler,
     add_snr_noise,
     frame_noise_rng,
@@ -66,14 +77,17 @@ class PlayerParameters:
     lockstep: bool = False
     lockstep_topic: str = topics.TRACKS
     lockstep_timeout: float = param(10.0, low=0.0, low_open=True)  # [s]
+    # published frames that may be unacknowledged at a time (1: one frame in the graph at a time)
+    lockstep_window: int = param(1, low=1)
     snr_db: float = 0.0  # additive Gaussian pixel noise; <= 0 disables
     drop_probability: float = param(0.0, low=0.0, high=1.0)
     seed: int = param(0, low=0)
     start_time: float = param(1.0, low=0.0)  # [s] stamp of frame 0
     wait_for_subscribers: int = param(0, low=0)  # subscriptions on the left image to wait for
-    # "topic:N,topic:N": before the first frame, wait until each published topic has N matched
-    # subscriptions (the process launcher sets it from the graph description); relative topic
-    # names are resolved in the node's namespace
+    # "topic:N,topic:N": before the first frame, wait until each topic of the graph has N
+    # matched subscriptions, the player's own topics and those of the other nodes (as they
+    # report them on /diagnostics); the launchers set it from the graph description; relative
+    # topic names are resolved in the node's namespace
     wait_for_topics: str = ""
     # s to wait after every expected subscription matched, before the first frame: across hosts
     # a remote reader may match the player's writer later than the writer matched it, and a
@@ -84,13 +98,10 @@ class PlayerParameters:
 
 def parse_topic_counts(spec: str) -> dict[str, int]:
     """``"/a:2,/b:1"`` -> ``{"/a": 2, "/b": 1}``; raises PlayerError for a malformed entry."""
-    counts = {}
-    for entry in filter(None, (e.strip() for e in spec.split(","))):
-        topic, sep, n = entry.rpartition(":")
-        if not sep or not topic or not n.isdigit():
-            raise PlayerError(f"wait_for_topics: expected TOPIC:COUNT, got {entry!r}")
-        counts[topic] = int(n)
-    return counts
+    try:
+        return graph_readiness.parse_topic_counts(spec)
+    except ValueError as exc:
+        raise PlayerError(f"wait_for_topics: {exc}") from None
 
 
 class PlayerError(RuntimeError):
@@ -121,9 +132,10 @@ class KittiPlayerNode(Node):
                 lockstep_timeout=float(p["lockstep_timeout"]) if p["lockstep"] else None,
                 drop_probability=float(p["drop_probability"]),
                 seed=int(p["seed"]),
+                lockstep_window=int(p["lockstep_window"]),
             )
         except ValueError as exc:
-            raise PlayerError(f"drop_probability: {exc}") from None
+            raise PlayerError(f"drop_probability/lockstep_window: {exc}") from None
 
         self.pub_left = self.create_publisher(Image, topics.LEFT_IMAGE, 5)
         self.pub_right = self.create_publisher(Image, topics.RIGHT_IMAGE, 5)
@@ -145,9 +157,17 @@ class KittiPlayerNode(Node):
             self.resolve_topic_name(topic): n
             for topic, n in parse_topic_counts(p["wait_for_topics"]).items()
         }
-        unknown = set(self._expected) - {pub.topic_name for pub in self.publishers_list}
-        if unknown:
-            raise PlayerError(f"wait_for_topics: not published by the player: {sorted(unknown)}")
+        self.reader = FramePrefetcher(self.sequence.read_stereo)
+        self.reader.prefetch(self.scheduler.next_frame)
+        self.frames = FrameCounter()  # frames scheduled, published, dropped (drop_probability)
+        self.health = NodeHealth(self, self.frames)
+        # the other nodes' reports: matched subscriptions of the topics they publish
+        self._reports: dict[str, NodeReport] = {}
+        self._report_sub = None
+        if set(self._expected) - {pub.topic_name for pub in self.publishers_list}:
+            self._report_sub = self.create_subscription(
+                DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_reports, 50
+            )
         self.timer = self.create_timer(min(0.01, period / 2) if period > 0 else 0.002, self._tick)
         self.get_logger().info(
             f"sequence {self.sequence.sequence}: {len(frames)} frames "
@@ -167,6 +187,23 @@ class KittiPlayerNode(Node):
             self.pub_right,
         ]
 
+    def _on_reports(self, msg: DiagnosticArray) -> None:
+        for report in reports_from_message(msg):
+            self._reports[report.node] = report
+
+    def _unready(self) -> list[str]:
+        """Topics of the graph not yet matched as expected (own publishers: also every
+        subscription the ROS graph already knows of)."""
+        own = {p.topic_name: p.get_subscription_count() for p in self.publishers_list}
+        unmatched = unready_topics(self._expected, own, self._reports.values())
+        listed = {u.split(" ")[0] for u in unmatched}
+        for p in self.publishers_list:
+            if p.topic_name not in listed and own[p.topic_name] < self.count_subscribers(
+                p.topic_name
+            ):
+                unmatched.append(f"{p.topic_name} (unmatched subscriber)")
+        return unmatched
+
     def _on_lockstep(self, msg: TrackedVehicleArray) -> None:
         stamp = stamp_ns(msg.header)
         if self.scheduler.acknowledge(stamp):
@@ -179,14 +216,8 @@ class KittiPlayerNode(Node):
         if not self._started:
             want = int(self.params["wait_for_subscribers"])
             have = self.pub_left.get_subscription_count()
-            # every subscription the ROS graph already knows of, and the expected number per
-            # topic, must be matched, so that no subscriber misses the first frame
-            unmatched = [
-                p.topic_name
-                for p in self.publishers_list
-                if p.get_subscription_count()
-                < max(self.count_subscribers(p.topic_name), self._expected.get(p.topic_name, 0))
-            ]
+            # every edge of the graph must be matched, so that no node misses the first frame
+            unmatched = self._unready()
             if have < want or unmatched:
                 if now - self._last_wait_log > 2.0:
                     self._last_wait_log = now
@@ -200,6 +231,11 @@ class KittiPlayerNode(Node):
             if now - self._matched_at < float(self.params["match_settle_time"]):
                 return
             self._started = True
+            if self._report_sub is not None:
+                self.destroy_subscription(self._report_sub)
+                self._report_sub = None
+            if self._expected:
+                self.get_logger().info("every edge of the graph matched: playing")
         timeouts = self.scheduler.stats.lockstep_timeouts
         event = self.scheduler.poll(now)
         if self.scheduler.stats.lockstep_timeouts > timeouts:
@@ -208,13 +244,17 @@ class KittiPlayerNode(Node):
                 f"{self.params['lockstep_timeout']} s, going on"
             )
         if event is not None:
-            if not event.dropped:
+            self.frames.received()
+            if event.dropped:
+                self.frames.dropped()
+            else:
                 try:
                     self._publish(event)
                 except KittiFormatError as exc:
                     self.error = str(exc)  # main() prints it as the one error line
                     self.done = True
                     return
+                self.frames.published()
             stats = self.scheduler.stats
             if (stats.published + stats.dropped) % 10 == 0:
                 self.get_logger().info(
@@ -226,7 +266,8 @@ class KittiPlayerNode(Node):
                 self.done = True
 
     def _publish(self, event: FrameEvent) -> None:
-        left, right = self.sequence.read_stereo(event.frame)
+        left, right = self.reader.get(event.frame)
+        self.reader.prefetch(self.scheduler.next_frame)  # read while the graph works
         snr = float(self.params["snr_db"])
         if snr_enabled(snr):
             rng = frame_noise_rng(self.params["seed"], event.frame, event.loop_pass)
@@ -267,8 +308,11 @@ class KittiPlayerNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console script ``kitti_player``; returns the exit code (2 for a bad dataset/parameter)."""
-    rclpy.init(args=args)
+    """Console script ``kitti_player``; returns the exit code (2 for a bad dataset/parameter).
+    SIGINT/SIGTERM: no frame is published after the signal, the frames already published are
+    flushed to their subscribers, and the process exits with 0."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopRequest.install()
     node = None
     try:
         try:
@@ -279,19 +323,16 @@ def main(args: list[str] | None = None) -> int:
         except (KittiFormatError, PlayerError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while rclpy.ok() and not node.done:
-            executor.spin_once(timeout_sec=0.1)
+        spin_until_stopped(node, stop, node.health, on_stop=[node.flush], done=lambda: node.done)
         if node.error is not None:
             print(f"error: {node.error}", file=sys.stderr)
             return 2
-        node.flush()
         return 0
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except KeyboardInterrupt:  # stopped during start-up
         return 0
     finally:
         if node is not None:
+            node.reader.close()
             node.destroy_node()
         rclpy.try_shutdown()
 

@@ -8,6 +8,9 @@ frame it hands out; the scheduler only sees monotonic times passed in, so it is 
 from __future__ import annotations
 
 import math
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,9 +108,12 @@ class PlaybackScheduler:
     """Decides when which frame is due.
 
     - Pacing: one frame every ``period_s`` seconds of wall time (``period_s <= 0``: no pacing).
-    - Lockstep (``lockstep_timeout`` not None): after a published frame, the next one is held back
-      until :meth:`acknowledge` is called with a stamp ``>=`` that frame's stamp, or until the
-      timeout passes (counted in ``stats.lockstep_timeouts``). Dropped frames are not waited for.
+    - Lockstep (``lockstep_timeout`` not None): at most ``lockstep_window`` published frames are
+      unacknowledged at a time; the next one is held back until :meth:`acknowledge` is called
+      with a stamp ``>=`` the oldest one's stamp, or until its timeout passes (counted in
+      ``stats.lockstep_timeouts``). A window of 1 is strict lockstep (one frame in the graph at a
+      time); a larger window keeps several frames in flight through the pipeline's stages.
+      Dropped frames are not waited for.
     - Drops: each frame is dropped with ``drop_probability`` (seeded draws).
 
     Call :meth:`poll` with the current monotonic time; it returns the next due frame or None.
@@ -122,9 +128,12 @@ class PlaybackScheduler:
         lockstep_timeout: float | None = None,
         drop_probability: float = 0.0,
         seed: int = 0,
+        lockstep_window: int = 1,
     ):
         if not frames:
             raise ValueError("no frames to play")
+        if lockstep_window < 1:
+            raise ValueError(f"lockstep_window {lockstep_window} must be >= 1")
         if not 0.0 <= drop_probability <= 1.0:
             raise ValueError(f"drop_probability {drop_probability} not in [0, 1]")
         self.frames = list(frames)
@@ -132,6 +141,7 @@ class PlaybackScheduler:
         self.period_s = float(period_s)
         self.loop = bool(loop)
         self.lockstep_timeout = lockstep_timeout
+        self.lockstep_window = int(lockstep_window)
         self.drop_probability = float(drop_probability)
         self.frames_per_pass = self.frames[-1] - self.frames[0] + 1
         self.stats = PlaybackStats()
@@ -139,8 +149,7 @@ class PlaybackScheduler:
         self._index = 0
         self._pass = 0
         self._next_due: float | None = None
-        self._awaiting: int | None = None
-        self._awaiting_since = 0.0
+        self._awaiting: deque[tuple[int, float]] = deque()  # (stamp, published at), oldest first
 
     @property
     def exhausted(self) -> bool:
@@ -150,33 +159,46 @@ class PlaybackScheduler:
     @property
     def finished(self) -> bool:
         """All frames handed out and no acknowledgement pending."""
-        return self.exhausted and self._awaiting is None
+        return self.exhausted and not self._awaiting
+
+    @property
+    def next_frame(self) -> int | None:
+        """The frame :meth:`poll` hands out next (None when all were handed out)."""
+        return None if self.exhausted else self.frames[self._index]
+
+    @property
+    def in_flight(self) -> int:
+        """Published frames not yet acknowledged (lockstep)."""
+        return len(self._awaiting)
 
     def acknowledge(self, stamp_ns: int) -> bool:
-        """A lockstep answer with ``stamp_ns`` arrived; True when it releases the next frame."""
-        if self._awaiting is not None and stamp_ns >= self._awaiting:
-            self._awaiting = None
-            return True
-        return False
+        """A lockstep answer with ``stamp_ns`` arrived (it acknowledges every frame up to its
+        stamp); True when it released at least one frame."""
+        released = False
+        while self._awaiting and stamp_ns >= self._awaiting[0][0]:
+            self._awaiting.popleft()
+            released = True
+        return released
 
     def check_timeout(self, now: float) -> bool:
-        """Give up waiting when the lockstep timeout passed; True when it just timed out."""
-        if self._awaiting is None or self.lockstep_timeout is None:
+        """Give up waiting for the frames whose lockstep timeout passed; True when one did."""
+        if self.lockstep_timeout is None:
             return False
-        if now - self._awaiting_since >= self.lockstep_timeout:
-            self._awaiting = None
+        timed_out = False
+        while self._awaiting and now - self._awaiting[0][1] >= self.lockstep_timeout:
+            self._awaiting.popleft()
             self.stats.lockstep_timeouts += 1
-            return True
-        return False
+            timed_out = True
+        return timed_out
 
     def poll(self, now: float) -> FrameEvent | None:
         """The frame due at ``now`` (monotonic seconds), or None when nothing is due yet."""
         if self.exhausted:
             self.check_timeout(now)
             return None
-        if self._awaiting is not None:
+        if len(self._awaiting) >= self.lockstep_window:
             self.check_timeout(now)
-            if self._awaiting is not None:
+            if len(self._awaiting) >= self.lockstep_window:
                 return None
         if self._next_due is None:
             self._next_due = now
@@ -202,6 +224,32 @@ class PlaybackScheduler:
         else:
             self.stats.published += 1
             if self.lockstep_timeout is not None:
-                self._awaiting = event.stamp_ns
-                self._awaiting_since = now
+                self._awaiting.append((event.stamp_ns, now))
         return event
+
+
+class FramePrefetcher:
+    """Reads the next frame in a background thread while the graph works on the current one, so
+    that reading (PNG decoding, ~20 ms per KITTI pair) is off the critical path.
+
+    ``get(frame)`` returns ``read(frame)``, from the prefetch when it was for that frame;
+    ``prefetch(frame)`` starts reading one (None: nothing). Errors surface in ``get``."""
+
+    def __init__(self, read: Callable[[int], object]):
+        self._read = read
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="prefetch")
+        self._pending: tuple[int, Future] | None = None
+
+    def prefetch(self, frame: int | None) -> None:
+        if frame is None or (self._pending and self._pending[0] == frame):
+            return
+        self._pending = (frame, self._pool.submit(self._read, frame))
+
+    def get(self, frame: int):
+        pending, self._pending = self._pending, None
+        if pending is not None and pending[0] == frame:
+            return pending[1].result()
+        return self._read(frame)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)

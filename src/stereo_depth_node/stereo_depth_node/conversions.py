@@ -7,7 +7,7 @@ message is built, no rclpy.
 from __future__ import annotations
 
 import numpy as np
-from vehicle_common.image_conversion import numpy_to_image
+from vehicle_common.image_conversion import byte_array, numpy_to_image
 
 from .disparity import DisparityParams, disparity_range
 from .reprojection import StereoGeometry
@@ -36,7 +36,7 @@ def build_point_cloud(points: np.ndarray, colours: np.ndarray | None, header):
     msg.point_step = 4 * data.shape[1]
     msg.row_step = msg.point_step * msg.width
     msg.is_dense = True
-    msg.data = data.tobytes()
+    msg.data = byte_array(data)
     return msg
 
 

@@ -16,12 +16,13 @@ import sys
 import cv2
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
+from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
 from vehicle_common.node_parameters import (
@@ -31,6 +32,7 @@ from vehicle_common.node_parameters import (
     param,
     parameter_error_line,
 )
+from vehicle_common.node_runtime import NodeHealth, StopRequest, spin_until_stopped
 
 from vehicle_common import topics
 
@@ -94,6 +96,8 @@ class StereoNodeParameters:
     points_max_depth: float = param(80.0, low=0, low_open=True)
     points_rgb: bool = False
     sync_cache_size: int = param(10, low=1)
+    num_threads: int = param(2, low=1)  # OpenCV threads of the matcher (cv2.setNumThreads)
+    frame_queue: int = param(1, low=1)  # newest stereo pairs kept waiting (1: latest frame)
     # [top, bottom) rows to match; bottom <= top means all rows
     match_rows: list = param([0, 0], low=0, length=2)
 
@@ -114,6 +118,7 @@ class _Frame:
     disparity: np.ndarray | None
     geometry: StereoGeometry | None
     images: tuple[np.ndarray, np.ndarray] | None = None  # gray (left, right), for refinement
+    skipped: bool = False  # superseded by a newer pair (latest-frame policy): no 3D array
 
 
 class StereoDepthNode(Node):
@@ -140,6 +145,7 @@ class StereoDepthNode(Node):
         self.points_decimation = p.points_decimation
         self.points_max_depth = p.points_max_depth
         self.points_rgb = p.points_rgb
+        cv2.setNumThreads(p.num_threads)  # process-wide
         self.match_rows = (p.match_rows[0], p.match_rows[1])
         cache = p.sync_cache_size
         self.pair_sync = ExactStampSync(("left", "right"), cache, in_order=True)
@@ -153,6 +159,17 @@ class StereoDepthNode(Node):
         self.unranged_detections = 0
         self.frames_processed = 0
         self.frames_failed = 0
+        # frames = detection arrays: in, 3D arrays out, dropped with their skipped pair.
+        # Everything after stereo pairing runs in order in one worker thread; a pair still
+        # waiting when a newer one is complete is skipped (latest-frame policy).
+        self.frames = FrameCounter()
+        self.worker = LatestFrameWorker(
+            self._work,
+            name="stereo",
+            on_error=self._work_failed,
+            skip=self._skip_pair,
+            max_waiting=p.frame_queue,
+        )
 
         self.pub_disparity = self.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)
         self.pub_points = None
@@ -172,6 +189,11 @@ class StereoDepthNode(Node):
             self._on_detections,
             QoSProfile(depth=10),
         )
+        self.health = NodeHealth(self, self.frames, busy=lambda: self.worker.busy)
+
+    def destroy_node(self):
+        self.worker.stop()  # the frames in hand and waiting are finished first
+        super().destroy_node()
 
     def _match_band(self, height: int):
         top, bottom = self.match_rows
@@ -220,12 +242,33 @@ class StereoDepthNode(Node):
             )
             # its detection array (waiting or still to come) gets an empty 3D array
             header = next(iter(ev.values.values())).header
-            self._add_to_frame_sync(ev.stamp, "frame", _Frame(header, None, None))
+            self.worker.submit(("frame", ev.stamp, _Frame(header, None, None)), frame=False)
         if group is not None:
-            self._process_pair(group["left"], group["right"])
+            self.worker.submit(("pair", group["left"], group["right"]))
 
     def _on_detections(self, msg) -> None:
-        self._add_to_frame_sync(stamp_ns(msg.header), "detections", msg)
+        self.frames.received()
+        self.worker.submit(("detections", stamp_ns(msg.header), msg), frame=False)
+
+    def _work(self, item) -> None:
+        kind, a, b = item
+        if kind == "pair":
+            self._process_pair(a, b)
+        else:
+            self._add_to_frame_sync(a, kind, b)
+
+    def _skip_pair(self, item) -> None:
+        left = item[1]
+        self._add_to_frame_sync(
+            stamp_ns(left.header), "frame", _Frame(left.header, None, None, skipped=True)
+        )
+
+    def _work_failed(self, exc: Exception, item) -> None:
+        self.get_logger().warning(f"stereo processing failed: {exc}")
+        if item[0] == "pair":
+            self._add_to_frame_sync(
+                stamp_ns(item[1].header), "frame", _Frame(item[1].header, None, None)
+            )
 
     def _add_to_frame_sync(self, key, slot, value) -> None:
         group = self.frame_sync.add(key, slot, value)
@@ -291,8 +334,12 @@ class StereoDepthNode(Node):
         out = VehicleDetection3DArray()
         out.header = det_msg.header
         self.pub_det3d.publish(out)
+        self.frames.published()
 
     def _publish_detections(self, frame: _Frame, det_msg) -> None:
+        if frame.skipped:
+            self.frames.dropped()
+            return
         out = VehicleDetection3DArray()
         out.header = frame.header if frame.disparity is not None else det_msg.header
         dets = list(det_msg.detections)
@@ -314,22 +361,24 @@ class StereoDepthNode(Node):
                 continue
             out.detections.append(detection_3d_message(d, r))
         self.pub_det3d.publish(out)
+        self.frames.published()
 
 
 def main(args=None) -> int:
     """Console script ``stereo_depth``; exit code 2 for a bad parameter."""
-    cv2.setNumThreads(2)
-    rclpy.init(args=args)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = StopRequest.install()
     try:
         node = StereoDepthNode()
     except ParameterError as exc:
         print(parameter_error_line(NODE_NAME, exc), file=sys.stderr)
         rclpy.try_shutdown()
         return EXIT_BAD_PARAMETER
+    except KeyboardInterrupt:  # stopped during start-up
+        rclpy.try_shutdown()
+        return 0
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_stopped(node, stop, node.health, on_stop=[node.worker.stop])
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -15,11 +15,12 @@ import sys
 
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo
 from stereo_vehicle_msgs.msg import TrackedVehicleArray, VehicleDetection3DArray
+from vehicle_common.frame_accounting import FrameCounter
 from vehicle_common.frame_messages import stamp_ns
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
@@ -28,6 +29,7 @@ from vehicle_common.node_parameters import (
     declare_config,
     parameter_error_line,
 )
+from vehicle_common.node_runtime import NodeHealth, StopRequest, spin_until_stopped
 from visualization_msgs.msg import MarkerArray
 
 from vehicle_common import topics
@@ -69,6 +71,8 @@ class VehicleTrackerNode(Node):
                 CameraInfo, topics.LEFT_INFO, self.on_camera_info, 5
             )
         self.shown_ids: set[int] = set()
+        self.frames = FrameCounter()  # detection arrays in, track arrays out
+        self.health = NodeHealth(self, self.frames)
 
     def on_camera_info(self, msg: CameraInfo) -> None:
         P = np.asarray(msg.p, float).reshape(3, 4)
@@ -80,6 +84,7 @@ class VehicleTrackerNode(Node):
         self.tracker.set_projection(P, (msg.width, msg.height))
 
     def on_detections(self, msg: VehicleDetection3DArray) -> None:
+        self.frames.received()
         try:
             dets, problems = detections_from_msg(msg)
         except (ValueError, TypeError) as exc:
@@ -90,6 +95,7 @@ class VehicleTrackerNode(Node):
         stamp = stamp_ns(msg.header) * 1e-9
         tracks = self.tracker.step(dets, stamp)
         self.pub.publish(tracks_to_msg(tracks, msg.header))
+        self.frames.published()
         ids = {int(t) for t in tracks.track_id}
         ended = sorted(self.shown_ids - ids)
         self.shown_ids = ids
@@ -98,17 +104,21 @@ class VehicleTrackerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``vehicle_tracker``; exit code 2 for a bad parameter."""
-    rclpy.init(args=args if args is not None else sys.argv)
+    rclpy.init(
+        args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO
+    )
+    stop = StopRequest.install()
     try:
         node = VehicleTrackerNode()
     except ParameterError as exc:
         print(parameter_error_line(NODE_NAME, exc), file=sys.stderr)
         rclpy.try_shutdown()
         return EXIT_BAD_PARAMETER
+    except KeyboardInterrupt:  # stopped during start-up
+        rclpy.try_shutdown()
+        return 0
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_stopped(node, stop, node.health)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

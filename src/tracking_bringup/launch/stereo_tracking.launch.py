@@ -3,8 +3,12 @@
 [namespace:=/rig2]``).
 
 It is built with the same plan (``tracking_bringup.graph.plan``: node list, the detector's
-subscriptions following its ``backend``, the player's ``wait_for_topics``) and parameter file as
-the project's own process launcher, ``stereo_tracking_launch``; a test keeps them in sync.
+subscriptions following its ``backend``, the player's following its ``lockstep``, the player's
+``wait_for_topics``, the latest-frame nodes' ``frame_queue``) and parameter file as the project's
+own process launcher, ``stereo_tracking_launch``; a test keeps them in sync. ``ros2 launch``
+starts every node at once; the player is told how many subscriptions every edge of the graph
+(of the nodes actually launched) must have matched and publishes its first frame only then, so
+no node misses frame 0.
 """
 
 import os
@@ -32,10 +36,9 @@ def _graph_nodes(context, share: str):
     namespace = topics.normalise_namespace(LaunchConfiguration("namespace").perform(context))
     record = LaunchConfiguration("record").perform(context).lower() in ("true", "1")
     env = _environment(share)
+    nodes = [n for n in graph.PIPELINE if record or not n.optional]
     actions = []
-    for spec, extra in graph.plan(list(graph.PIPELINE), params_file):
-        if spec.optional and not record:
-            continue
+    for spec, extra in graph.plan(nodes, params_file):
         actions.append(
             Node(
                 package=spec.package,

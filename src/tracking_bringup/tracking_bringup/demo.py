@@ -141,7 +141,10 @@ def main(argv: list[str] | None = None) -> int:
     ]
     apply_graph_environment()
     try:
-        processes = graph_processes(graph.PIPELINE, args.params, overrides)
+        # the progress display's subscription is an edge the player waits for too
+        processes = graph_processes(
+            graph.PIPELINE, args.params, overrides, extra_subscriptions={graph.TRACKS: 1}
+        )
     except LaunchError as exc:
         return _error(str(exc))
 
@@ -164,10 +167,9 @@ def main(argv: list[str] | None = None) -> int:
         print("[demo] interrupted", file=sys.stderr)
         return 130
     finally:
+        launcher.shutdown()  # lets the frames in flight drain first
         if progress is not None:
-            time.sleep(0.5)  # let the last tracks arrive
             progress.close()
-        launcher.shutdown()
     elapsed = time.monotonic() - t0
     processed = progress.count if progress else 0
     print(
@@ -175,13 +177,38 @@ def main(argv: list[str] | None = None) -> int:
         f"({processed / max(elapsed, 1e-9):.2f} frames/s end to end)",
         flush=True,
     )
+    nodes = node_frame_counts(launcher)
+    print(frame_counts_table(nodes), flush=True)
     if args.no_eval:
         return 0
-    return _evaluate(bag, root, sequence, out, processed, elapsed, args.params)
+    return _evaluate(bag, root, sequence, out, processed, elapsed, args.params, nodes)
+
+
+def node_frame_counts(launcher: GraphLauncher) -> dict[str, dict[str, int]]:
+    """Frames in / out / dropped of every node, from their last /diagnostics report."""
+    return {
+        name: {"in": r.counts.received, "out": r.counts.published, "dropped": r.counts.dropped}
+        for name, r in launcher.reports.items()
+    }
+
+
+def frame_counts_table(nodes: dict[str, dict[str, int]]) -> str:
+    lines = [f"[demo] {'node':<18} {'frames in':>9} {'out':>6} {'dropped':>8}"]
+    for name in [n.name for n in graph.PIPELINE if n.name in nodes]:
+        c = nodes[name]
+        lines.append(f"[demo] {name:<18} {c['in']:>9} {c['out']:>6} {c['dropped']:>8}")
+    return "\n".join(lines)
 
 
 def _evaluate(
-    bag: Path, root: Path, sequence: str, out: Path, processed: int, elapsed: float, params: str
+    bag: Path,
+    root: Path,
+    sequence: str,
+    out: Path,
+    processed: int,
+    elapsed: float,
+    params: str,
+    nodes: dict[str, dict[str, int]],
 ):
     from eval_node.bag_evaluation import evaluate_bag
     from eval_node.bag_reader import read_run
@@ -203,6 +230,7 @@ def _evaluate(
         "frames_tracked": processed,
         "wall_time_s": round(elapsed, 2),
         "end_to_end_fps": round(processed / max(elapsed, 1e-9), 3),
+        "node_frames": nodes,  # frames in / out / dropped per node
     }
     write_json(out / "results.json", results)
     files = write_report(results, out / "report", run=run, images_dir=root)

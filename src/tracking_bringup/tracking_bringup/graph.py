@@ -3,7 +3,8 @@
 Both the project's process launcher (``stereo_tracking_launch``) and the standard ROS launch file
 (``launch/stereo_tracking.launch.py``, for users with a full ROS 2 install) build the graph from
 this description with :func:`plan` (the detector's subscriptions from its ``backend`` parameter,
-the player's ``wait_for_topics`` from the subscriptions of the other nodes), so the two cannot
+the player's from its ``lockstep``, the player's ``wait_for_topics`` from every edge of the graph,
+the latest-frame nodes' ``frame_queue`` from the player's ``lockstep_window``), so the two cannot
 drift apart. Topic names are relative; both launchers take a namespace that moves the graph.
 """
 
@@ -19,8 +20,11 @@ from vehicle_common import topics
 class NodeSpec:
     """One node process of the graph.
 
-    ``source`` nodes produce the data (the player); the launcher starts them only after every
-    other node's subscriptions are up, so no frame is published into an unready graph.
+    ``source`` nodes produce the data (the player). They are told, through ``wait_parameter``,
+    how many subscriptions every topic of the graph must have matched (:func:`edge_counts`) and
+    publish nothing before (the other nodes report their matches on /diagnostics), so no frame
+    is published into an unready graph whatever the start order; the process launcher also
+    starts them last.
     ``finishes`` nodes may exit on their own with code 0 (the player at the end of a sequence).
     """
 
@@ -34,8 +38,11 @@ class NodeSpec:
     optional: bool = False
     extra_args: tuple[str, ...] = field(default=())
     #: parameter through which a source node is told how many subscriptions to wait for per
-    #: published topic ("topic:N,topic:N") before it publishes its first message
+    #: topic of the graph ("topic:N,topic:N") before it publishes its first message
     wait_parameter: str | None = None
+    #: the node processes the newest frame and skips older waiting ones (``frame_queue``
+    #: parameter: how many newest frames may wait)
+    latest_frame: bool = False
 
 
 # topic names, relative: resolved in the graph's namespace (vehicle_common.topics)
@@ -67,6 +74,7 @@ DETECTOR = NodeSpec(
     executable="vehicle_detector",
     subscribes=(LEFT_IMAGE,),
     publishes=(DETECTIONS_2D,),
+    latest_frame=True,
 )
 STEREO = NodeSpec(
     name="stereo_depth",
@@ -74,6 +82,7 @@ STEREO = NodeSpec(
     executable="stereo_depth",
     subscribes=(LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO, DETECTIONS_2D),
     publishes=(DETECTIONS_3D, DISPARITY),
+    latest_frame=True,
 )
 TRACKER = NodeSpec(
     name="vehicle_tracker",
@@ -123,18 +132,35 @@ def with_detector_backend(nodes: list[NodeSpec], backend: str) -> list[NodeSpec]
     return [spec if n.name == DETECTOR.name else n for n in nodes]
 
 
-def expected_subscriptions(source: NodeSpec, nodes: list[NodeSpec]) -> dict[str, int]:
-    """For each topic ``source`` publishes: how many of the other ``nodes`` subscribe to it."""
-    return {
-        topic: sum(topic in n.subscribes for n in nodes if n.name != source.name)
-        for topic in source.publishes
-    }
+def with_lockstep(nodes: list[NodeSpec], lockstep: bool) -> list[NodeSpec]:
+    """``nodes`` with the player's lockstep subscription (the tracks) only when it is on."""
+    spec = PLAYER if lockstep else replace(PLAYER, subscribes=())
+    return [spec if n.name == PLAYER.name else n for n in nodes]
 
 
-def wait_for_topics_value(source: NodeSpec, nodes: list[NodeSpec]) -> str:
-    """The ``wait_for_topics`` value of a source node: ``"topic:N,..."`` (relative names)."""
-    counts = expected_subscriptions(source, nodes)
-    return ",".join(f"{t}:{c}" for t, c in counts.items() if c)
+def as_bool(value) -> bool:
+    """A boolean parameter value from a YAML file or a ``-p`` override string."""
+    return value if isinstance(value, bool) else str(value).strip().lower() == "true"
+
+
+def edge_counts(nodes: list[NodeSpec], extra: dict[str, int] | None = None) -> dict[str, int]:
+    """For every topic published by one of ``nodes``: how many of the other ``nodes`` subscribe
+    to it (plus ``extra`` subscribers outside the graph, e.g. the demo's progress display). Topics
+    nobody subscribes to are left out. These are the edges a source waits for."""
+    counts: dict[str, int] = {}
+    for pub in nodes:
+        for topic in pub.publishes:
+            n = sum(topic in s.subscribes for s in nodes if s.name != pub.name)
+            n += (extra or {}).get(topic, 0)
+            if n:
+                counts[topic] = max(counts.get(topic, 0), n)
+    return counts
+
+
+def wait_for_topics_value(nodes: list[NodeSpec], extra: dict[str, int] | None = None) -> str:
+    """The ``wait_for_topics`` value of a source node: ``"topic:N,..."`` over every edge of the
+    graph :func:`edge_counts` (relative names)."""
+    return ",".join(f"{t}:{n}" for t, n in edge_counts(nodes, extra).items())
 
 
 def parameter_value(params_file, overrides: list[str], node: str, name: str, default):
@@ -152,26 +178,54 @@ def parameter_value(params_file, overrides: list[str], node: str, name: str, def
     return default
 
 
+def _lockstep_window(value) -> int | None:
+    """The player's ``lockstep_window`` as the launchers read it; None when it is no whole
+    number >= 1 (the player then stops with its own one-line parameter error)."""
+    try:
+        window = int(str(value).strip())
+    except ValueError:
+        return None
+    return window if window >= 1 else None
+
+
 def plan(
     nodes: list[NodeSpec],
     params_file=None,
     overrides: dict[str, list[str]] | None = None,
     graph_nodes: list[NodeSpec] | None = None,
-) -> list[tuple[NodeSpec, dict[str, str]]]:
+    extra_subscriptions: dict[str, int] | None = None,
+) -> list[tuple[NodeSpec, dict[str, str | int]]]:
     """The graph to start: each node (the detector's subscriptions following its ``backend``
-    parameter, from ``overrides[node]`` or the parameter file) with the parameters the
-    launchers set on it (a source's ``wait_for_topics``, counted over ``graph_nodes``: the whole
-    graph, also the nodes other hosts run; default ``nodes``)."""
+    parameter, the player's its ``lockstep`` parameter, from ``overrides[node]`` or the
+    parameter file) with the parameters the launchers set on it:
+
+    - a source's ``wait_for_topics``: every edge of the graph (:func:`edge_counts`), counted
+      over ``graph_nodes`` (the whole graph, also the nodes other hosts run; default ``nodes``)
+      plus ``extra_subscriptions`` per topic from outside the graph (a progress display);
+    - in lockstep with ``lockstep_window`` K frames in flight, ``frame_queue: K`` on the
+      latest-frame nodes, so that none of the K frames waiting there is skipped (unless the
+      node's ``frame_queue`` is overridden)."""
     overrides = overrides or {}
-    backend = parameter_value(
-        params_file, overrides.get(DETECTOR.name, []), DETECTOR.name, "backend", "cnn"
-    )
-    nodes = with_detector_backend(list(nodes), str(backend))
-    whole = nodes if graph_nodes is None else with_detector_backend(list(graph_nodes), backend)
+
+    def value(node: NodeSpec, name: str, default):
+        return parameter_value(params_file, overrides.get(node.name, []), node.name, name, default)
+
+    backend = str(value(DETECTOR, "backend", "cnn"))
+    lockstep = as_bool(value(PLAYER, "lockstep", False))
+
+    def shaped(specs: list[NodeSpec]) -> list[NodeSpec]:
+        return with_lockstep(with_detector_backend(list(specs), backend), lockstep)
+
+    nodes = shaped(nodes)
+    whole = nodes if graph_nodes is None else shaped(graph_nodes)
+    window = _lockstep_window(value(PLAYER, "lockstep_window", 1)) if lockstep else None
     out = []
     for n in nodes:
-        extra = {}
+        extra: dict[str, str | int] = {}
+        overridden = {ov.partition(":=")[0] for ov in overrides.get(n.name, [])}
+        if window is not None and n.latest_frame and "frame_queue" not in overridden:
+            extra["frame_queue"] = window
         if n.source and n.wait_parameter:
-            extra[n.wait_parameter] = wait_for_topics_value(n, whole)
+            extra[n.wait_parameter] = wait_for_topics_value(whole, extra_subscriptions)
         out.append((n, extra))
     return out

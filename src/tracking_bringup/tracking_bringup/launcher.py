@@ -3,10 +3,15 @@
 It starts each node as its own OS process (real DDS between them) with
 ``--ros-args --params-file FILE``, writes one log file per node, checks readiness (every node's
 subscriptions and publications are visible in the ROS graph; data sources such as the player are
-started only once the rest of the graph is up), stops everything cleanly on Ctrl-C or SIGTERM
-(SIGINT to each child in data-flow order, then SIGTERM, then SIGKILL; children are also bound to
-the launcher with PR_SET_PDEATHSIG so none is orphaned), and exits non-zero naming the node when
-one dies.
+started only once the rest of the graph is up, and themselves wait until every edge of the graph
+is matched, see ``graph.edge_counts``), and exits non-zero naming the node when one dies.
+
+Stopping (end of the sequence, Ctrl-C or SIGTERM): the sources are stopped first, the frames in
+flight are let through the graph (until every node reports on /diagnostics that it holds no
+frame, bounded by ``drain_timeout``), then the other nodes get SIGINT in data-flow order (then
+SIGTERM, then SIGKILL), so a recorded bag has as many outputs as inputs. Ctrl-C during start-up
+stops everything at once. Children are bound to the launcher with PR_SET_PDEATHSIG so none is
+orphaned.
 
 Command line: ``stereo_tracking_launch [--params FILE] [--nodes a,b] [-p node.param:=value] ...``
 """
@@ -14,6 +19,7 @@ Command line: ``stereo_tracking_launch [--params FILE] [--nodes a,b] [-p node.pa
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import os
 import shutil
@@ -24,6 +30,9 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from vehicle_common.graph_readiness import NodeReport, graph_quiescent
+from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
 
 from tracking_bringup import graph, hosts
 from tracking_bringup.environment import PARAMS_FILE, graph_environment
@@ -41,6 +50,10 @@ class LaunchError(RuntimeError):
         self.node = node
 
 
+class LaunchInterrupted(LaunchError):
+    """A stop was requested (Ctrl-C, SIGTERM) before the graph was ready."""
+
+
 @dataclass
 class ProcessSpec:
     """One process to run: its name (the ROS node name), command line and graph role."""
@@ -51,6 +64,7 @@ class ProcessSpec:
     publishes: tuple[str, ...] = ()
     source: bool = False
     finishes: bool = False
+    namespace: str = ""  # the node's ROS namespace ("" or "/rig2")
 
 
 @dataclass
@@ -113,6 +127,8 @@ class GraphLauncher:
         ready_timeout: float = 60.0,
         stop_timeout: float = 15.0,
         echo: bool = False,
+        staged: bool = True,
+        drain_timeout: float = 5.0,
     ):
         names = [s.name for s in specs]
         if len(set(names)) != len(names):
@@ -123,10 +139,22 @@ class GraphLauncher:
         self.ready_timeout = ready_timeout
         self.stop_timeout = stop_timeout
         self.echo = echo
+        #: start the sources only once the rest is up (False: everything at once, as
+        #: ``ros2 launch`` does; the sources' own edge readiness then does the waiting)
+        self.staged = staged
+        self.drain_timeout = drain_timeout
         self.running: dict[str, _Running] = {}
+        #: fully qualified node name (no leading "/") -> process name, to file the reports
+        self._report_names = {f"{s.namespace}/{s.name}".lstrip("/"): s.name for s in specs}
+        #: the latest /diagnostics report of every node (frames in / out / dropped)
+        self.reports: dict[str, NodeReport] = {}
+        #: whether the last shutdown let the frames in flight drain (None: nothing to drain)
+        self.drained: bool | None = None
+        self._ready = False
         self._stopping = False
         self._observer = None
         self._context = None
+        self._executor = None
 
     # -- lifecycle -----------------------------------------------------------------------
 
@@ -142,14 +170,20 @@ class GraphLauncher:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         try:
             self._open_observer()
-            rest = [s for s in self.specs if not s.source]
-            sources = [s for s in self.specs if s.source]
-            for spec in rest:
-                self._spawn(spec)
-            self._wait_ready(rest)
-            for spec in sources:
-                self._spawn(spec)
-            self._wait_ready(sources)
+            if self.staged:
+                rest = [s for s in self.specs if not s.source]
+                sources = [s for s in self.specs if s.source]
+                for spec in rest:
+                    self._spawn(spec)
+                self._wait_ready(rest)
+                for spec in sources:
+                    self._spawn(spec)
+                self._wait_ready(sources)
+            else:
+                for spec in self.specs:
+                    self._spawn(spec)
+                self._wait_ready(self.specs)
+            self._ready = True
         except BaseException:
             self.shutdown()
             raise
@@ -172,21 +206,33 @@ class GraphLauncher:
                     + _tail(run.log_path),
                     node=name,
                 )
-            time.sleep(poll)
+            self.spin_reports(poll)
 
     def request_stop(self, *_args) -> None:
         """Ask :meth:`wait` to return (signal handler)."""
         self._stopping = True
 
     def shutdown(self) -> dict[str, int]:
-        """Stop every process in data-flow order (SIGINT, then SIGTERM, then SIGKILL) and
-        return their exit codes. Idempotent."""
+        """Stop every process and return their exit codes (see the module docstring: sources
+        first, drain, then the rest in data-flow order; all at once before the graph was
+        ready). Idempotent."""
         self._stopping = True
         codes: dict[str, int] = {}
-        for name, run in self.running.items():
-            codes[name] = self._stop(run)
+        if not self._ready:
+            codes = self._stop_all(list(self.running.values()))
+        else:
+            for run in self.running.values():
+                if run.spec.source:
+                    codes[run.spec.name] = self._stop(run)
+            if self.running and self._observer is not None:
+                self.drained = self._drain()
+            for name, run in self.running.items():
+                if name not in codes:
+                    codes[name] = self._stop(run)
+        for run in self.running.values():
             run.log_file.close()
         self.running = {}
+        self._ready = False
         self._close_observer()
         return codes
 
@@ -226,9 +272,65 @@ class GraphLauncher:
                 continue
         return proc.wait()
 
+    def _stop_all(self, runs: list[_Running]) -> dict[str, int]:
+        """Stop processes at once (start-up interrupted): SIGTERM to all, then SIGKILL."""
+        for sig, timeout in ((signal.SIGTERM, self.stop_timeout), (signal.SIGKILL, 5.0)):
+            alive = [r for r in runs if r.proc.poll() is None]
+            for run in alive:
+                with contextlib.suppress(ProcessLookupError):
+                    run.proc.send_signal(sig)
+            deadline = time.monotonic() + timeout
+            for run in alive:
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    run.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        return {r.spec.name: r.proc.wait() for r in runs}
+
+    def _drain(self, quiet_s: float = 0.5) -> bool | None:
+        """Wait until the frames in flight went through: every running node that reports on
+        /diagnostics is idle and no report changed for ``quiet_s``. Bounded by
+        ``drain_timeout``; None when no node reports (nothing known to drain)."""
+        deadline = time.monotonic() + self.drain_timeout
+        last, changed = None, time.monotonic()
+        while True:
+            self.spin_reports(0.05)
+            now = time.monotonic()
+            live = {
+                n: r
+                for n, r in self.reports.items()
+                if n in self.running and self.running[n].proc.poll() is None
+            }
+            if not live:
+                return None
+            if live != last:
+                last, changed = live, now
+            elif now - changed >= quiet_s and graph_quiescent(live.values()):
+                return True
+            if now > deadline:
+                return False
+
+    def spin_reports(self, timeout: float) -> None:
+        """Take the observer's messages (node reports) for up to ``timeout`` seconds."""
+        if self._executor is None:
+            time.sleep(timeout)
+            return
+        end = time.monotonic() + timeout
+        while True:
+            left = end - time.monotonic()
+            if left <= 0:
+                return
+            self._executor.spin_once(timeout_sec=left)
+
+    def _on_reports(self, msg) -> None:
+        for report in reports_from_message(msg):
+            name = self._report_names.get(report.node)  # this graph's nodes, by short name
+            if name is not None:
+                self.reports[name] = report
+
     def _open_observer(self) -> None:
         import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
 
         # The observer must join the children's DDS domain with the same transport settings;
         # rmw reads them from this process's environment when the participant is created.
@@ -240,8 +342,14 @@ class GraphLauncher:
         self._observer = rclpy.create_node(
             f"graph_launcher_{os.getpid()}", context=self._context, start_parameter_services=False
         )
+        self._observer.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_reports, 50)
+        self._executor = SingleThreadedExecutor(context=self._context)
+        self._executor.add_node(self._observer)
 
     def _close_observer(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(timeout_sec=1.0)
+            self._executor = None
         if self._observer is not None:
             self._observer.destroy_node()
             self._observer = None
@@ -267,6 +375,8 @@ class GraphLauncher:
     def _wait_ready(self, specs: Sequence[ProcessSpec]) -> None:
         deadline = time.monotonic() + self.ready_timeout
         while True:
+            if self._stopping:
+                raise LaunchInterrupted("stopped during start-up")
             waiting = []
             for spec in specs:
                 run = self.running[spec.name]
@@ -290,7 +400,7 @@ class GraphLauncher:
                     + ", ".join(missing),
                     node=node,
                 )
-            time.sleep(0.1)
+            self.spin_reports(0.1)
 
 
 def _tail(path: Path, lines: int = 15) -> str:
@@ -307,15 +417,19 @@ def graph_processes(
     overrides: Sequence[str] = (),
     namespace: str = "",
     graph_nodes: Sequence[graph.NodeSpec] | None = None,
+    extra_subscriptions: dict[str, int] | None = None,
 ) -> list[ProcessSpec]:
     """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings.
 
-    The detector's subscriptions follow its ``backend`` parameter (file or override), and each
-    source node is told how many subscriptions to wait for on each of its topics
-    (:func:`graph.plan`, as the ROS launch file), counted over ``graph_nodes``: the whole graph,
-    also the nodes other hosts run (default: ``nodes``); overrides of nodes that run elsewhere
-    only inform those counts (the detector's backend). ``namespace`` moves the whole graph; the
-    specs' topics are the resolved names."""
+    :func:`graph.plan` (as the ROS launch file) sets the detector's subscriptions from its
+    ``backend`` parameter, the player's from its ``lockstep`` parameter (file or override; the
+    node's default is off), tells each source node how many subscriptions to wait for on every
+    edge of the graph (plus ``extra_subscriptions`` per topic from outside the graph, e.g. a
+    progress display), counted over ``graph_nodes``: the whole graph, also the nodes other
+    hosts run (default: ``nodes``), and in lockstep gives the latest-frame nodes a
+    ``frame_queue`` of the player's ``lockstep_window``. Overrides of nodes that run elsewhere
+    only inform those counts. ``namespace`` moves the whole graph; the specs' topics are the
+    resolved names."""
     graph_nodes = list(nodes if graph_nodes is None else graph_nodes)
     per_node: dict[str, list[str]] = {n.name: [] for n in [*graph_nodes, *nodes]}
     for ov in overrides:
@@ -327,7 +441,8 @@ def graph_processes(
             )
         per_node[target].append(rest)
     out = []
-    for n, extra in graph.plan(list(nodes), params_file, per_node, graph_nodes):
+    planned = graph.plan(list(nodes), params_file, per_node, graph_nodes, extra_subscriptions)
+    for n, extra in planned:
         argv_overrides = per_node[n.name] + [f"{k}:={v}" for k, v in extra.items()]
         out.append(
             ProcessSpec(
@@ -337,6 +452,7 @@ def graph_processes(
                 publishes=tuple(topics.resolve(t, namespace) for t in n.publishes),
                 source=n.source,
                 finishes=n.finishes,
+                namespace=topics.normalise_namespace(namespace),
             )
         )
     return out
@@ -362,11 +478,18 @@ def run_graph(
         announce(f"graph ready: {', '.join(p.name for p in processes)} (logs in {log_dir})")
         launcher.wait(until_finished=until_finished)
         return 0
+    except LaunchInterrupted:
+        announce("interrupted during start-up: every node stopped")
+        return 130
     except LaunchError as exc:
         announce(f"error: {exc}")
         return 1
     finally:
         codes = launcher.shutdown()
+        if launcher.drained is False:
+            announce(
+                f"warning: frames still in flight after {launcher.drain_timeout:.0f} s at shutdown"
+            )
         unclean = {n: c for n, c in codes.items() if c not in _CLEAN_EXIT_CODES}
         if unclean:
             announce(

@@ -6,6 +6,8 @@ Supported encodings: rgb8, bgr8, mono8, 8UC1, 8UC3, 32FC1, 16UC1, mono16.
 
 from __future__ import annotations
 
+import array
+
 import numpy as np
 
 _ENCODINGS = {
@@ -43,8 +45,17 @@ def numpy_to_image(array: np.ndarray, encoding: str, header=None):
     msg.encoding = encoding
     msg.is_bigendian = 0
     msg.step = int(arr.shape[1] * channels * arr.itemsize)
-    msg.data = arr.tobytes()
+    msg.data = byte_array(arr)
     return msg
+
+
+def byte_array(arr: np.ndarray) -> array.array:
+    """The bytes of a contiguous array as ``array.array('B')``, the type a ``uint8[]`` message
+    field holds: the setter takes it as it is, where ``bytes`` (``arr.tobytes()``) would be
+    copied once more into a new array (one copy of the image instead of two)."""
+    out = array.array("B")
+    out.frombytes(np.ascontiguousarray(arr).reshape(-1).view(np.uint8).data)
+    return out
 
 
 def image_to_numpy(msg) -> np.ndarray:

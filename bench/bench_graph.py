@@ -1,0 +1,337 @@
+"""The whole graph at camera rate and in lockstep: frames tracked, latency, CPU per node.
+
+Usage: python bench/bench_graph.py [--synthetic-frames 100] [--no-real] [--windows 1,2]
+       [-p NODE.PARAM:=VALUE ...] [--json FILE]
+
+Runs the graph of the demo (player, CNN detector, stereo depth, tracker, recorder; separate
+processes, the shipped parameter file) on real KITTI tracking 0005 (../shared/kitti, 16 frames)
+and on a synthetic sequence (rendered once into output/bench_graph/synthetic):
+
+- ``realtime``: the player at 10 Hz without lockstep, as a camera: frames published, frames
+  that reached /vehicles/tracks, latency image -> tracks (p50 / p95 / max: the player's /clock
+  message of a frame, published just before its images, to the tracks of that stamp, both seen
+  by a probe node in this process), the per-stage share of it (-> 2D detections -> 3D
+  detections -> tracks), each node's frames in / out / dropped (its /diagnostics report) and
+  CPU (% of one core, from /proc, over the playback).
+- ``lockstep K``: the player as fast as the graph goes with at most K unacknowledged frames;
+  throughput in frames/s (first /clock to last tracks).
+
+Prints one table; ``uptime``'s load average is printed with it (the machine may be shared).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import sys
+import threading
+import time
+from pathlib import Path
+
+os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(101, 200)))
+
+import numpy as np  # noqa: E402
+from tracking_bringup.environment import PARAMS_FILE, apply_graph_environment  # noqa: E402
+from tracking_bringup.launcher import GraphLauncher, graph_processes  # noqa: E402
+
+from tracking_bringup import graph  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+REAL_ROOT = REPO.parent / "shared" / "kitti" / "tracking" / "training"
+OUT = REPO / "output" / "bench_graph"
+PROBED = (graph.CLOCK, graph.DETECTIONS_2D, graph.DETECTIONS_3D, graph.TRACKS)
+
+
+class Probe:
+    """Arrival time (monotonic) of every message on the probed topics, by stamp."""
+
+    def __init__(self):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rosgraph_msgs.msg import Clock
+        from stereo_vehicle_msgs.msg import (
+            TrackedVehicleArray,
+            VehicleDetection2DArray,
+            VehicleDetection3DArray,
+        )
+
+        self.times: dict[str, dict[int, float]] = {t: {} for t in PROBED}
+        self._ctx = Context()
+        rclpy.init(context=self._ctx, args=[])
+        self._node = rclpy.create_node("bench_graph_probe", context=self._ctx)
+        types = (Clock, VehicleDetection2DArray, VehicleDetection3DArray, TrackedVehicleArray)
+        for topic, cls in zip(PROBED, types, strict=True):
+            self._node.create_subscription(cls, topic, self._recorder(topic), 100)
+        self._executor = SingleThreadedExecutor(context=self._ctx)
+        self._executor.add_node(self._node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _recorder(self, topic):
+        def on_msg(msg):
+            now = time.monotonic()
+            stamp = msg.clock if topic == graph.CLOCK else msg.header.stamp
+            self.times[topic].setdefault(stamp.sec * 10**9 + stamp.nanosec, now)
+
+        return on_msg
+
+    def _spin(self):
+        while not self._stop.is_set():
+            self._executor.spin_once(timeout_sec=0.05)
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(5)
+        self._executor.shutdown()
+        self._node.destroy_node()
+        self._ctx.try_shutdown()
+
+
+def _cpu_seconds(pid: int) -> float:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def run_case(root: Path, sequence: str, lockstep: bool, window: int, overrides, logs: Path):
+    """One run of the graph; returns its figures."""
+    probe = Probe()
+    params = [
+        f"kitti_player.dataset_root:={root}",
+        f"kitti_player.sequence:='{sequence}'",
+        f"kitti_player.lockstep:={'true' if lockstep else 'false'}",
+        f"kitti_player.lockstep_window:={window}",
+        f"kitti_player.rate_multiplier:={0 if lockstep else 1.0}",
+        "kitti_player.exit_when_done:=true",
+        f"bag_recorder.output:={logs / 'bag'}",
+        *overrides,
+    ]
+    extra = dict.fromkeys(PROBED, 1)  # the probe's subscriptions are edges too
+    processes = graph_processes(graph.PIPELINE, PARAMS_FILE, params, extra_subscriptions=extra)
+    launcher = GraphLauncher(processes, logs, ready_timeout=180)
+    cpu0, cpu1 = {}, {}
+    t_cpu0 = t_cpu1 = 0.0
+    try:
+        launcher.start()
+        pids = {n: r.proc.pid for n, r in launcher.running.items()}
+        while not probe.times[graph.CLOCK]:  # playback starts once every edge is matched
+            launcher.spin_reports(0.05)
+        cpu0, t_cpu0 = {n: _cpu_seconds(p) for n, p in pids.items()}, time.monotonic()
+        cpu1 = dict(cpu0)
+
+        def sample():  # the last reading of each process (the player exits at the end)
+            for n, p in pids.items():
+                c = _cpu_seconds(p)
+                if c == c:  # not nan
+                    cpu1[n] = c
+
+        player = launcher.running[graph.PLAYER.name].proc
+        while player.poll() is None:
+            sample()
+            launcher.spin_reports(0.1)
+        # the player is done; the last frames may still be in flight
+        end = time.monotonic() + 10
+        while time.monotonic() < end:
+            sample()
+            launcher.spin_reports(0.1)
+            if all(r.idle for n, r in launcher.reports.items() if n != graph.PLAYER.name):
+                break
+        t_cpu1 = time.monotonic()
+    finally:
+        launcher.shutdown()
+        time.sleep(0.3)
+        probe.close()
+    return _figures(probe.times, launcher.reports, cpu0, cpu1, t_cpu1 - t_cpu0)
+
+
+def _figures(times, reports, cpu0, cpu1, wall) -> dict:
+    clock, tracks = times[graph.CLOCK], times[graph.TRACKS]
+    stamps = sorted(clock)
+    tracked = [s for s in stamps if s in tracks]
+    lat = np.array([tracks[s] - clock[s] for s in tracked]) * 1e3
+    d2, d3 = times[graph.DETECTIONS_2D], times[graph.DETECTIONS_3D]
+    stage = {
+        "detect": [d2[s] - clock[s] for s in tracked if s in d2],
+        "range": [d3[s] - max(d2[s], clock[s]) for s in tracked if s in d2 and s in d3],
+        "track": [tracks[s] - d3[s] for s in tracked if s in d3],
+    }
+    span = (tracks[tracked[-1]] - clock[stamps[0]]) if tracked else float("nan")
+    return {
+        "published": len(stamps),
+        "tracked": len(tracked),
+        "tracked_pct": 100.0 * len(tracked) / max(1, len(stamps)),
+        "latency_ms": {
+            "p50": float(np.percentile(lat, 50)) if lat.size else float("nan"),
+            "p95": float(np.percentile(lat, 95)) if lat.size else float("nan"),
+            "max": float(lat.max()) if lat.size else float("nan"),
+        },
+        "stage_ms_p50": {
+            k: float(np.median(v) * 1e3) if v else float("nan") for k, v in stage.items()
+        },
+        "throughput_fps": len(tracked) / span if tracked and span > 0 else float("nan"),
+        "nodes": {
+            n: {
+                "in": r.counts.received,
+                "out": r.counts.published,
+                "dropped": r.counts.dropped,
+            }
+            for n, r in reports.items()
+        },
+        "cpu_pct": {
+            n: 100.0 * (cpu1[n] - cpu0[n]) / wall if wall > 0 else float("nan") for n in cpu1
+        },
+    }
+
+
+def offline_stage_times(root: Path, sequence: str, repeats: int = 5) -> dict[str, float]:
+    """Median ms per frame of each stage run alone in this process (same core functions and
+    thread counts as the graph's nodes), the baseline the graph's latency is compared with."""
+    import cv2
+    import torch
+    from detector_node.inference import CnnDetector
+    from stereo_depth_node.disparity import DisparityParams, compute_disparity
+    from vehicle_common.image_conversion import image_to_rgb, numpy_to_image
+    from vehicle_common.kitti import TrackingSequence
+
+    seq = TrackingSequence.open(root, sequence)
+    frames = seq.frame_ids[:repeats]
+    left, right = seq.read_stereo(frames[0])
+    det_threads = int(graph.parameter_value(PARAMS_FILE, [], graph.DETECTOR.name, "num_threads", 2))
+    cv_threads = int(graph.parameter_value(PARAMS_FILE, [], graph.STEREO.name, "num_threads", 2))
+
+    def median_ms(fn) -> float:
+        fn()  # warm-up
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return float(np.median(times) * 1e3)
+
+    torch.set_num_threads(det_threads)
+    detector = CnnDetector.from_checkpoint("", "cpu")
+    cv2.setNumThreads(cv_threads)
+    params = DisparityParams()  # the node's defaults = the parameter file's
+    return {
+        "read pair (2 PNG)": median_ms(lambda: seq.read_stereo(frames[-1])),
+        "image message, build + convert": median_ms(
+            lambda: image_to_rgb(numpy_to_image(left, "rgb8"))
+        ),
+        "image message from bytes (before)": median_ms(lambda: _image_from_bytes(left)),
+        f"detect (CNN, {det_threads} thread)": median_ms(lambda: detector.detect(left)),
+        f"disparity ({cv_threads} threads)": median_ms(
+            lambda: compute_disparity(left, right, params)
+        ),
+    }
+
+
+def _image_from_bytes(rgb: np.ndarray):
+    """How images were built before: ``data = bytes`` (copied once more by the setter)."""
+    from sensor_msgs.msg import Image
+
+    msg = Image(height=rgb.shape[0], width=rgb.shape[1], encoding="rgb8", step=rgb.shape[1] * 3)
+    msg.data = rgb.tobytes()
+    return msg
+
+
+def _prepare_synthetic(frames: int) -> tuple[Path, str]:
+    from kitti_player_node.synthetic import generate_sequence
+
+    root = OUT / "synthetic"
+    generate_sequence(root, sequence="0000", frames=frames, seed=0)
+    return root, "0000"
+
+
+SHORT = {
+    graph.PLAYER.name: "player",
+    graph.DETECTOR.name: "det",
+    graph.STEREO.name: "stereo",
+    graph.TRACKER.name: "tracker",
+    graph.RECORDER.name: "rec",
+}
+
+
+def _table(rows: list[tuple[str, str, dict]]) -> str:
+    head = (
+        f"{'data':<16} {'mode':<11} {'frames':>6} {'tracked':>12} {'p50 ms':>7} {'p95 ms':>7} "
+        f"{'max ms':>7} {'fps':>6}  {'det/ste/trk ms p50':>18}  {'dropped det/ste':>15}  CPU % "
+        + "/".join(SHORT[n] for n in SHORT)
+    )
+    lines = [head, "-" * len(head)]
+    for data, mode, f in rows:
+        lat, st, nodes = f["latency_ms"], f["stage_ms_p50"], f["nodes"]
+        drops = "/".join(
+            str(nodes.get(n, {}).get("dropped", "-"))
+            for n in (graph.DETECTOR.name, graph.STEREO.name)
+        )
+        cpu = "/".join(f"{f['cpu_pct'].get(n, float('nan')):.0f}" for n in SHORT)
+        lines.append(
+            f"{data:<16} {mode:<11} {f['published']:>6} "
+            f"{f['tracked']:>4} ({f['tracked_pct']:5.1f}%) {lat['p50']:>7.0f} {lat['p95']:>7.0f} "
+            f"{lat['max']:>7.0f} {f['throughput_fps']:>6.1f}  "
+            f"{st['detect']:>6.0f}/{st['range']:>4.0f}/{st['track']:>4.0f}     {drops:>15}  {cpu}"
+        )
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--synthetic-frames", type=int, default=100)
+    parser.add_argument("--no-real", action="store_true", help="skip KITTI 0005")
+    parser.add_argument("--no-synthetic", action="store_true")
+    parser.add_argument("--windows", default="1,2", help="lockstep windows to run")
+    parser.add_argument("--no-realtime", action="store_true")
+    parser.add_argument("-p", "--param", action="append", default=[], metavar="NODE.PARAM:=VALUE")
+    parser.add_argument("--json", help="write the figures to this file")
+    parser.add_argument("--no-offline", action="store_true", help="skip the per-stage baseline")
+    args = parser.parse_args(argv)
+    apply_graph_environment()
+    datasets = []
+    if not args.no_real:
+        if (REAL_ROOT / "image_02" / "0005").is_dir():
+            datasets.append(("real 0005", REAL_ROOT, "0005"))
+        else:
+            print(f"[bench] {REAL_ROOT}: no KITTI 0005, real data skipped", file=sys.stderr)
+    if not args.no_synthetic:
+        root, seq = _prepare_synthetic(args.synthetic_frames)
+        datasets.append((f"synthetic {args.synthetic_frames}", root, seq))
+    windows = [int(w) for w in args.windows.split(",") if w]
+    modes = ([] if args.no_realtime else [("realtime", False, 1)]) + [
+        (f"lockstep {w}", True, w) for w in windows
+    ]
+    offline = {}
+    if datasets and not args.no_offline:
+        print("[bench] offline stage times ...", file=sys.stderr, flush=True)
+        offline = offline_stage_times(datasets[0][1], datasets[0][2])
+    rows, stamp = [], time.strftime("%Y%m%d_%H%M%S")
+    for label, root, seq in datasets:
+        for mode, lockstep, window in modes:
+            logs = OUT / "runs" / stamp / f"{label.replace(' ', '_')}_{mode.replace(' ', '')}"
+            print(f"[bench] {label}, {mode} ...", file=sys.stderr, flush=True)
+            figures = run_case(root, seq, lockstep, window, args.param, logs)
+            rows.append((label, mode, figures))
+    load = Path("/proc/loadavg").read_text().split()[:3]
+    print(f"machine: {os.cpu_count()} CPUs, load average {' '.join(load)} (1/5/15 min)")
+    if args.param:
+        print("parameters: " + " ".join(args.param))
+    if offline:
+        print(
+            f"each stage alone on one {datasets[0][0]} frame (median ms): "
+            + ", ".join(f"{k} {v:.1f}" for k, v in offline.items())
+        )
+    print(_table(rows))
+    if args.json:
+        out = {"offline_ms": offline, "load": load, "parameters": args.param}
+        out["runs"] = [{"data": d, "mode": m, **f} for d, m, f in rows]
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,166 @@
+"""Frame accounting of one node and the latest-frame policy, free of ROS.
+
+A camera does not wait for the graph. A node that is slower than its input must not let a queue
+grow (latency grows with it) nor lose frames silently (a DDS KEEP_LAST queue overwrites the oldest
+sample and nobody knows): it processes the newest frame and counts every frame it skips.
+
+- :class:`FrameCounter`: frames in / out / dropped of one node (thread-safe), the figures a node
+  reports on ``/diagnostics`` and in its exit line.
+- :class:`LatestFrameWorker`: a thread that processes what the receiving callbacks submit, in
+  order, so that they return at once; a frame that is superseded by a newer one before its turn
+  is skipped and counted as dropped. ``stop()`` finishes what is in hand and waiting (drain),
+  then joins.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class FrameCounts:
+    """A snapshot of a :class:`FrameCounter`."""
+
+    received: int = 0
+    published: int = 0
+    dropped: int = 0
+
+    @property
+    def pending(self) -> int:
+        """Frames received and neither published nor dropped yet (in process or queued)."""
+        return self.received - self.published - self.dropped
+
+    def summary(self) -> str:
+        """``frames in 16, out 15, dropped 1`` (the node's exit line and diagnostics message)."""
+        return f"frames in {self.received}, out {self.published}, dropped {self.dropped}"
+
+
+class FrameCounter:
+    """Frames in / out / dropped of one node. Every frame counted in must end up counted out or
+    dropped, so that ``pending`` is what the node still holds."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._received = 0
+        self._published = 0
+        self._dropped = 0
+
+    def received(self, n: int = 1) -> None:
+        with self._lock:
+            self._received += n
+
+    def published(self, n: int = 1) -> None:
+        with self._lock:
+            self._published += n
+
+    def dropped(self, n: int = 1) -> None:
+        with self._lock:
+            self._dropped += n
+
+    def snapshot(self) -> FrameCounts:
+        with self._lock:
+            return FrameCounts(self._received, self._published, self._dropped)
+
+
+class LatestFrameWorker:
+    """Processes submitted items in order in its own thread, skipping stale frames.
+
+    Items are submitted as frames (``frame=True``: superseded by newer frames) or as other
+    items (always processed, e.g. the small messages a frame is combined with). When the worker
+    takes a frame while ``max_waiting`` newer frames are already waiting, it calls
+    ``skip(item)`` instead of ``process(item)`` and counts a drop on ``counter``: with the
+    default of 1, the newest frame is processed and the queue of frames never grows beyond one;
+    lockstep playback with K frames in flight uses ``max_waiting = K`` and never skips. An
+    exception in ``process`` goes to ``on_error(exc, item)`` (default: one line on stderr) and
+    the worker goes on.
+    """
+
+    def __init__(
+        self,
+        process: Callable[[Any], None],
+        counter: FrameCounter | None = None,
+        name: str = "frame-worker",
+        on_error: Callable[[BaseException, Any], None] | None = None,
+        skip: Callable[[Any], None] | None = None,
+        max_waiting: int = 1,
+    ) -> None:
+        if max_waiting < 1:
+            raise ValueError(f"max_waiting {max_waiting} must be >= 1")
+        self.max_waiting = int(max_waiting)
+        self._process = process
+        self._skip = skip
+        self._on_error = on_error or _print_error
+        self.counter = counter
+        self._cond = threading.Condition()
+        self._queue: deque[tuple[Any, bool]] = deque()
+        self._frames_waiting = 0
+        self._busy = False
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, item: Any, frame: bool = True) -> None:
+        with self._cond:
+            self._queue.append((item, frame))
+            self._frames_waiting += frame
+            self._cond.notify_all()
+
+    @property
+    def busy(self) -> bool:
+        """An item is in process or waiting."""
+        with self._cond:
+            return self._busy or bool(self._queue)
+
+    def _next(self) -> tuple[bool, Any, bool]:
+        """(ok, item, stale) of the next item; ok is False once closed and empty."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._queue or self._closed)
+            if not self._queue:
+                return False, None, False
+            item, frame = self._queue.popleft()
+            self._frames_waiting -= frame
+            self._busy = True
+            return True, item, frame and self._frames_waiting >= self.max_waiting
+
+    def _run(self) -> None:
+        while True:
+            ok, item, stale = self._next()
+            if not ok:
+                return
+            try:
+                if stale:
+                    if self.counter is not None:
+                        self.counter.dropped()
+                    if self._skip is not None:
+                        self._skip(item)
+                else:
+                    self._process(item)
+            except Exception as exc:  # noqa: BLE001 (reported, the worker keeps running)
+                self._on_error(exc, item)
+            finally:
+                with self._cond:
+                    self._busy = False
+                    self._cond.notify_all()
+
+    def wait_idle(self, timeout: float | None = None) -> bool:
+        """Wait until nothing is in process or waiting; False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not self._busy and not self._queue, timeout)
+
+    def stop(self, timeout: float = 10.0) -> bool:
+        """Process what is in hand and waiting, then end the thread; False if it did not end
+        within ``timeout`` seconds."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+
+def _print_error(exc: BaseException, _item: Any) -> None:
+    print(f"error: frame processing failed: {type(exc).__name__}: {exc}", file=sys.stderr)

@@ -1,0 +1,105 @@
+"""Readiness of every edge of the graph and the per-node report it is decided from, free of ROS.
+
+A message published before its subscription is matched is lost (VOLATILE QoS), and only the
+publishing process knows which subscriptions its publisher has matched. So every node reports,
+on ``/diagnostics`` (one ``diagnostic_msgs/DiagnosticStatus`` per node), its frame counts and, per
+topic it publishes, the number of matched subscriptions (:class:`NodeReport`). The data source
+(the player) is told how many subscriptions each topic of the graph must have (``"topic:N,..."``,
+computed from ``tracking_bringup.graph``) and publishes its first frame only when every topic,
+its own and every other node's, has them (:func:`unready_topics`). That holds whatever the start
+order, including all nodes started at once as the ROS launch file does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+from .frame_accounting import FrameCounts
+
+#: DiagnosticStatus.hardware_id of the reports, so that other statuses on /diagnostics are ignored.
+REPORT_ID = "stereo_tracking_graph"
+_MATCHED = "matched_subscriptions "
+
+
+def parse_topic_counts(spec: str) -> dict[str, int]:
+    """``"/a:2,/b:1"`` -> ``{"/a": 2, "/b": 1}``; raises ValueError naming a malformed entry."""
+    counts = {}
+    for entry in filter(None, (e.strip() for e in spec.split(","))):
+        topic, sep, n = entry.rpartition(":")
+        if not sep or not topic or not n.isdigit():
+            raise ValueError(f"expected TOPIC:COUNT, got {entry!r}")
+        counts[topic] = int(n)
+    return counts
+
+
+def format_topic_counts(counts: Mapping[str, int]) -> str:
+    """Inverse of :func:`parse_topic_counts` (topics with a count of 0 are left out)."""
+    return ",".join(f"{t}:{n}" for t, n in counts.items() if n)
+
+
+@dataclass(frozen=True)
+class NodeReport:
+    """What one node reports: frame counts, whether a frame is in process, and per published
+    topic the number of matched subscriptions."""
+
+    node: str
+    counts: FrameCounts = FrameCounts()
+    busy: bool = False
+    matched: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def idle(self) -> bool:
+        """Nothing in process and nothing waiting."""
+        return not self.busy and self.counts.pending <= 0
+
+    def values(self) -> list[tuple[str, str]]:
+        """Key/value pairs of the DiagnosticStatus."""
+        c = self.counts
+        out = [
+            ("frames_in", str(c.received)),
+            ("frames_out", str(c.published)),
+            ("frames_dropped", str(c.dropped)),
+            ("busy", "1" if self.busy else "0"),
+        ]
+        return out + [(_MATCHED + t, str(n)) for t, n in sorted(self.matched.items())]
+
+    @classmethod
+    def from_values(cls, node: str, values: Iterable[tuple[str, str]]) -> NodeReport:
+        """Inverse of :meth:`values`; raises ValueError for a malformed value."""
+        kv = dict(values)
+        try:
+            counts = FrameCounts(
+                int(kv.get("frames_in", 0)),
+                int(kv.get("frames_out", 0)),
+                int(kv.get("frames_dropped", 0)),
+            )
+            matched = {k[len(_MATCHED) :]: int(v) for k, v in kv.items() if k.startswith(_MATCHED)}
+        except ValueError as exc:
+            raise ValueError(f"report of {node}: {exc}") from None
+        return cls(node.lstrip("/"), counts, kv.get("busy") == "1", matched)
+
+
+def unready_topics(
+    expected: Mapping[str, int],
+    own: Mapping[str, int],
+    reports: Iterable[NodeReport],
+) -> list[str]:
+    """Topics whose publisher has not yet matched the expected number of subscriptions, as
+    ``"topic (have/want)"``. ``own``: matched counts of the caller's publishers; ``reports``: the
+    latest report of every other node (a topic no report mentions has 0)."""
+    matched = dict(own)
+    for report in reports:
+        for topic, n in report.matched.items():
+            if topic not in own:
+                matched[topic] = max(matched.get(topic, 0), n)
+    return [
+        f"{topic} ({matched.get(topic, 0)}/{want})"
+        for topic, want in expected.items()
+        if matched.get(topic, 0) < want
+    ]
+
+
+def graph_quiescent(reports: Iterable[NodeReport]) -> bool:
+    """Every reporting node is idle (used to let the frames in flight drain at shutdown)."""
+    return all(r.idle for r in reports)

@@ -1,0 +1,157 @@
+"""What every node process of the graph runs with (rclpy side; the logic is in
+:mod:`.frame_accounting` and :mod:`.graph_readiness`):
+
+- :class:`NodeHealth`: the node's report on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``,
+  one status named after the node: frames in / out / dropped, busy, matched subscriptions per
+  published topic), sent when it changes (checked every 0.1 s) and at least once a second, and
+  the node's exit line ``frames in N, out M, dropped D``.
+- :class:`StopRequest` and :func:`spin_until_stopped`: clean SIGINT/SIGTERM handling. A signal
+  during construction (loading a network, say) ends the process at once; once spinning, it lets
+  the callback in progress finish and publish (no ``RCLError`` from a context shut down under a
+  running callback), drains the node's frame workers, logs the exit line and returns.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from collections.abc import Callable, Iterable
+
+from .frame_accounting import FrameCounter
+from .graph_readiness import REPORT_ID, NodeReport
+
+DIAGNOSTICS_TOPIC = "/diagnostics"
+_IGNORED_TOPICS = {DIAGNOSTICS_TOPIC, "/parameter_events", "/rosout"}
+
+
+class NodeHealth:
+    """Publishes the node's :class:`NodeReport` on ``/diagnostics`` (see module docstring).
+
+    ``busy`` tells whether a frame is in process (e.g. a worker's ``busy``)."""
+
+    def __init__(
+        self,
+        node,
+        counter: FrameCounter,
+        busy: Callable[[], bool] = lambda: False,
+        period_s: float = 1.0,
+        check_s: float = 0.1,
+    ) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.node = node
+        self.counter = counter
+        self._busy = busy
+        self._period = period_s
+        self._pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
+        self._last: NodeReport | None = None
+        self._last_time = 0.0
+        self._timer = node.create_timer(check_s, self._check)
+
+    def report(self) -> NodeReport:
+        matched = {
+            p.topic_name: p.get_subscription_count()
+            for p in self.node.publishers
+            if p.topic_name not in _IGNORED_TOPICS
+        }
+        return NodeReport(self.node.get_name(), self.counter.snapshot(), self._busy(), matched)
+
+    def _check(self) -> None:
+        report = self.report()
+        # a change of the /diagnostics subscriptions (a new listener) also triggers a report
+        listeners = self._pub.get_subscription_count()
+        key = (report, listeners)
+        now = time.monotonic()
+        if key != self._last or now - self._last_time >= self._period:
+            self.publish(report)
+            self._last, self._last_time = key, now
+
+    def publish(self, report: NodeReport | None = None) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+        report = report or self.report()
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.WARN if report.counts.dropped else DiagnosticStatus.OK,
+            name=self.node.get_fully_qualified_name(),
+            message=report.counts.summary(),
+            hardware_id=REPORT_ID,
+            values=[KeyValue(key=k, value=v) for k, v in report.values()],
+        )
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self._pub.publish(msg)
+
+    def exit_line(self) -> str:
+        """Log and return the node's exit line."""
+        line = self.counter.snapshot().summary()
+        self.node.get_logger().info(line)
+        return line
+
+
+def reports_from_message(msg) -> list[NodeReport]:
+    """The graph's node reports in a DiagnosticArray (other statuses are skipped)."""
+    out = []
+    for status in msg.status:
+        if status.hardware_id != REPORT_ID:
+            continue
+        try:
+            out.append(
+                NodeReport.from_values(status.name, ((v.key, v.value) for v in status.values))
+            )
+        except ValueError:
+            continue
+    return out
+
+
+class StopRequest:
+    """SIGINT/SIGTERM handlers of a node process (rclpy initialised with
+    ``signal_handler_options=SignalHandlerOptions.NO``). Until :meth:`arm` a signal raises
+    KeyboardInterrupt (construction is abandoned at once); afterwards it only sets
+    ``requested`` and the spin loop ends after the callback in progress."""
+
+    def __init__(self) -> None:
+        self.requested: int | None = None
+        self._armed = False
+
+    @classmethod
+    def install(cls) -> StopRequest:
+        stop = cls()
+        signal.signal(signal.SIGINT, stop._handle)
+        signal.signal(signal.SIGTERM, stop._handle)
+        return stop
+
+    def arm(self) -> None:
+        self._armed = True
+
+    def _handle(self, signum, _frame) -> None:
+        self.requested = signum
+        if not self._armed:
+            raise KeyboardInterrupt
+
+
+def spin_until_stopped(
+    node,
+    stop: StopRequest,
+    health: NodeHealth | None = None,
+    on_stop: Iterable[Callable[[], object]] = (),
+    done: Callable[[], bool] = lambda: False,
+) -> None:
+    """Spin ``node`` until a stop signal (or ``done()``), then call ``on_stop`` (e.g. drain the
+    frame workers), publish the final report and log the exit line. rclpy is left initialised
+    (the caller destroys the node and calls ``rclpy.try_shutdown``)."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    stop.arm()
+    try:
+        while stop.requested is None and node.context.ok() and not done():
+            executor.spin_once(timeout_sec=0.1)
+        for fn in on_stop:
+            fn()
+        if health is not None:
+            health.publish()
+            health.exit_line()
+    finally:
+        executor.remove_node(node)
+        executor.shutdown(timeout_sec=1.0)
