@@ -33,12 +33,12 @@ import cv2
 import numpy as np
 from eval_node.bag_reader import OUTPUT_STATES, RANKED_STATES
 from eval_node.detection_metrics import precision_recall
-from eval_node.filter_comparison import trackset_to_objects
 from eval_node.motion_metrics import track_velocities
 from eval_node.tracking_metrics import evaluate_tracking_sequences
 from scipy.optimize import linear_sum_assignment
 from tracker_node.config import TrackerConfig
 from tracker_node.detection_files import detection_batch, read_detection_file
+from tracker_node.offline import result_rows
 from tracker_node.tracker import DetectionBatch, Tracker
 from vehicle_common.kitti import (
     KittiObject,
@@ -336,18 +336,11 @@ def run_tracker(data: SequenceData, cfg: TrackerConfig, stats: MotionStats | Non
     out, ranked = {}, {}
     for k, batch in enumerate(data.frames):
         ts = trk.step(batch, k * FRAME_PERIOD)
-        # trackset_to_objects clips scores to [0, 1] (as the node publishes); PointRCNN scores
-        # are logits, so the tracks keep the tracker's own score for the AP ranking. The AP
-        # ranks tentative tracks too (at their lowered score, as `evaluate` does); CLEAR-MOT
+        # tracks keep the tracker's own score (PointRCNN's are logits) for the AP ranking, which
+        # takes tentative tracks too (at their lowered score, as `evaluate` does); CLEAR-MOT
         # takes the output states (confirmed / coasting) only.
-        objs = trackset_to_objects(ts, np.zeros(3), k, MEAN_HWL, RANKED_STATES)
-        scores = ts.score[np.isin(ts.state, RANKED_STATES)]
-        ranked[k] = [o.with_(score=float(sc)) for o, sc in zip(objs, scores, strict=True)]
-        out[k] = [
-            o
-            for o, st in zip(ranked[k], ts.state[np.isin(ts.state, RANKED_STATES)], strict=True)
-            if st in OUTPUT_STATES
-        ]
+        ranked[k] = result_rows(ts, k, np.zeros(3), RANKED_STATES, mean_hwl=MEAN_HWL)
+        out[k] = result_rows(ts, k, np.zeros(3), OUTPUT_STATES, mean_hwl=MEAN_HWL)
         if stats is None:
             continue
         for i in np.nonzero(ts.det_index >= 0)[0]:

@@ -10,40 +10,14 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from vehicle_common.camera_frames import kitti_row_from_centre
+from tracker_node.offline import result_rows
 from vehicle_common.kitti import KittiObject
 
-from eval_node.bag_reader import OUTPUT_STATES, RANKED_STATES, RecordedRun
+from eval_node.bag_reader import RANKED_STATES, RecordedRun
 from eval_node.detection_metrics import precision_recall
 
 FILTER_NAMES = ("none", "kalman", "particle")
 LEVELS = ("easy", "moderate", "hard")
-
-
-def trackset_to_objects(
-    tracks, offset: np.ndarray, frame: int, mean_hwl, states=OUTPUT_STATES
-) -> list[KittiObject]:
-    """A tracker TrackSet (left optical frame, centres) as KITTI result rows (camera 0, bottom
-    centre, :mod:`vehicle_common.camera_frames`); tracks whose state is not in ``states``
-    (default: tentative ones) and rows that are not finite are dropped."""
-    out = []
-    for i in range(len(tracks)):
-        if int(tracks.state[i]) not in states:
-            continue
-        row = kitti_row_from_centre(
-            tracks.position[i],
-            tracks.size[i],
-            tracks.bbox[i],
-            offset,
-            yaw=float(tracks.yaw[i]),
-            frame=frame,
-            track_id=int(tracks.track_id[i]),
-            score=float(np.clip(tracks.score[i], 0.0, 1.0)),  # as vehicle_tracker publishes
-            mean_hwl=mean_hwl,
-        )
-        if row is not None:
-            out.append(row)
-    return out
 
 
 def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, list[KittiObject]]:
@@ -68,7 +42,9 @@ def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, l
         # the same message conversion as the live vehicle_tracker node
         batch = detections_from_msg(f.det3d_msg)[0] if f.det3d_msg else DetectionBatch.empty()
         tracks = tracker.step(batch, f.stamp_ns * 1e-9)
-        out[f.frame] = trackset_to_objects(tracks, f.offset, f.frame, mean_hwl, RANKED_STATES)
+        out[f.frame] = result_rows(
+            tracks, f.frame, f.offset, RANKED_STATES, clip_score=True, mean_hwl=mean_hwl
+        )
     return out
 
 

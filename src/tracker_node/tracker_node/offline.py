@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from vehicle_common.camera_frames import kitti_row_from_centre
 from vehicle_common.kitti import (
+    MEAN_CAR_DIMENSIONS,
     Calibration,
     KittiFormatError,
     KittiObject,
@@ -37,10 +38,13 @@ from vehicle_common.kitti import (
 
 from .config import TrackerConfig, TrackerConfigError
 from .detection_files import TYPE_NAMES, DetectionRows, detection_batch, read_detection_file
-from .tracker import COASTING, TENTATIVE, DetectionBatch, Tracker, TrackSet
+from .lifecycle import COASTING, CONFIRMED, TENTATIVE
+from .tracker import DetectionBatch, Tracker, TrackSet
 
 FRAME_PERIOD = 0.1  # [s] KITTI's 10 Hz
 CAR_TYPE_ID = 2  # detection files' type column (TYPE_NAMES)
+#: track states written as results (tentative tracks only with ``output_tentative``)
+OUTPUT_STATES = (CONFIRMED, COASTING)
 
 
 def detections_for_frame(
@@ -52,15 +56,25 @@ def detections_for_frame(
 
 
 def result_rows(
-    ts: TrackSet, frame: int, offset: np.ndarray, output_tentative: bool = False
+    ts: TrackSet,
+    frame: int,
+    offset: np.ndarray | None,
+    states: Iterable[int] = OUTPUT_STATES,
+    *,
+    clip_score: bool = False,
+    mean_hwl=MEAN_CAR_DIMENSIONS,
 ) -> list[KittiObject]:
-    """KITTI result rows (camera 0, bottom centres, track ids, scores) of one frame's reported
-    tracks: every reported track except tentative ones (unless ``output_tentative``) and those
-    without a 2D box."""
+    """KITTI result rows (camera 0, bottom centres, :mod:`vehicle_common.camera_frames`) of one
+    frame's tracks whose state is in ``states``; rows that are not finite (no 2D box) are
+    dropped. ``clip_score``: the score clipped to [0, 1] as ``vehicle_tracker`` publishes it
+    (else the tracker's own score, e.g. PointRCNN's logits); ``mean_hwl``: the size of tracks
+    without one. Shared by ``tracker_offline`` and the evaluator's filter comparison."""
+    keep = set(int(s) for s in states)
     out = []
     for i in range(len(ts)):
-        if ts.state[i] == TENTATIVE and not output_tentative:
+        if int(ts.state[i]) not in keep:
             continue
+        score = float(ts.score[i])
         row = kitti_row_from_centre(
             ts.position[i],
             ts.size[i],
@@ -69,8 +83,9 @@ def result_rows(
             yaw=float(ts.yaw[i]),
             frame=frame,
             track_id=int(ts.track_id[i]),
-            score=float(ts.score[i]),
+            score=min(max(score, 0.0), 1.0) if clip_score else score,
             type_name=TYPE_NAMES[CAR_TYPE_ID],
+            mean_hwl=mean_hwl,
         )
         if row is not None:  # non-finite box: not representable in a KITTI file
             out.append(row)
@@ -125,7 +140,8 @@ def track_frames(
     out: list[KittiObject] = []
     for f, dets in enumerate(batches):
         ts = tracker.step(dets, f * FRAME_PERIOD)
-        frame_rows = result_rows(ts, f, offset, config.output_tentative)
+        states = (TENTATIVE, *OUTPUT_STATES) if config.output_tentative else OUTPUT_STATES
+        frame_rows = result_rows(ts, f, offset, states)
         if buffer is not None:
             states = dict(zip(ts.track_id.tolist(), ts.state.tolist(), strict=True))
             frame_rows = buffer.push(f, frame_rows, states, set(tracker.tracks.ids.tolist()))
