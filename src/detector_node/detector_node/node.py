@@ -12,22 +12,17 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
-import rclpy
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2DArray
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import kitti_objects_from_message, stamp_ns
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
 from vehicle_common.node_parameters import (
-    EXIT_BAD_PARAMETER,
-    ParameterError,
     declare_config,
     param,
-    parameter_error_line,
 )
-from vehicle_common.node_runtime import NodeHealth, StopRequest, spin_until_stopped
+from vehicle_common.node_runtime import NodeHealth, run_node
 
 from vehicle_common import topics
 
@@ -173,28 +168,13 @@ class VehicleDetectorNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``vehicle_detector``."""
-    rclpy.init(
-        args=args if args is not None else sys.argv,
-        signal_handler_options=SignalHandlerOptions.NO,
+    """Entry point of ``vehicle_detector``; exit code 2 for a bad parameter."""
+    return run_node(
+        VehicleDetectorNode,
+        NODE_NAME,
+        args,
+        on_stop=lambda node: [node.worker.stop] if node.worker else [],
     )
-    stop = StopRequest.install()
-    try:
-        node = VehicleDetectorNode()
-    except ParameterError as exc:
-        print(parameter_error_line(NODE_NAME, exc), file=sys.stderr)
-        rclpy.try_shutdown()
-        return EXIT_BAD_PARAMETER
-    except KeyboardInterrupt:  # stopped while loading
-        rclpy.try_shutdown()
-        return 0
-    try:
-        drain = [node.worker.stop] if node.worker else []
-        spin_until_stopped(node, stop, node.health, on_stop=drain)
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
 
 
 if __name__ == "__main__":

@@ -15,10 +15,8 @@ import sys
 
 import cv2
 import numpy as np
-import rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
@@ -26,13 +24,11 @@ from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
 from vehicle_common.node_parameters import (
-    EXIT_BAD_PARAMETER,
     ParameterError,
     declare_config,
     param,
-    parameter_error_line,
 )
-from vehicle_common.node_runtime import NodeHealth, StopRequest, spin_until_stopped
+from vehicle_common.node_runtime import NodeHealth, run_node
 
 from vehicle_common import topics
 
@@ -366,23 +362,7 @@ class StereoDepthNode(Node):
 
 def main(args=None) -> int:
     """Console script ``stereo_depth``; exit code 2 for a bad parameter."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = StopRequest.install()
-    try:
-        node = StereoDepthNode()
-    except ParameterError as exc:
-        print(parameter_error_line(NODE_NAME, exc), file=sys.stderr)
-        rclpy.try_shutdown()
-        return EXIT_BAD_PARAMETER
-    except KeyboardInterrupt:  # stopped during start-up
-        rclpy.try_shutdown()
-        return 0
-    try:
-        spin_until_stopped(node, stop, node.health, on_stop=[node.worker.stop])
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(StereoDepthNode, NODE_NAME, args, on_stop=lambda node: [node.worker.stop])
 
 
 if __name__ == "__main__":

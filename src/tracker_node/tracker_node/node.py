@@ -14,22 +14,18 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-import rclpy
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo
 from stereo_vehicle_msgs.msg import TrackedVehicleArray, VehicleDetection3DArray
 from vehicle_common.frame_accounting import FrameCounter
 from vehicle_common.frame_messages import stamp_ns
 from vehicle_common.node_parameters import (
-    EXIT_BAD_PARAMETER,
     ParameterError,
     check_value,
     declare_config,
-    parameter_error_line,
 )
-from vehicle_common.node_runtime import NodeHealth, StopRequest, spin_until_stopped
+from vehicle_common.node_runtime import NodeHealth, run_node
 from visualization_msgs.msg import MarkerArray
 
 from vehicle_common import topics
@@ -104,25 +100,7 @@ class VehicleTrackerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``vehicle_tracker``; exit code 2 for a bad parameter."""
-    rclpy.init(
-        args=args if args is not None else sys.argv, signal_handler_options=SignalHandlerOptions.NO
-    )
-    stop = StopRequest.install()
-    try:
-        node = VehicleTrackerNode()
-    except ParameterError as exc:
-        print(parameter_error_line(NODE_NAME, exc), file=sys.stderr)
-        rclpy.try_shutdown()
-        return EXIT_BAD_PARAMETER
-    except KeyboardInterrupt:  # stopped during start-up
-        rclpy.try_shutdown()
-        return 0
-    try:
-        spin_until_stopped(node, stop, node.health)
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(VehicleTrackerNode, NODE_NAME, args)
 
 
 if __name__ == "__main__":

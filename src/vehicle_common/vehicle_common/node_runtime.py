@@ -155,3 +155,42 @@ def spin_until_stopped(
     finally:
         executor.remove_node(node)
         executor.shutdown(timeout_sec=1.0)
+
+
+def run_node(
+    make_node: Callable[[], object],
+    node_name: str,
+    args: list[str] | None = None,
+    on_stop: Callable[[object], Iterable[Callable[[], object]]] = lambda node: (),
+) -> int:
+    """The ``main`` of a node process: initialise rclpy with this module's signal handling,
+    build the node with ``make_node()`` (a ParameterError -> one line naming the node and the
+    parameter, exit code 2; a signal during start-up -> exit 0), spin it until stopped with
+    ``on_stop(node)`` as the drain steps, then destroy it. Returns the exit code."""
+    import sys
+
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    from .node_parameters import EXIT_BAD_PARAMETER, ParameterError, parameter_error_line
+
+    rclpy.init(
+        args=args if args is not None else sys.argv,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
+    stop = StopRequest.install()
+    try:
+        node = make_node()
+    except ParameterError as exc:
+        print(parameter_error_line(node_name, exc), file=sys.stderr)
+        rclpy.try_shutdown()
+        return EXIT_BAD_PARAMETER
+    except KeyboardInterrupt:  # stopped during start-up
+        rclpy.try_shutdown()
+        return 0
+    try:
+        spin_until_stopped(node, stop, node.health, on_stop=list(on_stop(node)))
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
