@@ -7,6 +7,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -93,11 +94,26 @@ def test_sigint_drains_the_frame_in_flight(kitti_tracking_root, tmp_path):
     for ov in _overrides(kitti_tracking_root, bag, *extra):
         cmd += ["-p", ov]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    ready = threading.Event()
+
+    def read_output():  # the launcher's stdout, until it exits; "graph ready" sets the event
+        for line in proc.stdout:
+            lines.append(line)
+            if "graph ready" in line:
+                ready.set()
+
+    reader = threading.Thread(target=read_output, daemon=True)
+    reader.start()
     try:
         _wait_for(logs / "kitti_player.log", "every edge of the graph matched")
+        # the launcher's own readiness, else a signal counts as Ctrl-C during start-up
+        assert ready.wait(60), "".join(lines)
         time.sleep(1.5)
         proc.send_signal(signal.SIGINT)
-        output = proc.communicate(timeout=60)[0]
+        proc.wait(timeout=60)
+        reader.join(10)
+        output = "".join(lines)
     finally:
         proc.kill()
     assert proc.returncode == 0, output
