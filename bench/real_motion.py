@@ -91,15 +91,17 @@ class StereoErrorModel:
         return np.interp(d, self.disparity, self.spread_px)
 
 
-def measure_stereo_model(window: int = 16, verbose: bool = True) -> StereoErrorModel:
-    """Measure the default disparity map's error on the KITTI Stereo 2015 pairs, per window of
-    ``window`` px lying on one surface (ground-truth disparity 10-90th percentile within 10 % of
-    its median, at least a fifth of the window with ground truth: the LiDAR truth is sparse):
-    signed error of the window's median disparity against the median ground truth, binned by
-    ground-truth disparity; bias = median, spread = 1.4826 MAD of the bin."""
+MODEL_BIN_EDGES = (0, 10, 15, 20, 30, 40, 60, 128)  # [px] ground-truth disparity bins
+STEREO_MODELS = ("ranging", "map")  # measure_stereo_model(source=...)
+
+
+def _map_windows(window: int = 16):
+    """(error, truth, column) of the default map's median over ``window`` px windows on one
+    surface (ground-truth disparity 10-90th percentile within 10 % of its median, at least a
+    fifth of the window with ground truth: the LiDAR truth is sparse)."""
     from stereo_depth_node.disparity import compute_disparity
 
-    errs, gts = [], []
+    rows = []
     for i in range(5):
         name = f"{i:06d}_10.png"
         left = read_png(STEREO_2015 / "image_2" / name)
@@ -118,17 +120,74 @@ def measure_stereo_model(window: int = 16, verbose: bool = True) -> StereoErrorM
                 lo, hi = np.percentile(g[ok], [10, 90])
                 if hi - lo > 0.1 * gm:
                     continue
-                errs.append(float(np.median(e[ok])) - gm)
-                gts.append(gm)
-    errs, gts = np.array(errs), np.array(gts)
-    edges = [0, 10, 15, 20, 30, 40, 60, 128]
+                rows.append((float(np.median(e[ok])) - gm, gm, x + window / 2))
+    return np.array(rows)
+
+
+def _ranging_regions():
+    """(error, truth, column) of the shipped ranging's disparity on the KITTI 2015 pairs, as
+    ``range_boxes`` computes it with the default RangingParams: on car-sized surface regions
+    (``bench_stereo.surface_regions``) the robust estimate on the default map, the
+    full-resolution region refinement (``refine``, coarse disparity <= refine_max_disparity)
+    and the KITTI bias model subtracted; the regions are few beyond 30 px (near surfaces), so
+    there (truth > refine_max_disparity, where the ranging does not refine) also the map's 16 px
+    windows with the bias model subtracted. The robust estimator runs without ground rejection
+    and height prior (the regions are not cars)."""
+    from bench_stereo import KITTI_GEO, stereo_pairs, surface_regions
+    from stereo_depth_node.disparity import compute_disparity
+    from stereo_depth_node.ranging import (
+        RangingParams,
+        disparity_bias_at,
+        refined_disparity,
+        robust_disparity,
+    )
+    from stereo_depth_node.region_matching import to_gray
+
+    params = RangingParams()
+    coarse = replace(params, reject_ground=False, prior_log_sigma=0.0)
+    rows = []
+    for left, right, gt in stereo_pairs():
+        disp = compute_disparity(left, right)
+        images = (to_gray(left), to_gray(right))
+        for box, truth in surface_regions(gt):
+            d, _ = robust_disparity(disp, box, KITTI_GEO, coarse)
+            if not (np.isfinite(d) and d > 0):
+                continue
+            u = 0.5 * (box[0] + box[2])
+            d = refined_disparity(d, box, images, params)
+            d -= float(disparity_bias_at(u, KITTI_GEO, params))
+            rows.append((d - truth, truth, u))
+    near = _map_windows()
+    near = near[near[:, 1] > params.refine_max_disparity]
+    near[:, 0] -= disparity_bias_at(near[:, 2], KITTI_GEO, params)
+    return np.concatenate([np.array(rows).reshape(-1, 3), near])
+
+
+def measure_stereo_model(source: str = "ranging", verbose: bool = True) -> StereoErrorModel:
+    """Measure a disparity error model on the KITTI Stereo 2015 pairs 0-4: signed error
+    (estimate - ground truth) binned by ground-truth disparity; bias = median, spread = 1.4826
+    MAD of the bin.
+
+    ``source`` "ranging" (default): the disparity the shipped ranging gives a car-sized region
+    on one surface (robust estimate, full-resolution refinement, KITTI bias model subtracted;
+    :func:`_ranging_regions`), i.e. the error the tracker's detections really carry.
+    "map": the default disparity map's median over 16 px windows with no refinement and no
+    bias model (the ranging before issue #13; kept to show what the correction changed)."""
+    if source not in STEREO_MODELS:
+        raise ValueError(f"stereo model: {source!r} not one of {STEREO_MODELS}")
+    rows = _ranging_regions() if source == "ranging" else _map_windows()
+    errs, gts = rows[:, 0], rows[:, 1]
     centres, bias, spread = [], [], []
     if verbose:
-        print(
-            f"stereo error model: default disparity map on KITTI Stereo 2015 pairs 0-4, "
-            f"{window}x{window} px windows on one surface ({len(errs)} windows)"
+        what = (
+            "shipped ranging (robust + region refinement + KITTI bias model) on car-sized "
+            "surface regions"
+            if source == "ranging"
+            else "default disparity map, 16x16 px windows on one surface, no bias model"
         )
-        print("  GT disparity bin [px] | windows | bias (median) [px] | spread (1.4826 MAD) [px]")
+        print(f"stereo error model ({source}): {what}, KITTI Stereo 2015 pairs 0-4 ({len(errs)})")
+        print("  GT disparity bin [px] | n | bias (median) [px] | spread (1.4826 MAD) [px]")
+    edges = MODEL_BIN_EDGES
     for lo, hi in zip(edges, edges[1:], strict=False):
         m = (gts >= lo) & (gts < hi)
         if m.sum() < 10:
@@ -140,7 +199,7 @@ def measure_stereo_model(window: int = 16, verbose: bool = True) -> StereoErrorM
         bias.append(med)
         spread.append(mad)
         if verbose:
-            print(f"  {lo:3d}-{hi:3d}               | {m.sum():7d} | {med:+18.3f} | {mad:24.3f}")
+            print(f"  {lo:3d}-{hi:3d}               | {m.sum():5d} | {med:+18.3f} | {mad:24.3f}")
     model = StereoErrorModel(tuple(centres), tuple(bias), tuple(spread))
     if verbose:
         knots = ", ".join(
