@@ -286,7 +286,7 @@ def _to_objects(batch: DetectionBatch, frame: int) -> list[KittiObject]:
 def stereo_sequence(
     seq: str, model: StereoErrorModel, dm: DetectionModel, seed: int
 ) -> SequenceData:
-    from stereo_depth_node.ranging import RangingParams, position_covariance
+    from stereo_depth_node.ranging import RangingParams, disparity_std, position_covariance
     from stereo_depth_node.reprojection import StereoGeometry
     from vehicle_common.box3d import projected_bbox
 
@@ -317,7 +317,9 @@ def stereo_sequence(
             v = calib.fy * c[1] / z + calib.cy + rng.normal(scale=dm.box_noise_px / math.sqrt(2))
             p = geo.backproject(u, v, zm)
             pos.append(p - off)
-            R = position_covariance(u, v, zm, geo, rparams)
+            # the ranging refines boxes up to refine_max_disparity (disparity_std's ``refined``)
+            sd = disparity_std(dm_, dm_ <= rparams.refine_max_disparity, rparams)
+            R = position_covariance(u, v, zm, geo, rparams, sd)
             cov.append(R)
             errors.append((z, zm - z, float(np.sqrt(R[2, 2]))))
             bbox.append(np.array(o.bbox) + rng.normal(scale=dm.box_noise_px, size=4))
@@ -331,7 +333,8 @@ def stereo_sequence(
             if b is None:
                 continue
             pos.append(p - off)
-            cov.append(position_covariance(u, geo.cy + f * 0.9 / zf, zf, geo, rparams))
+            sd = disparity_std(fB / zf, fB / zf <= rparams.refine_max_disparity, rparams)
+            cov.append(position_covariance(u, geo.cy + f * 0.9 / zf, zf, geo, rparams, sd))
             bbox.append(np.array(b))
             score.append(float(rng.uniform(0.2, 0.6)))
             gid.append(-1)

@@ -68,6 +68,8 @@ DISPARITY_RULES = {
 }
 RANGING_RULES = {
     "sigma_d": {"low": 0, "low_open": True},
+    "sigma_d_far": {"low": 0, "low_open": True},
+    "far_disparity": {"low": 0},
     "sigma_pixel": {"low": 0},
     "depth_offset_std": {"low": 0},
     "min_valid_pixels": {"low": 0},

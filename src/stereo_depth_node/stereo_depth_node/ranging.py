@@ -19,7 +19,8 @@ estimate is moved away from the camera along the viewing ray by the geometric de
 behind the visible surface of a ``car_length`` x ``car_width`` box seen at the observation angles
 of the detection's orientation bin (:func:`centre_depth_behind_surface`, averaged over the bin);
 ``depth_offset`` (per bin, metres) is added on top.
-Covariance: depth std ``z^2 * sigma_d / (f * B)``, x/y from the pixel uncertainty of the box
+Covariance: depth std ``z^2 * sigma_d / (f * B)`` (``sigma_d_far`` for far boxes refined at full
+resolution, :func:`disparity_std`), x/y from the pixel uncertainty of the box
 centre propagated with depth, plus the correlation that a depth error induces along the ray.
 """
 
@@ -84,6 +85,11 @@ class RangingParams:
 
     method: str = "robust"
     sigma_d: float = 0.3  # [px] disparity std of the stereo error model (measured, see docs)
+    # [px] the same for boxes refined at full resolution (``refine``) with a disparity below
+    # ``far_disparity``: region spread 0.18 px on the KITTI 2015 pairs (60 regions < 20 px;
+    # 0.58 px for the 26 at 20-40 px; docs/stereo_depth.md)
+    sigma_d_far: float = 0.18
+    far_disparity: float = 20.0  # [px]
     sigma_pixel: float = 3.0  # [px] std of the box centre in the image
     depth_offset_std: float = 0.5  # [m] std added to z for the visible-surface -> centre offset
     min_valid_pixels: int = 20  # fewer valid pixels -> no estimate
@@ -120,8 +126,9 @@ class RangingParams:
             raise ValueError(f"core_fraction: {self.core_fraction} not in (0, 1]")
         if len(self.depth_offset) != 4:
             raise ValueError("depth_offset: needs 4 values (one per orientation bin)")
-        if self.sigma_d <= 0:
-            raise ValueError(f"sigma_d: {self.sigma_d} must be > 0")
+        for name in ("sigma_d", "sigma_d_far"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name}: {getattr(self, name)} must be > 0")
         for name in ("surface_model", "truncated_surface_model"):
             if getattr(self, name) not in SURFACE_MODELS:
                 raise ValueError(f"{name}: {getattr(self, name)!r} not one of {SURFACE_MODELS}")
@@ -251,13 +258,26 @@ def robust_disparity(
     return float(np.exp(np.median(logd[in_mode]))), int(in_mode.sum())
 
 
+def disparity_std(d: float, refined: bool, params: RangingParams) -> float:
+    """Disparity std [px] of a box ranged at disparity ``d``: ``sigma_d_far`` when it was
+    refined at full resolution and ``d < far_disparity``, else ``sigma_d``."""
+    return params.sigma_d_far if refined and d < params.far_disparity else params.sigma_d
+
+
 def position_covariance(
-    u: float, v: float, z: float, geometry: StereoGeometry, params: RangingParams
+    u: float,
+    v: float,
+    z: float,
+    geometry: StereoGeometry,
+    params: RangingParams,
+    sigma_d: float | None = None,
 ) -> np.ndarray:
     """3x3 covariance of the point at pixel (u, v) and depth z [m^2] (first-order propagation of
-    sigma_pixel in u, v and of the stereo depth std z^2 sigma_d / (f B) plus depth_offset_std)."""
+    sigma_pixel in u, v and of the stereo depth std z^2 sigma_d / (f B) plus depth_offset_std;
+    ``sigma_d`` [px] defaults to ``params.sigma_d``, see :func:`disparity_std`)."""
     f, B = geometry.fx, geometry.baseline
-    var_z = (z * z * params.sigma_d / (f * B)) ** 2 + params.depth_offset_std**2
+    sd = params.sigma_d if sigma_d is None else sigma_d
+    var_z = (z * z * sd / (f * B)) ** 2 + params.depth_offset_std**2
     J = np.array(
         [
             [z / geometry.fx, 0.0, (u - geometry.cx) / geometry.fx],
@@ -330,8 +350,11 @@ def range_boxes(
             if not np.isfinite(d):
                 d = d_med
         u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
+        refined = False
         if np.isfinite(d) and d > 0:
+            d_coarse = d
             d = refined_disparity(d, box, images, params)
+            refined = d != d_coarse
             d -= float(disparity_bias_at(u, geometry, params))
         if not (np.isfinite(d) and d > 0):
             results.append(None)
@@ -357,6 +380,7 @@ def range_boxes(
                 width,
                 TRUNCATION_BORDER,
             )
-        cov = position_covariance(u, v, float(point[2]), geometry, params)
+        sd = disparity_std(d, refined, params)
+        cov = position_covariance(u, v, float(point[2]), geometry, params, sd)
         results.append(RangeResult(point, cov, float(d), float(frac)))
     return results
