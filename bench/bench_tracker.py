@@ -382,6 +382,7 @@ def cmd_real(args) -> None:
                 split = f"{split} (cold starts every {args.cold_start} frames)"
             ap, stats, times = rm.evaluate_split(datas, cfg, filters)
             rm.print_ap(f"[{source}] {split} sequences {','.join(seqs)}", ap)
+            rm.print_bars(source, ap)
             if source == "stereo":
                 rm.print_covariance_check(datas)
             rm.print_motion(stats, times)

@@ -480,6 +480,37 @@ def print_ap(title: str, ap: dict) -> None:
     sys.stdout.flush()
 
 
+def bar_checks(source: str, ap: dict) -> list[tuple[str, bool, str]]:
+    """Issue #13's part-1 bars on one split's AP table (@1.5 m, every difficulty):
+    (bar, holds, margins). Stereo model: Kalman above ``none``; PointRCNN: Kalman not below
+    ``none`` by more than 1 point; both: particle within 3 points of Kalman. Bars whose filters
+    were not run are left out."""
+    out = []
+
+    def margins(a: str, b: str) -> list[float]:
+        """a - b per difficulty; a difficulty with no labelled car (NaN) is not checked."""
+        return [ap[a][(lvl, 1.5)] - ap[b][(lvl, 1.5)] for lvl in LEVELS]
+
+    def text(m: list[float]) -> str:
+        return " / ".join(f"{v:+.1f}" for v in m)
+
+    if "kalman" in ap and "none" in ap:
+        m = margins("kalman", "none")
+        if source == "stereo":
+            out.append(("kalman above none @1.5 m", all(not v <= 0 for v in m), text(m)))
+        else:
+            out.append(("kalman not below none by > 1 @1.5 m", all(not v < -1 for v in m), text(m)))
+    if "kalman" in ap and "particle" in ap:
+        m = margins("particle", "kalman")
+        out.append(("particle within 3 of kalman @1.5 m", all(not v < -3 for v in m), text(m)))
+    return out
+
+
+def print_bars(source: str, ap: dict) -> None:
+    for name, ok, m in bar_checks(source, ap):
+        print(f"  bar: {name}: {'holds' if ok else 'FAILS'} (easy / moderate / hard {m})")
+
+
 def print_motion(stats: dict[str, MotionStats], times: dict[str, float]) -> None:
     print("  tracks matched to a labelled car this frame (relative motion in the camera frame):")
     edges = SPEED_BUCKETS
