@@ -296,6 +296,13 @@ def stereo_sequence(
     geo = StereoGeometry.from_projections(calib.P2, calib.P3)
     rparams = RangingParams()
     f, fB = calib.fx, calib.fx * calib.baseline
+
+    def reported_covariance(u: float, v: float, z: float, d: float) -> np.ndarray:
+        """The covariance the ranging reports for a box at pixel (u, v) ranged at depth z from
+        disparity d (it refines boxes up to refine_max_disparity: disparity_std's ``refined``)."""
+        sd = disparity_std(d, d <= rparams.refine_max_disparity, rparams)
+        return position_covariance(u, v, z, geo, rparams, sd)
+
     off = calib.left_camera_offset
     n_frames = max(gt) + 1
     frames, ids, raw, errors = [], [], {}, []
@@ -317,9 +324,7 @@ def stereo_sequence(
             v = calib.fy * c[1] / z + calib.cy + rng.normal(scale=dm.box_noise_px / math.sqrt(2))
             p = geo.backproject(u, v, zm)
             pos.append(p - off)
-            # the ranging refines boxes up to refine_max_disparity (disparity_std's ``refined``)
-            sd = disparity_std(dm_, dm_ <= rparams.refine_max_disparity, rparams)
-            R = position_covariance(u, v, zm, geo, rparams, sd)
+            R = reported_covariance(u, v, zm, dm_)
             cov.append(R)
             errors.append((z, zm - z, float(np.sqrt(R[2, 2]))))
             bbox.append(np.array(o.bbox) + rng.normal(scale=dm.box_noise_px, size=4))
@@ -333,8 +338,7 @@ def stereo_sequence(
             if b is None:
                 continue
             pos.append(p - off)
-            sd = disparity_std(fB / zf, fB / zf <= rparams.refine_max_disparity, rparams)
-            cov.append(position_covariance(u, geo.cy + f * 0.9 / zf, zf, geo, rparams, sd))
+            cov.append(reported_covariance(u, geo.cy + f * 0.9 / zf, zf, fB / zf))
             bbox.append(np.array(b))
             score.append(float(rng.uniform(0.2, 0.6)))
             gid.append(-1)

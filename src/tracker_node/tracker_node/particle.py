@@ -112,6 +112,7 @@ class BatchedParticleFilter:
         self._mean: np.ndarray | None = None  # (N, 6) particle means (cache)
         self._cov: np.ndarray | None = None  # (N, 6, 6) sample covariances (cache)
         self._noise_dt: float | None = None
+        self._noise_Q: np.ndarray | None = None  # Q(dt) of the last dt, and its Cholesky factor
         self._noise_L: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -160,7 +161,8 @@ class BatchedParticleFilter:
         if not len(self.particles):
             return
         if self._noise_dt != dt:
-            self._noise_L = _cholesky(process_noise(dt, self.q))
+            self._noise_Q = process_noise(dt, self.q)
+            self._noise_L = _cholesky(self._noise_Q)
             self._noise_dt = dt
         p = self.particles
         if self.proposal == "prior":
@@ -173,7 +175,7 @@ class BatchedParticleFilter:
             Pn = self.pending
             Pn[:, :3, :] += dt * Pn[:, 3:, :]  # F Pn
             Pn[:, :, :3] += dt * Pn[:, :, 3:]  # (F Pn) F'
-            Pn += process_noise(dt, self.q)
+            Pn += self._noise_Q
         self._mean = self._cov = None
 
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
