@@ -67,7 +67,7 @@ def test_a_bad_parameter_stops_the_node_with_one_line_and_exit_2(
 
 
 def test_yaml_integer_for_a_float_is_accepted_by_the_node(tmp_path, rclpy_context):
-    """``process_noise: 16`` in the parameter file and ``flush_period:=1`` on the command line."""
+    """``process_noise: 16`` (an integer for a float parameter) is accepted."""
     from rclpy.parameter import Parameter
     from tracker_node.node import VehicleTrackerNode
 

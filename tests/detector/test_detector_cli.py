@@ -97,7 +97,7 @@ def test_object_layout_source_and_dontcare(tmp_path):
     assert len(cars_only.boxes) == 1
 
 
-def test_train_cli_mixes_real_partial_synthetic_and_starts_from_init(tmp_path):
+def test_train_cli_mixes_real_partial_synthetic_and_starts_from_init(tmp_path, capsys):
     import numpy as np
     from detector_node.model import YoloV2Passthrough, preset
     from kitti_player_node.synthetic import generate_sequence
@@ -140,6 +140,11 @@ def test_train_cli_mixes_real_partial_synthetic_and_starts_from_init(tmp_path):
         "--no-progress",
     ]
     assert train_main(args) == 0
+    printed = capsys.readouterr().out
+    assert f"initialised from {init}" in printed
+    # the three kinds, sampled by weight 2 : 1 : 0.5
+    for kind, prob in (("real", 2 / 3.5), ("partial", 1 / 3.5), ("synthetic", 0.5 / 3.5)):
+        assert f"({kind}, " in printed and f"p={prob:.2f})" in printed, printed
     model, state = load_checkpoint(out / "final.pt")
     assert state["epoch"] == 0 and len(model.config.anchors) == 5
     bad = [a if a != f"{crops}@1" else f"{crops}@many" for a in args]

@@ -10,6 +10,8 @@ import pytest
 from detector_node.oracle import OracleDetector, StampPairing
 from vehicle_common.kitti import KittiObject
 
+from tests.ros_helpers import spin_until as _spin_until
+
 
 def _objects():
     return [
@@ -45,13 +47,6 @@ def test_stamp_pairing_any_order_bounded():
     assert p.add_image(3, "img3") == [] and p.add_image(4, "img4") == []
     assert p.add_image(5, "img5") == [("img3", None)]  # the oldest is released unpaired
     assert p.pending_images == 2
-
-
-def _spin_until(executor, cond, timeout):
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.02)
-    return cond()
 
 
 def _run_node(context, params, publish):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from vehicle_common.kitti import KittiObject
 
+from tests.ros_helpers import spin_until as _spin_until
 from vehicle_common import kitti
 
 N_FRAMES = 5
@@ -75,13 +76,6 @@ def _player(context, root, **params):
     return KittiPlayerNode(
         context=context, parameter_overrides=[Parameter(k, value=v) for k, v in values.items()]
     )
-
-
-def _spin_until(executor, cond, timeout):
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.02)
-    return cond()
 
 
 def _play(context, root, n_expected, timeout=20.0, matched=lambda player: True, **params):

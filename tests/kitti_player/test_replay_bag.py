@@ -18,6 +18,8 @@ from kitti_player_node.bag_replay import (
 from vehicle_common.bag_files import BagError, open_reader
 from vehicle_common.kitti import KittiFormatError
 
+from tests.ros_helpers import spin_until as _spin_until
+
 MSG_DIR = Path(__file__).resolve().parents[2] / "msg_defs" / "msg"
 T0 = 1_700_000_000_000_000_000
 
@@ -201,13 +203,6 @@ def _raw_subscriber(context, topics: dict[str, str]):
             message_class(type_name), topic, lambda d, t=topic: got.append((t, d)), qos, raw=True
         )
     return node, got
-
-
-def _spin_until(executor, cond, timeout):
-    deadline = time.monotonic() + timeout
-    while not cond() and time.monotonic() < deadline:
-        executor.spin_once(timeout_sec=0.02)
-    return cond()
 
 
 @pytest.mark.parametrize("layout", ["rosbag2", "bare"])

@@ -4,14 +4,8 @@ a NaN position is logged and skipped without crashing."""
 from __future__ import annotations
 
 import math
-import time
 
-
-def _spin_until(executor, cond, timeout=10.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end and not cond():
-        executor.spin_once(timeout_sec=0.05)
-    return cond()
+from tests.ros_helpers import spin_until as _spin_until
 
 
 def test_node_publishes_one_track_array_per_detection_array(rclpy_context):

@@ -49,8 +49,9 @@ def _published_rows(rclpy_context, msgs, projection):
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from stereo_vehicle_msgs.msg import TrackedVehicleArray, VehicleDetection3DArray
     from tracker_node.node import VehicleTrackerNode
+    from vehicle_common.frame_messages import bbox_to_xyxy
 
-    from tests.tracker.test_tracker_node import _spin_until
+    from tests.ros_helpers import spin_until as _spin_until
 
     cam = Parameter("camera_matrix", value=[float(v) for v in projection.ravel()])
     node = VehicleTrackerNode(context=rclpy_context, parameter_overrides=[cam])
@@ -82,12 +83,7 @@ def _published_rows(rclpy_context, msgs, projection):
                     v.state,
                     (v.position.x, v.position.y, v.position.z, v.size.x, v.size.y, v.size.z),
                     v.yaw,
-                    (
-                        v.bbox.center_x - v.bbox.size_x / 2,
-                        v.bbox.center_y - v.bbox.size_y / 2,
-                        v.bbox.center_x + v.bbox.size_x / 2,
-                        v.bbox.center_y + v.bbox.size_y / 2,
-                    ),
+                    bbox_to_xyxy(v.bbox),
                     v.confidence,
                 )
                 for v in out.vehicles
