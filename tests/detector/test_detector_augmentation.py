@@ -187,3 +187,14 @@ def test_loss_ignores_unknown_orientation():
     _, unknown = detection_loss(raw, boxes, [np.array([-1])], [np.zeros((0, 4))], config)
     _, wrong = detection_loss(raw, boxes, [np.array([2])], [np.zeros((0, 4))], config)
     assert unknown["ori"] == 0.0 and wrong["ori"] > 1.0
+
+
+def test_crop_keeps_the_occlusion_flags_of_the_boxes_it_keeps():
+    # the crop drops the second box: its occlusion flag must go with it, or the training mix's
+    # later filter of boxes (resize, < 2 px) indexes a stale array
+    from dataclasses import replace
+
+    s = replace(_sample([[10, 10, 50, 40], [150, 10, 190, 40]], [1, 2]), occluded=np.array([2, 0]))
+    c = crop_sample(s, 0, 0, 100, 60)
+    assert len(c.boxes) == 1
+    np.testing.assert_array_equal(c.occluded, [2])

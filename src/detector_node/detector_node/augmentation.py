@@ -18,7 +18,7 @@ import numpy as np
 from vehicle_common.box2d import overlap_over_first
 from vehicle_common.orientation_bins import flip_bin
 
-from .dataset import Sample
+from .dataset import Sample, select_boxes
 
 #: A box cut by a crop stays a positive when at least this share of its area is kept; less
 #: visible boxes become ignore regions (neither positive nor background).
@@ -82,14 +82,14 @@ def crop_sample(
     keep = frac >= min_visible
     lost = (frac > 0) & ~keep
     trunc = 1.0 - (1.0 - _truncation(sample)) * frac
-    return replace(
+    cropped = replace(
         sample,
         image=out,
-        boxes=boxes[keep],
-        bins=sample.bins[keep],
-        truncation=trunc[keep].astype(np.float32),
+        boxes=boxes,
+        truncation=trunc.astype(np.float32),
         dontcare=np.concatenate([dc[dc_frac > 0], boxes[lost]]).astype(np.float32),
     )
+    return select_boxes(cropped, keep)
 
 
 def random_crop(

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -59,6 +59,18 @@ class Sample:
     truncation: np.ndarray | None = None
     #: (N,) KITTI occlusion flag of each box (None = unknown)
     occluded: np.ndarray | None = None
+
+
+def select_boxes(sample: Sample, keep: np.ndarray) -> Sample:
+    """``sample`` with only the boxes where ``keep`` holds, and their per-box fields (bins,
+    truncation, occlusion) with them."""
+    return replace(
+        sample,
+        boxes=sample.boxes[keep],
+        bins=sample.bins[keep],
+        truncation=None if sample.truncation is None else sample.truncation[keep],
+        occluded=None if sample.occluded is None else sample.occluded[keep],
+    )
 
 
 def parse_source(spec: str) -> tuple[Path, list[str] | None]:
@@ -192,7 +204,7 @@ def load_sample(ref: FrameRef, width: int, height: int, positive_types: tuple[st
     s = np.array([sx, sy, sx, sy], dtype=np.float32)
     boxes, dc = boxes * s, dc * s
     keep = ((boxes[:, 2] - boxes[:, 0]) >= 2) & ((boxes[:, 3] - boxes[:, 1]) >= 2)
-    return Sample(img, boxes[keep], bins[keep], dc, (sx, sy), ref.name, trunc[keep], occl[keep])
+    return select_boxes(Sample(img, boxes, bins, dc, (sx, sy), ref.name, trunc, occl), keep)
 
 
 def collect_box_sizes(refs: list[FrameRef], width: int, height: int, positive_types=("Car", "Van")):

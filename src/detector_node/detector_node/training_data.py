@@ -18,7 +18,7 @@ it uniformly. The real:synthetic ratio is therefore the ratio of the weights.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,7 +32,7 @@ from .augmentation import (
     random_crop,
     resize_sample,
 )
-from .dataset import Sample
+from .dataset import Sample, select_boxes
 
 KINDS = ("real", "partial", "synthetic")
 
@@ -136,13 +136,7 @@ class TrainingMix:
             s = resize_sample(s, self.width, self.height)
             ok = ((s.boxes[:, 2] - s.boxes[:, 0]) >= 2) & ((s.boxes[:, 3] - s.boxes[:, 1]) >= 2)
             if not ok.all():
-                s = replace(
-                    s,
-                    boxes=s.boxes[ok],
-                    bins=s.bins[ok],
-                    truncation=None if s.truncation is None else s.truncation[ok],
-                    occluded=None if s.occluded is None else s.occluded[ok],
-                )
+                s = select_boxes(s, ok)
         if a.flip and rng.random() < 0.5:  # after the resize: same result, fewer pixels
             s = flip_sample(s)
         if a.photometric:
