@@ -30,12 +30,6 @@ def _truncation(sample: Sample) -> np.ndarray:
     return np.zeros(len(sample.boxes), np.float32) if t is None else t
 
 
-def flip_bins(bins: np.ndarray) -> np.ndarray:
-    """Orientation bins after a horizontal flip (45 <-> 135; 0, 90 and unknown -1 unchanged)."""
-    bins = np.asarray(bins, dtype=np.int64)
-    return np.where(bins >= 0, flip_bin(np.maximum(bins, 0)), -1).astype(np.int64)
-
-
 def flip_sample(sample: Sample) -> Sample:
     """Horizontal flip: boxes mirrored, orientation bins 45 <-> 135 (alpha -> pi - alpha)."""
     w = sample.image.shape[1]
@@ -47,7 +41,7 @@ def flip_sample(sample: Sample) -> Sample:
         sample,
         image=np.ascontiguousarray(sample.image[:, ::-1]),
         boxes=b,
-        bins=flip_bins(sample.bins),
+        bins=flip_bin(sample.bins),
         dontcare=d,
     )
 
@@ -293,7 +287,7 @@ def paste_cars(
             continue
         patch, obin = crop.patch, crop.bin
         if rng.random() < 0.5:
-            patch, obin = patch[:, ::-1], int(flip_bins(np.array([obin]))[0])
+            patch, obin = patch[:, ::-1], flip_bin(obin)
         patch = cv2.resize(np.ascontiguousarray(patch), (bw, bh), interpolation=cv2.INTER_AREA)
         mask = _feathered_mask(bh, bw, max(1, min(bw, bh) // 12))
         region = img[bx[1] : bx[3], bx[0] : bx[2]].astype(np.float32)

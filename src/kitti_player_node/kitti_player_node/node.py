@@ -247,6 +247,7 @@ class KittiPlayerNode(Node):
             self.frames.received()
             if event.dropped:
                 self.frames.dropped()
+                self.reader.prefetch(self.scheduler.next_frame)  # the next one is read ahead too
             else:
                 try:
                     self._publish(event)

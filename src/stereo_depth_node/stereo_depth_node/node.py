@@ -24,7 +24,6 @@ from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
 from vehicle_common.node_parameters import (
-    ParameterError,
     declare_config,
     param,
 )
@@ -130,11 +129,8 @@ class StereoDepthNode(Node):
         ranging_params = declare_config(
             self, RangingParams, rename=RANGING_RENAMED, rules=RANGING_RULES
         )
-        try:  # validated once, with the bin offsets
-            self.ranging = RangingSetup.from_params(ranging_params)
-        except ValueError as exc:
-            name, _, problem = str(exc).partition(": ")
-            raise ParameterError(RANGING_RENAMED.get(name, name), problem or str(exc)) from None
+        # declare_config validated it (a bad value is a ParameterError naming the parameter)
+        self.ranging = RangingSetup.from_params(ranging_params)
         self.ranging_params = self.ranging.params
         self._band_params: tuple[int, DisparityParams] | None = None  # (height, params)
         p = declare_config(self, StereoNodeParameters)

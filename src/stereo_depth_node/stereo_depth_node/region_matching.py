@@ -159,10 +159,11 @@ def refine_shift(
     shifts = d_med + np.arange(-max_shift, max_shift + 1e-9, step)
     xs = np.arange(c0, c1, dtype=np.float32) - x_lo
     ys = np.arange(r1 - r0, dtype=np.float32)
+    base_x = np.broadcast_to(xs[None, :], mask.shape)
+    map_y = np.broadcast_to(ys[:, None], mask.shape).astype(np.float32)  # the same every shift
     costs = []
     for s in shifts:
-        map_x = np.broadcast_to(xs[None, :] - np.float32(s), mask.shape).astype(np.float32)
-        map_y = np.broadcast_to(ys[:, None], mask.shape).astype(np.float32)
+        map_x = (base_x - np.float32(s)).astype(np.float32)
         warped = cv2.remap(gr, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         costs.append(float(np.mean(np.abs(gl - warped)[mask])))
     k = int(np.argmin(costs))

@@ -93,7 +93,7 @@ def solve_two_stage(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Two-stage association: the detections where ``first`` (bool (M,)) are matched first; the
     others only to the tracks the first stage left unmatched. Returns (rows, columns)."""
-    if first.all():
+    if first.all() or not first.any():  # one stage: every detection is in the same one
         return solve(cost, method)
     rows, cols = solve(np.where(first, cost, np.inf), method)
     free = np.ones(len(cost), bool)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 from vehicle_common.camera_frames import centre_from_kitti
-from vehicle_common.kitti import KittiFormatError
+from vehicle_common.kitti import KittiFormatError, read_text
 
 TYPE_NAMES = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}
 NUM_COLUMNS = 15
@@ -45,10 +45,7 @@ class DetectionRows:
 def read_detection_file(path: str | os.PathLike) -> DetectionRows:
     """Parse a detection file; raises KittiFormatError naming the file and line."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise KittiFormatError(f"{path}: cannot read detections ({exc.strerror})") from None
+    text = read_text(path, "detections")
     rows = []
     for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip():

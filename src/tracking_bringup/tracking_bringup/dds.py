@@ -17,7 +17,7 @@ import os
 import re
 from dataclasses import dataclass
 
-from tracking_bringup.environment import CONFIG_DIR, FASTDDS_PROFILE, graph_environment
+from tracking_bringup.environment import CONFIG_DIR, graph_environment
 
 MULTIHOST_PROFILE = CONFIG_DIR / "fastdds_multihost.xml"
 DISCOVERY_MODES = ("localhost", "subnet", "peers")
@@ -93,11 +93,6 @@ class DiscoverySettings:
         elif self.profile:
             env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(self.profile)
         return graph_environment(env)
-
-
-def default_profile(mode: str) -> str:
-    """The Fast DDS profile a discovery mode uses unless told otherwise."""
-    return str(FASTDDS_PROFILE if mode == "localhost" else MULTIHOST_PROFILE)
 
 
 def rtps_ports(domain_id: int, participants: int = 4) -> dict[str, list[int]]:

@@ -13,6 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from vehicle_common.graph_readiness import format_topic_counts
+
 from vehicle_common import topics
 
 
@@ -160,7 +162,7 @@ def edge_counts(nodes: list[NodeSpec], extra: dict[str, int] | None = None) -> d
 def wait_for_topics_value(nodes: list[NodeSpec], extra: dict[str, int] | None = None) -> str:
     """The ``wait_for_topics`` value of a source node: ``"topic:N,..."`` over every edge of the
     graph :func:`edge_counts` (relative names)."""
-    return ",".join(f"{t}:{n}" for t, n in edge_counts(nodes, extra).items())
+    return format_topic_counts(edge_counts(nodes, extra))
 
 
 def parameter_value(params_file, overrides: list[str], node: str, name: str, default):

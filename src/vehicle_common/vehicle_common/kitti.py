@@ -120,10 +120,7 @@ _CALIB_SHAPES = {"R_rect": (3, 3)}
 def read_calib(path: str | os.PathLike) -> Calibration:
     """Read a KITTI calibration file in either spelling (``R_rect`` / ``R0_rect:``...)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise KittiFormatError(f"{path}: cannot read calibration file ({exc.strerror})") from None
+    text = read_text(path, "calibration file")
     values: dict[str, np.ndarray] = {}
     for lineno, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
@@ -268,7 +265,9 @@ def _parse_row(tokens: list[str], path: Path, lineno: int, tracking: bool) -> Ki
     )
 
 
-def _read_text(path: Path, what: str) -> str:
+def read_text(path: Path, what: str) -> str:
+    """The text of ``path``; a KittiFormatError naming the file and ``what`` it should hold when
+    it cannot be read."""
     try:
         return path.read_text()
     except OSError as exc:
@@ -282,7 +281,7 @@ def read_tracking_labels(path: str | os.PathLike) -> dict[int, list[KittiObject]
     """
     path = Path(path)
     frames: dict[int, list[KittiObject]] = {}
-    for lineno, line in enumerate(_read_text(path, "labels").splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path, "labels").splitlines(), start=1):
         tokens = line.split()
         if not tokens:
             continue
@@ -296,7 +295,7 @@ def read_object_labels(path: str | os.PathLike) -> list[KittiObject]:
     path = Path(path)
     return [
         _parse_row(line.split(), path, lineno, tracking=False)
-        for lineno, line in enumerate(_read_text(path, "labels").splitlines(), start=1)
+        for lineno, line in enumerate(read_text(path, "labels").splitlines(), start=1)
         if line.split()
     ]
 

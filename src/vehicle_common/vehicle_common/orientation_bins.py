@@ -49,6 +49,8 @@ def flip_alpha(alpha: float | np.ndarray) -> float | np.ndarray:
 
 
 def flip_bin(bins: int | np.ndarray) -> int | np.ndarray:
-    """Orientation bin after a horizontal image flip (45 <-> 135; 0 and 90 unchanged)."""
-    out = FLIP_BIN[np.asarray(bins, dtype=np.int64)]
+    """Orientation bin after a horizontal image flip (45 <-> 135; 0, 90 and an unknown bin,
+    below 0, unchanged)."""
+    b = np.asarray(bins, dtype=np.int64)
+    out = np.where(b >= 0, FLIP_BIN[np.maximum(b, 0)], b)
     return int(out) if np.ndim(out) == 0 else out
