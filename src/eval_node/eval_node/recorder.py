@@ -39,23 +39,9 @@ NODE_NAME = "bag_recorder"
 
 #: The pipeline's topics (docs/ARCHITECTURE.md) recorded by default. Their types are given so
 #: that the recorder subscribes at start-up (before any publisher exists) and misses nothing.
-PIPELINE_TOPICS = [
-    f"{graph_topics.LEFT_INFO}:sensor_msgs/msg/CameraInfo",
-    f"{graph_topics.RIGHT_INFO}:sensor_msgs/msg/CameraInfo",
-    f"{graph_topics.GROUND_TRUTH}:stereo_vehicle_msgs/msg/KittiFrameLabels",
-    f"{graph_topics.CLOCK}:rosgraph_msgs/msg/Clock",
-    f"{graph_topics.DETECTIONS_2D}:stereo_vehicle_msgs/msg/VehicleDetection2DArray",
-    f"{graph_topics.DETECTIONS_3D}:stereo_vehicle_msgs/msg/VehicleDetection3DArray",
-    f"{graph_topics.TRACKS}:stereo_vehicle_msgs/msg/TrackedVehicleArray",
-    f"{graph_topics.TRACK_MARKERS}:visualization_msgs/msg/MarkerArray",
-]
+PIPELINE_TOPICS = [f"{t}:{graph_topics.TYPES[t]}" for t in graph_topics.RECORDED]
 #: Large image-like topics, recorded only with ``include_images``.
-IMAGE_TOPICS = [
-    f"{graph_topics.LEFT_IMAGE}:sensor_msgs/msg/Image",
-    f"{graph_topics.RIGHT_IMAGE}:sensor_msgs/msg/Image",
-    f"{graph_topics.DISPARITY}:stereo_msgs/msg/DisparityImage",
-    f"{graph_topics.POINTS}:sensor_msgs/msg/PointCloud2",
-]
+IMAGE_TOPICS = [f"{t}:{graph_topics.TYPES[t]}" for t in graph_topics.RECORDED_IMAGES]
 
 
 @dataclass

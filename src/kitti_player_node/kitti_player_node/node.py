@@ -195,14 +195,10 @@ class KittiPlayerNode(Node):
         """Topics of the graph not yet matched as expected (own publishers: also every
         subscription the ROS graph already knows of)."""
         own = {p.topic_name: p.get_subscription_count() for p in self.publishers_list}
-        unmatched = unready_topics(self._expected, own, self._reports.values())
-        listed = {u.split(" ")[0] for u in unmatched}
-        for p in self.publishers_list:
-            if p.topic_name not in listed and own[p.topic_name] < self.count_subscribers(
-                p.topic_name
-            ):
-                unmatched.append(f"{p.topic_name} (unmatched subscriber)")
-        return unmatched
+        expected = dict(self._expected)
+        for topic in own:  # a subscriber the ROS graph knows of must have matched too
+            expected[topic] = max(expected.get(topic, 0), self.count_subscribers(topic))
+        return unready_topics(expected, own, self._reports.values())
 
     def _on_lockstep(self, msg: TrackedVehicleArray) -> None:
         stamp = stamp_ns(msg.header)

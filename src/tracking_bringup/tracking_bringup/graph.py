@@ -97,16 +97,7 @@ RECORDER = NodeSpec(
     name="bag_recorder",
     package="eval_node",
     executable="bag_recorder",
-    subscribes=(
-        LEFT_INFO,
-        RIGHT_INFO,
-        GROUND_TRUTH,
-        CLOCK,
-        DETECTIONS_2D,
-        DETECTIONS_3D,
-        TRACKS,
-        TRACK_MARKERS,
-    ),
+    subscribes=topics.RECORDED,
     optional=True,
 )
 

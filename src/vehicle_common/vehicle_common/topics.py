@@ -37,6 +37,35 @@ ALL = (
     POINTS,
 )
 
+#: the message type of every topic (``package/msg/Type``)
+TYPES = {
+    LEFT_IMAGE: "sensor_msgs/msg/Image",
+    RIGHT_IMAGE: "sensor_msgs/msg/Image",
+    LEFT_INFO: "sensor_msgs/msg/CameraInfo",
+    RIGHT_INFO: "sensor_msgs/msg/CameraInfo",
+    GROUND_TRUTH: "stereo_vehicle_msgs/msg/KittiFrameLabels",
+    CLOCK: "rosgraph_msgs/msg/Clock",
+    DETECTIONS_2D: "stereo_vehicle_msgs/msg/VehicleDetection2DArray",
+    DETECTIONS_3D: "stereo_vehicle_msgs/msg/VehicleDetection3DArray",
+    TRACKS: "stereo_vehicle_msgs/msg/TrackedVehicleArray",
+    TRACK_MARKERS: "visualization_msgs/msg/MarkerArray",
+    DISPARITY: "stereo_msgs/msg/DisparityImage",
+    POINTS: "sensor_msgs/msg/PointCloud2",
+}
+#: what the bag recorder records by default (the graph's recorder node subscribes to these)
+RECORDED = (
+    LEFT_INFO,
+    RIGHT_INFO,
+    GROUND_TRUTH,
+    CLOCK,
+    DETECTIONS_2D,
+    DETECTIONS_3D,
+    TRACKS,
+    TRACK_MARKERS,
+)
+#: large image-like topics, recorded only on request (the recorder's ``include_images``)
+RECORDED_IMAGES = (LEFT_IMAGE, RIGHT_IMAGE, DISPARITY, POINTS)
+
 
 def normalise_namespace(namespace: str | None) -> str:
     """``"rig2"``, ``"/rig2/"`` -> ``"/rig2"``; ``""``, ``"/"``, None -> ``""``."""
