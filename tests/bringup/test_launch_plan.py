@@ -10,6 +10,7 @@ from tracking_bringup.dds import MULTIHOST_PROFILE, DdsSettingsError, DiscoveryS
 from tracking_bringup.environment import FASTDDS_PROFILE, PARAMS_FILE
 from tracking_bringup.hosts import HostProfileError, add_arguments, launch_plan, read_host_profiles
 from tracking_bringup.launcher import graph_processes, main
+from vehicle_common.graph_readiness import parse_topic_counts
 
 from tracking_bringup import graph
 
@@ -25,7 +26,7 @@ def _plan(*argv: str, params: Path = PARAMS_FILE):
 def _wait_for_topics(processes) -> dict[str, int]:
     player = next(p for p in processes if p.name == graph.PLAYER.name)
     value = next(a for a in player.argv if a.startswith("wait_for_topics:="))
-    return {t: int(n) for t, n in (e.rsplit(":", 1) for e in value.split(":=", 1)[1].split(","))}
+    return parse_topic_counts(value.split(":=", 1)[1])
 
 
 def test_subset_waits_for_the_subscribers_of_the_whole_graph():

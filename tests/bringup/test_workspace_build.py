@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 from tracking_bringup.environment import PARAMS_FILE
+from vehicle_common.graph_readiness import parse_topic_counts
 
 from tracking_bringup import graph
 
@@ -144,8 +145,8 @@ def test_launch_file_and_launcher_agree_on_namespace_wait_for_topics_and_oracle(
         # the readiness check looks for the namespaced topics
         assert all(t.startswith(namespace + "/") for t in (*proc.subscribes, *proc.publishes))
     player = _argv_parameters(processes[0].argv)["wait_for_topics"]
-    gt = dict(e.rsplit(":", 1) for e in player.split(","))["kitti/ground_truth"]
-    assert gt == ("2" if backend == "oracle" else "1")  # recorder (+ oracle detector)
+    gt = parse_topic_counts(player)[graph.GROUND_TRUTH]
+    assert gt == (2 if backend == "oracle" else 1)  # recorder (+ oracle detector)
 
 
 @pytest.mark.slow
@@ -192,8 +193,7 @@ def test_launch_file_gives_the_player_every_edge_of_the_graph(tmp_path):
 
     def player_wait(nodes):
         (player,) = [n for n in nodes if n.kwargs["name"] == graph.PLAYER.name]
-        spec = player.kwargs["parameters"][1]["wait_for_topics"]
-        return {t: int(n) for t, n in (e.rsplit(":", 1) for e in spec.split(","))}
+        return parse_topic_counts(player.kwargs["parameters"][1]["wait_for_topics"])
 
     full = player_wait(_launch_nodes(description))
     assert full[graph.DETECTIONS_3D] == 2  # stereo -> tracker and recorder
