@@ -50,7 +50,7 @@ def test_stamp_pairing_any_order_bounded():
 
 
 def _run_node(context, params, publish):
-    """Start the detector with ``params``, wait for matching, call ``publish(pubs)`` and collect
+    """Start the detector with ``params``, wait for matching, call ``publish(pubs, received)`` and collect
     the arrays published on /vehicles/detections_2d."""
     from detector_node.node import VehicleDetectorNode
     from rclpy.executors import SingleThreadedExecutor
@@ -83,10 +83,10 @@ def _run_node(context, params, publish):
         10,
     ), "detector and test node did not match"
 
-    def received(k):  # for a publish(pubs, received) that sends one image at a time
+    def received(k):  # for a publish that sends one image at a time and waits for its array
         assert _spin_until(ex, lambda: len(got) >= k, 30), f"got {len(got)} of {k} arrays"
 
-    n = publish(pubs, received) if publish.__code__.co_argcount == 2 else publish(pubs)
+    n = publish(pubs, received)
     assert _spin_until(ex, lambda: len(got) >= n, 30), f"got {len(got)} of {n} arrays"
     ex.spin_once(timeout_sec=0.2)
     ex.shutdown()
@@ -107,7 +107,7 @@ def test_oracle_backend_republishes_ground_truth(rclpy_context):
     calib = stereo_calibration(700.0, 700.0, 620.0, 187.0, 0.54)
     img = np.zeros((375, 1242, 3), np.uint8)
 
-    def publish(pubs):
+    def publish(pubs, _received):
         s1, s2 = 5_000_000_000, 5_100_000_000
         # frame 1: GT first; frame 2: image first
         pubs["gt"].publish(ground_truth_message("0000", 0, calib, _objects(), s1))
