@@ -50,8 +50,8 @@ def test_stamp_pairing_any_order_bounded():
 
 
 def _run_node(context, params, publish):
-    """Start the detector with ``params``, wait for matching, call ``publish(pubs, received)`` and collect
-    the arrays published on /vehicles/detections_2d."""
+    """Start the detector with ``params``, wait for matching, call ``publish(pubs, received)``
+    and collect the arrays published on /vehicles/detections_2d."""
     from detector_node.node import VehicleDetectorNode
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
