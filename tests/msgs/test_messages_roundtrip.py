@@ -78,3 +78,29 @@ def test_roundtrip(cls):
 def test_tracked_vehicle_states_documented_constants():
     tv = msgs.TrackedVehicle
     assert (tv.STATE_TENTATIVE, tv.STATE_CONFIRMED, tv.STATE_COASTING) == (0, 1, 2)
+
+
+def test_camera_motion_travels_in_the_3d_array():
+    import cv2
+    import numpy as np
+    from stereo_vehicle_msgs.msg import VehicleDetection3DArray
+    from tracker_node.conversions import camera_motion_from_msg
+    from vehicle_common.frame_messages import read_transform, write_transform
+
+    msg = VehicleDetection3DArray()
+    assert camera_motion_from_msg(msg) == (None, [])  # unknown by default
+    for rv in ([0.0, 0.0, 0.0], [0.1, -0.2, 0.3], [3.0, 0.1, 0.0], [0.0, 3.1, 0.05], [0, 0, 3.1]):
+        R = cv2.Rodrigues(np.array(rv))[0]
+        write_transform(R, [0.1, 0.0, -1.8], msg.camera_motion)
+        R2, t = read_transform(msg.camera_motion)
+        assert np.abs(R2 - R).max() < 1e-12 and msg.camera_motion.rotation.w >= 0
+        np.testing.assert_allclose(t, [0.1, 0.0, -1.8])
+    msg.camera_motion_dt = 0.1
+    motion, problems = camera_motion_from_msg(msg)
+    assert not problems and motion.dt == 0.1 and np.allclose(motion.rotation, R)
+    msg.camera_motion.rotation.w = msg.camera_motion.rotation.z = 0.0
+    msg.camera_motion.rotation.x = msg.camera_motion.rotation.y = 0.0
+    motion, problems = camera_motion_from_msg(msg)
+    assert motion is None and "camera_motion" in problems[0]
+    msg.camera_motion_dt = -0.1
+    assert "camera_motion_dt" in camera_motion_from_msg(msg)[1][0]

@@ -115,3 +115,48 @@ def kitti_objects_from_message(msg) -> list[KittiObject]:
         )
         for o in msg.objects
     ]
+
+
+def write_transform(rotation, translation, transform) -> None:
+    """Fill a geometry_msgs/Transform from a 3x3 rotation matrix and a translation (3,) [m]
+    (the quaternion with w >= 0)."""
+    R = np.asarray(rotation, float).reshape(3, 3)
+    # Shepperd's method: branch on the largest of w, x, y, z for a stable square root
+    tr = np.trace(R)
+    k = int(np.argmax([tr, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + tr)
+        q = (0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s)
+    else:
+        i, j, m = (k - 1, k % 3, (k + 1) % 3)
+        s = 2.0 * np.sqrt(1.0 + R[i, i] - R[j, j] - R[m, m])
+        v = [0.0, 0.0, 0.0]
+        v[i] = 0.25 * s
+        v[j] = (R[j, i] + R[i, j]) / s
+        v[m] = (R[m, i] + R[i, m]) / s
+        q = ((R[m, j] - R[j, m]) / s, *v)
+    w, x, y, z = np.asarray(q) * (1.0 if q[0] >= 0 else -1.0)
+    r = transform.rotation
+    r.w, r.x, r.y, r.z = float(w), float(x), float(y), float(z)
+    t = transform.translation
+    t.x, t.y, t.z = (float(v) for v in np.asarray(translation, float).reshape(3))
+
+
+def read_transform(transform) -> tuple[np.ndarray, np.ndarray]:
+    """(3x3 rotation, translation (3,)) of a geometry_msgs/Transform; the quaternion is
+    normalised. ValueError when it is not finite or has zero norm."""
+    r, t = transform.rotation, transform.translation
+    q = np.array([r.w, r.x, r.y, r.z], float)
+    tv = np.array([t.x, t.y, t.z], float)
+    n = float(np.linalg.norm(q))
+    if not (np.isfinite(q).all() and np.isfinite(tv).all()) or n == 0.0:
+        raise ValueError("transform is not finite or its quaternion is zero")
+    w, x, y, z = q / n
+    R = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    return R, tv
