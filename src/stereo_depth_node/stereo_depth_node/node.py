@@ -21,7 +21,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
-from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns
+from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
 from vehicle_common.node_parameters import (
     declare_config,
@@ -33,10 +33,11 @@ from vehicle_common import topics
 
 from .conversions import build_point_cloud, detection_3d_message, disparity_message
 from .disparity import DisparityParams, compute_disparity
-from .ranging import RangingParams, RangingSetup, range_boxes
+from .ranging import RangingParams, RangingSetup, disparity_bias_at, range_boxes
 from .region_matching import to_gray
 from .reprojection import StereoGeometry, decimated_points
 from .stamp_sync import ExactStampSync
+from .visual_odometry import FrameToFrameOdometry
 
 NODE_NAME = "stereo_depth"
 TOPIC_LEFT = topics.LEFT_IMAGE
@@ -97,6 +98,8 @@ class StereoNodeParameters:
     frame_queue: int = param(1, low=1)  # newest stereo pairs kept waiting (1: latest frame)
     # [top, bottom) rows to match; bottom <= top means all rows
     match_rows: list = param([0, 0], low=0, length=2)
+    # stereo visual odometry between successive frames (camera_motion of the 3D arrays)
+    visual_odometry: bool = True
 
 
 def _stamp_text(ns: int) -> str:
@@ -115,6 +118,7 @@ class _Frame:
     disparity: np.ndarray | None
     geometry: StereoGeometry | None
     images: tuple[np.ndarray, np.ndarray] | None = None  # gray (left, right), for refinement
+    left_gray: np.ndarray | None = None  # for visual odometry
     skipped: bool = False  # superseded by a newer pair (latest-frame policy): no 3D array
 
 
@@ -141,6 +145,7 @@ class StereoDepthNode(Node):
         self.points_rgb = p.points_rgb
         cv2.setNumThreads(p.num_threads)  # process-wide
         self.match_rows = (p.match_rows[0], p.match_rows[1])
+        self.odometry = FrameToFrameOdometry() if p.visual_odometry else None
         cache = p.sync_cache_size
         self.pair_sync = ExactStampSync(("left", "right"), cache, in_order=True)
         self.frame_sync = ExactStampSync(("frame", "detections"), cache, in_order=True)
@@ -296,6 +301,8 @@ class StereoDepthNode(Node):
             frame.disparity = compute_disparity(left, right, params)
             if self.ranging_params.refine != "none":
                 frame.images = (to_gray(left), to_gray(right))
+            if self.odometry is not None:
+                frame.left_gray = frame.images[0] if frame.images else to_gray(left)
         except (ImageConversionError, ValueError) as exc:
             self.frames_failed += 1
             # a bad calibration was reported when it arrived; a missing one is reported here
@@ -345,6 +352,7 @@ class StereoDepthNode(Node):
             )
         else:
             results = [None] * len(dets)
+        self._camera_motion(frame, dets, out)
         for d, r in zip(dets, results, strict=True):
             if r is None:
                 self.unranged_detections += 1
@@ -356,6 +364,33 @@ class StereoDepthNode(Node):
             out.detections.append(detection_3d_message(d, r))
         self.pub_det3d.publish(out)
         self.frames.published()
+
+    def _camera_motion(self, frame: _Frame, dets, out) -> None:
+        """Fill ``out.camera_motion`` with the motion since the previous ranged frame (visual
+        odometry); dt 0 when unknown."""
+        if self.odometry is None:
+            return
+        if frame.disparity is None or frame.left_gray is None:
+            self.odometry.reset()  # a lost frame breaks the chain
+            return
+        bias = disparity_bias_at(
+            np.arange(frame.disparity.shape[1]), frame.geometry, self.ranging_params
+        )
+        try:
+            motion = self.odometry.step(
+                stamp_ns(frame.header),
+                frame.left_gray,
+                frame.disparity,
+                frame.geometry,
+                [bbox_to_xyxy(d.bbox) for d in dets],
+                bias,
+            )
+        except (ValueError, cv2.error) as exc:
+            self.get_logger().warning(f"visual odometry failed: {exc}")
+            return
+        if motion is not None:
+            out.camera_motion_dt = motion.dt
+            write_transform(motion.rotation, motion.translation, out.camera_motion)
 
 
 def main(args=None) -> int:
