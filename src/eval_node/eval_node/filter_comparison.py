@@ -24,7 +24,7 @@ def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, l
     """Track the run's recorded 3D detections with ``config`` (a TrackerConfig):
     ``{frame: [KittiObject...]}`` of the tracks the AP ranks (``RANKED_STATES``: confirmed,
     coasting and, at their lowered score, tentative; as ``evaluate`` scores the live graph)."""
-    from tracker_node.conversions import detections_from_msg
+    from tracker_node.conversions import camera_motion_from_msg, detections_from_msg
     from tracker_node.tracker import DetectionBatch, Tracker
 
     tracker = Tracker(config)
@@ -41,7 +41,8 @@ def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, l
     for f in frames:
         # the same message conversion as the live vehicle_tracker node
         batch = detections_from_msg(f.det3d_msg)[0] if f.det3d_msg else DetectionBatch.empty()
-        tracks = tracker.step(batch, f.stamp_ns * 1e-9)
+        motion = camera_motion_from_msg(f.det3d_msg)[0] if f.det3d_msg else None
+        tracks = tracker.step(batch, f.stamp_ns * 1e-9, motion)
         out[f.frame] = result_rows(
             tracks, f.frame, f.offset, RANKED_STATES, clip_score=True, mean_hwl=mean_hwl
         )

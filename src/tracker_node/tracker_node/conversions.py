@@ -11,7 +11,8 @@ import math
 import numpy as np
 from vehicle_common.box3d import box_corners, box_edges
 from vehicle_common.camera_frames import kitti_from_centre
-from vehicle_common.frame_messages import bbox_to_xyxy, xyxy_to_bbox
+from vehicle_common.camera_motion import CameraMotion
+from vehicle_common.frame_messages import bbox_to_xyxy, read_transform, xyxy_to_bbox
 
 from .tracker import DetectionBatch, TrackSet
 
@@ -49,6 +50,21 @@ def detections_from_msg(msg) -> tuple[DetectionBatch, list[str]]:
         class_id=cls,
     )
     return batch, problems
+
+
+def camera_motion_from_msg(msg) -> tuple[CameraMotion | None, list[str]]:
+    """The camera's motion a VehicleDetection3DArray carries (None when ``camera_motion_dt`` is
+    0, or the message predates the field), and a warning when it is malformed (then None)."""
+    dt = float(getattr(msg, "camera_motion_dt", 0.0) or 0.0)
+    if dt == 0.0:
+        return None, []
+    if not (math.isfinite(dt) and dt > 0):
+        return None, [f"camera_motion_dt: {dt} is not a positive time, camera motion ignored"]
+    try:
+        R, t = read_transform(msg.camera_motion)
+    except ValueError as exc:
+        return None, [f"camera_motion: {exc}, ignored"]
+    return CameraMotion(R, t, dt), []
 
 
 def tracks_to_msg(tracks: TrackSet, header):

@@ -1,8 +1,9 @@
 """The motion-filter interface, the unfiltered baseline, and the factory selecting a filter.
 
 Every filter is batched over the tracks (row i = the tracker's i-th track) and offers:
-``add(z, R)``, ``keep(mask)``, ``predict(dt)``, ``update(rows, z, R)`` and the arrays
-``position`` (N, 3), ``velocity`` (N, 3), ``position_cov`` (N, 3, 3), ``velocity_cov`` (N, 3, 3).
+``add(z, R, static_velocity=None)``, ``restart_velocity(rows, static_velocity)``,
+``keep(mask)``, ``predict(dt)``, ``update(rows, z, R)`` and the arrays ``position`` (N, 3),
+``velocity`` (N, 3), ``position_cov`` (N, 3, 3), ``velocity_cov`` (N, 3, 3).
 """
 
 from __future__ import annotations
@@ -22,8 +23,9 @@ class MotionFilter(Protocol):
     name: str
 
     def __len__(self) -> int: ...
-    def add(self, z: np.ndarray, R: np.ndarray) -> None: ...
+    def add(self, z: np.ndarray, R: np.ndarray, static_velocity=None) -> None: ...
     def keep(self, mask: np.ndarray) -> None: ...
+    def restart_velocity(self, rows: np.ndarray, static_velocity: np.ndarray) -> None: ...
     def predict(self, dt: float) -> None: ...
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None: ...
 
@@ -58,13 +60,18 @@ class PassThroughFilter:
     def __len__(self) -> int:
         return len(self._pos)
 
-    def add(self, z: np.ndarray, R: np.ndarray) -> None:
+    def add(self, z: np.ndarray, R: np.ndarray, static_velocity=None) -> None:
+        """Start tracks at ``z``; the velocity (zero) is the finite difference from the next
+        detection on, so ``static_velocity`` (a prior) is not used."""
         m = len(z)
         self._pos = np.concatenate([self._pos, z])
         self._vel = np.concatenate([self._vel, np.zeros((m, 3))])
         self._R = np.concatenate([self._R, R])
         self._elapsed = np.concatenate([self._elapsed, np.zeros(m)])
         self._seen = np.concatenate([self._seen, np.zeros(m, dtype=bool)])
+
+    def restart_velocity(self, rows: np.ndarray, static_velocity: np.ndarray) -> None:
+        """No prior to restart: the velocity is a finite difference of detections."""
 
     def keep(self, mask: np.ndarray) -> None:
         self._pos, self._vel, self._R = self._pos[mask], self._vel[mask], self._R[mask]

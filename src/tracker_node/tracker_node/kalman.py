@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scene_motion import velocity_prior
+from .scene_motion import reset_velocity_covariance, restarted_velocity_prior, velocity_prior
 
 _I3 = np.eye(3)
 
@@ -92,14 +92,21 @@ class BatchedKalmanFilter:
     def __len__(self) -> int:
         return len(self.x)
 
-    def add(self, z: np.ndarray, R: np.ndarray) -> None:
+    def add(self, z: np.ndarray, R: np.ndarray, static_velocity: np.ndarray | None = None) -> None:
         """Start tracks at positions ``z`` (M, 3) with covariances ``R`` (M, 3, 3) (used as the
         initial position covariance with ``init_position_from_detection``), velocity per
-        ``init_velocity``."""
+        ``init_velocity`` (``static_velocity`` (M, 3): the apparent velocity of static points
+        at ``z`` when the camera's motion is known, see :func:`.scene_motion.velocity_prior`)."""
         m = len(z)
         x = np.zeros((m, 6))
         x[:, :3] = z
-        v0, v_var = velocity_prior(self.init_velocity, self.velocity, self.updates, self.P0[3, 3])
+        v0, v_var = velocity_prior(
+            self.init_velocity,
+            self.velocity,
+            self.updates,
+            self.P0[3, 3],
+            static_velocity=static_velocity,
+        )
         x[:, 3:] = v0
         P = np.repeat(self.P0[None], m, axis=0)
         P[:, 3:, 3:] = np.diag(v_var)
@@ -108,6 +115,20 @@ class BatchedKalmanFilter:
         self.x = np.concatenate([self.x, x])
         self.P = np.concatenate([self.P, P])
         self.updates = np.concatenate([self.updates, np.zeros(m, dtype=int)])
+
+    def restart_velocity(self, rows: np.ndarray, static_velocity: np.ndarray) -> None:
+        """Tracks ``rows``, not yet corrected by a second detection (their velocity is still
+        the prior they were born with), take the prior again now that the static scene's
+        apparent velocity at their positions, ``static_velocity`` (M, 3), is known
+        (:func:`.scene_motion.velocity_prior`; no change once the scene motion is known from
+        established tracks, or in the paper's "zero" mode)."""
+        prior = restarted_velocity_prior(
+            self.init_velocity, self.velocity, self.updates, self.P0[3, 3], static_velocity
+        )
+        if prior is None:
+            return
+        self.x[rows, 3:], v_var = prior
+        reset_velocity_covariance(self.P, rows, v_var)
 
     def keep(self, mask: np.ndarray) -> None:
         """Keep only the rows where ``mask`` is true."""

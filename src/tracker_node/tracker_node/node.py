@@ -31,7 +31,7 @@ from visualization_msgs.msg import MarkerArray
 from vehicle_common import topics
 
 from .config import NODE_NAME, TrackerConfig
-from .conversions import detections_from_msg, markers_for, tracks_to_msg
+from .conversions import camera_motion_from_msg, detections_from_msg, markers_for, tracks_to_msg
 from .tracker import DetectionBatch, Tracker
 
 QOS_DEPTH = 10
@@ -86,10 +86,11 @@ class VehicleTrackerNode(Node):
         except (ValueError, TypeError) as exc:
             self.get_logger().warning(f"{topics.DETECTIONS_3D}: malformed message: {exc}")
             dets, problems = DetectionBatch.empty(), []
-        for p in problems:
+        motion, motion_problems = camera_motion_from_msg(msg)
+        for p in problems + motion_problems:
             self.get_logger().warning(f"{topics.DETECTIONS_3D}: {p}")
         stamp = stamp_ns(msg.header) * 1e-9
-        tracks = self.tracker.step(dets, stamp)
+        tracks = self.tracker.step(dets, stamp, motion)
         self.pub.publish(tracks_to_msg(tracks, msg.header))
         self.frames.published()
         ids = {int(t) for t in tracks.track_id}

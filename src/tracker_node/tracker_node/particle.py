@@ -53,7 +53,7 @@ from __future__ import annotations
 import numpy as np
 
 from .kalman import inv3_sym, process_noise
-from .scene_motion import velocity_prior
+from .scene_motion import reset_velocity_covariance, restarted_velocity_prior, velocity_prior
 
 PROPOSALS = ("optimal", "prior")  # importance distributions (BatchedParticleFilter.proposal)
 
@@ -128,13 +128,18 @@ class BatchedParticleFilter:
         e = self.rng.normal(size=(m, self.n, 3))
         return z[:, None, :] + np.matmul(e, L.transpose(0, 2, 1))
 
-    def add(self, z: np.ndarray, R: np.ndarray) -> None:
+    def add(self, z: np.ndarray, R: np.ndarray, static_velocity: np.ndarray | None = None) -> None:
         m = len(z)
         if not m:
             return
         v0, v_var = velocity_prior(
-            self.init_velocity, self.velocity, self.updates, self.init_velocity_var
+            self.init_velocity,
+            self.velocity,
+            self.updates,
+            self.init_velocity_var,
+            static_velocity=static_velocity,
         )
+        v0 = np.broadcast_to(v0, (m, 3))[:, None, :]
         p = np.empty((m, self.n, 6))
         p[:, :, :3] = self._draw_positions(z, R)
         pending = np.zeros((m, 6, 6))
@@ -147,6 +152,24 @@ class BatchedParticleFilter:
         self.weights = np.concatenate([self.weights, np.full((m, self.n), 1.0 / self.n)])
         self.updates = np.concatenate([self.updates, np.zeros(m, dtype=int)])
         self.pending = np.concatenate([self.pending, pending])
+        self._mean = self._cov = None
+
+    def restart_velocity(self, rows: np.ndarray, static_velocity: np.ndarray) -> None:
+        """As :meth:`.kalman.BatchedKalmanFilter.restart_velocity`: tracks ``rows`` not yet
+        corrected by a second detection take the velocity prior again, given the static
+        scene's apparent velocity (M, 3) at their positions."""
+        prior = restarted_velocity_prior(
+            self.init_velocity, self.velocity, self.updates, self.init_velocity_var, static_velocity
+        )
+        if prior is None:
+            return
+        v0, v_var = prior
+        if self.proposal == "prior":
+            noise = np.sqrt(v_var) * self.rng.normal(size=(len(rows), self.n, 3))
+            self.particles[rows, :, 3:] = v0[:, None, :] + noise
+        else:
+            self.particles[rows, :, 3:] = v0[:, None, :]
+            reset_velocity_covariance(self.pending, rows, v_var)
         self._mean = self._cov = None
 
     def keep(self, mask: np.ndarray) -> None:

@@ -17,6 +17,13 @@ real-motion benchmark's tuning sequences) instead of the variance around a known
 Seen from a driving car that is mostly along the optical axis (z: RMS 8.4 m/s) and little
 sideways (x: 3.1 m/s) or vertically (y: 0.4 m/s); an isotropic prior either lags the cars'
 apparent motion along z or lets lateral stereo noise into the velocity.
+
+When the camera's own motion is known (the stereo node's visual odometry, the 3D arrays'
+``camera_motion``), the scene's motion is known from the first pair of frames on, before any
+track is established: a new track then starts at the apparent velocity of a static point at
+its position (``static_velocity``), with the variance around a known scene motion. Parked cars,
+the commonest case, then start right; a car driving at the camera's speed starts as far off as
+a parked one does without odometry, but near the camera, where stereo is precise.
 """
 
 from __future__ import annotations
@@ -63,11 +70,43 @@ def velocity_prior(
     updates: np.ndarray,
     velocity_var: float,
     unknown_scene_var=UNKNOWN_SCENE_VELOCITY_VAR,
+    static_velocity: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Mean (3,) and per-axis variance (3,) of a new track's velocity. ``mode`` "zero": zero
-    and ``velocity_var`` on every axis (the paper); "scene": :func:`initial_velocity` and
-    ``velocity_var`` while the scene motion is known, else zero and ``unknown_scene_var``."""
+    """Mean (3,) or (M, 3) and per-axis variance (3,) of new tracks' velocities. ``mode``
+    "zero": zero and ``velocity_var`` on every axis (the paper); "scene": :func:`initial_velocity`
+    and ``velocity_var`` while some track is established; before that, ``static_velocity``
+    (M, 3) (the apparent velocity of a static point at each new track's position, from the
+    camera's motion) and ``velocity_var`` when given, else zero and ``unknown_scene_var``."""
     v0 = initial_velocity(mode, velocity, updates)
     if mode == "scene" and not scene_known(velocity, updates):
+        if static_velocity is not None:
+            return np.asarray(static_velocity, float), np.full(3, float(velocity_var))
         return v0, np.asarray(unknown_scene_var, dtype=float)
     return v0, np.full(3, float(velocity_var))
+
+
+def restarted_velocity_prior(
+    mode: str,
+    velocity: np.ndarray,
+    updates: np.ndarray,
+    velocity_var: float,
+    static_velocity: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The prior (mean (M, 3), per-axis variance (3,)) that tracks seen once take again when
+    the static scene's apparent velocity at their positions, ``static_velocity`` (M, 3), becomes
+    known; None when nothing changes: mode "zero" (the paper), or the scene motion is already
+    known from established tracks (then their median keeps priority, :func:`velocity_prior`)."""
+    if not len(static_velocity) or mode != "scene" or scene_known(velocity, updates):
+        return None
+    v0, v_var = velocity_prior(
+        mode, velocity, updates, velocity_var, static_velocity=static_velocity
+    )
+    return np.broadcast_to(v0, (len(static_velocity), 3)), v_var
+
+
+def reset_velocity_covariance(cov: np.ndarray, rows: np.ndarray, v_var: np.ndarray) -> None:
+    """In the (N, 6, 6) position-velocity covariances ``cov``, give tracks ``rows`` the
+    velocity variances ``v_var`` (3,) and no position-velocity correlation (in place)."""
+    cov[rows, 3:, :] = 0.0
+    cov[rows, :, 3:] = 0.0
+    cov[rows, 3:, 3:] = np.diag(v_var)

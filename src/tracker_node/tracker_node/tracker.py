@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from vehicle_common.box3d import projected_bbox
 from vehicle_common.camera_frames import kitti_from_centre
+from vehicle_common.camera_motion import CameraMotion
 
 from .association import (
     euclidean_cost,
@@ -152,6 +153,7 @@ class Tracker:
         self.next_id = 1
         self.last_stamp: float | None = None
         self._R0 = np.eye(3) * self.cfg.measurement_noise**2
+        self._camera_motion: CameraMotion | None = None  # this frame's (step argument)
 
     def __len__(self) -> int:
         return len(self.tracks)
@@ -164,11 +166,23 @@ class Tracker:
 
     # ------------------------------------------------------------------ step
 
-    def step(self, dets: DetectionBatch, stamp: float | None = None) -> TrackSet:
-        """Process one frame. ``stamp`` in seconds; None or non-increasing -> ``default_dt``."""
+    def step(
+        self,
+        dets: DetectionBatch,
+        stamp: float | None = None,
+        camera_motion: CameraMotion | None = None,
+    ) -> TrackSet:
+        """Process one frame. ``stamp`` in seconds; None or non-increasing -> ``default_dt``.
+        ``camera_motion``: the camera's motion since the previous frame when known (visual
+        odometry); it gives new tracks the velocity of the static scene while no track is
+        established (:func:`.scene_motion.velocity_prior`)."""
+        self._camera_motion = camera_motion
         R, shared_R = self._det_covariances(dets)
         det_yaw = self._det_yaw(dets)
-        self._predict(self._dt(stamp))
+        dt = self._dt(stamp)
+        if camera_motion is not None:
+            self._restart_young_velocities(camera_motion)
+        self._predict(dt)
         cost = self._cost(dets, R, det_yaw, shared_R)
         rows, cols = self._assign(cost, dets.score >= self.cfg.birth_score)
         self._update(dets, rows, cols, R, det_yaw)
@@ -183,6 +197,17 @@ class Tracker:
                 dt = float(stamp - self.last_stamp)
             self.last_stamp = float(stamp)
         return dt
+
+    def _restart_young_velocities(self, motion: CameraMotion) -> None:
+        """Tracks seen once (velocity still the birth prior) take the prior given the static
+        scene's apparent velocity at where they are now (their last position moved by the
+        camera's motion)."""
+        rows = np.nonzero(self.tracks.hits == 1)[0]
+        if not len(rows):
+            return
+        earlier = self.filter.position[rows]
+        now = earlier @ motion.rotation.T + motion.translation
+        self.filter.restart_velocity(rows, motion.static_point_velocity(now))
 
     def _predict(self, dt: float) -> None:
         self.filter.predict(dt)
@@ -233,7 +258,11 @@ class Tracker:
         k = len(idx)
         if not k:
             return
-        self.filter.add(dets.position[idx], R[idx])
+        static_v = None
+        motion = self._camera_motion
+        if motion is not None and motion.dt > 0:
+            static_v = motion.static_point_velocity(dets.position[idx])
+        self.filter.add(dets.position[idx], R[idx], static_v)
         size = dets.size[idx]
         yaw = det_yaw[idx]
         self.tracks.append(
