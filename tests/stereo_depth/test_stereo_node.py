@@ -175,6 +175,40 @@ def test_malformed_image_is_skipped_and_node_keeps_working(harness):
     assert harness.det3d[1].header.stamp.sec == 2 and len(harness.det3d[1].detections) == 1
 
 
+def test_camera_motion_is_published_from_the_second_frame_and_restarts_after_a_lost_one(harness):
+    from vehicle_common.frame_messages import read_transform
+
+    for sec in (1, 2):  # the same images twice: a camera standing still
+        harness.send_frame(sec)
+        harness.send_detections(sec, [(150, 30, 250, 90)])
+        assert harness.spin_until(lambda s=sec: len(harness.det3d) == s)
+    first, second = harness.det3d
+    assert first.camera_motion_dt == 0.0  # no earlier frame
+    assert second.camera_motion_dt == pytest.approx(1.0)
+    R, t = read_transform(second.camera_motion)
+    assert np.allclose(R, np.eye(3), atol=1e-3) and np.linalg.norm(t) < 0.01
+    harness.send_frame(3, bad_step=True)  # lost: the chain restarts
+    harness.send_detections(3, [])
+    for sec in (3, 4):
+        if sec == 4:
+            harness.send_frame(4)
+            harness.send_detections(4, [])
+        assert harness.spin_until(lambda s=sec: len(harness.det3d) == s)
+    assert [a.camera_motion_dt for a in harness.det3d[2:]] == [0.0, 0.0]
+
+
+def test_visual_odometry_off_publishes_no_camera_motion(rclpy_context):
+    h = Harness(rclpy_context, visual_odometry=False, sync_cache_size=3)
+    try:
+        for sec in (1, 2):
+            h.send_frame(sec)
+            h.send_detections(sec, [])
+            assert h.spin_until(lambda s=sec: len(h.det3d) == s)
+        assert [a.camera_motion_dt for a in h.det3d] == [0.0, 0.0]
+    finally:
+        h.close()
+
+
 def test_detections_whose_frame_never_arrives_get_an_empty_array_and_are_counted(harness):
     harness.send_detections(50, [(150, 30, 250, 90)])  # stereo frame 50 never comes
     assert harness.spin_until(lambda: len(harness.node.frame_sync) == 1)
