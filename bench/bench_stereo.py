@@ -1,6 +1,6 @@
 """Stereo depth benchmarks: disparity accuracy, ranging accuracy, time per frame.
 
-Usage: python bench/bench_stereo.py [disparity|ranging|centre|timing|all] [--repeats N]
+Usage: python bench/bench_stereo.py [disparity|ranging|centre|odometry|timing|all] [--repeats N]
        [--synth ROOT:SEQ ...]
 Reads ../shared/kitti (KITTI Stereo 2015 training pairs 0..4 and tracking sequence 0005); prints
 tables. Uses the same core functions as the stereo_depth node (compute_disparity, range_boxes).
@@ -29,12 +29,14 @@ from stereo_depth_node.disparity import (
 )
 from stereo_depth_node.ranging import (
     RangingParams,
+    disparity_bias_at,
     position_covariance,
     range_boxes,
     robust_disparity,
 )
 from stereo_depth_node.region_matching import box_disparity, refine_shift, to_gray
 from stereo_depth_node.reprojection import StereoGeometry
+from stereo_depth_node.visual_odometry import FrameToFrameOdometry
 from vehicle_common.kitti import TrackingSequence, list_object_frames, read_png
 from vehicle_common.orientation_bins import alpha_to_bin
 
@@ -980,6 +982,69 @@ def bench_timing(variants: dict[str, DisparityParams], repeats: int) -> None:
     )
 
 
+def bench_odometry() -> None:
+    """Visual odometry on the 16 stereo frames of tracking 0005 against its labelled cars: a
+    static car's centre must move as R p + t predicts (its residual is then the odometry's
+    error at that car); timing per frame against the default disparity map of the same frame."""
+    seq = TrackingSequence.open(TRACKING, "0005")
+    geo = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
+    frames = []
+    for f in seq.frame_ids:
+        left, right = seq.read_stereo(f)
+        cars = {
+            o.track_id: seq.calib.cam0_to_left(np.asarray(o.location, float))
+            - [0.0, o.dimensions[0] / 2, 0.0]
+            for o in seq.objects(f)
+            if o.type == "Car"
+        }
+        boxes = [o.bbox for o in seq.objects(f) if o.type != "DontCare"]
+        t0 = time.perf_counter()
+        d = compute_disparity(left, right, DEFAULT)
+        frames.append((f, to_gray(left), d, boxes, cars, time.perf_counter() - t0))
+    bias = disparity_bias_at(np.arange(frames[0][2].shape[1]), geo, RangingParams())
+    print("\n## Visual odometry, KITTI tracking 0005 (16 frames, ego car at about 17.5 m/s)")
+    print("residual = |R p_k + t - p_k+1| of each labelled Car centre (a parked car: the error")
+    print("of the odometry there; a moving one: its own motion); step = |t| per frame [m]")
+    print("| disparity bias | pairs with motion | median step m | labelled median step m |")
+    print("|---|---|---|---|")
+    detail = []
+    for label, b in (("KITTI model (default)", bias), ("none", 0.0)):
+        odo = FrameToFrameOdometry()
+        steps, label_steps, vo_t = [], [], []
+        prev: dict = {}
+        for f, gray, d, boxes, cars, _ in frames:
+            t0 = time.perf_counter()
+            m = odo.step(int(f * 1e8), gray, d, geo, boxes, b)
+            vo_t.append(time.perf_counter() - t0)
+            if m is not None:
+                steps.append(float(np.linalg.norm(m.translation)))
+                for tid in cars.keys() & prev.keys():
+                    label_steps.append(float(np.linalg.norm(cars[tid] - prev[tid])))
+                    if b is bias:
+                        res = m.rotation @ prev[tid] + m.translation - cars[tid]
+                        detail.append((tid, float(cars[tid][2]), float(np.linalg.norm(res))))
+            prev = cars
+        print(
+            f"| {label} | {len(steps)} / {len(frames) - 1} | {np.median(steps):.2f} | "
+            f"{np.median(label_steps):.2f} |"
+        )
+        if b is bias:
+            odo_ms = 1000 * np.median(vo_t[1:])
+    by_car: dict[int, list] = {}
+    for tid, z, res in detail:
+        by_car.setdefault(tid, []).append((z, res))
+    print("| labelled car | range m | median residual m | max residual m |")
+    print("|---|---|---|---|")
+    for tid, rows in sorted(by_car.items()):
+        z, res = np.array(rows).T
+        print(f"| {tid} | {z.min():.0f}-{z.max():.0f} | {np.median(res):.2f} | {res.max():.2f} |")
+    disp_ms = 1000 * np.median([fr[5] for fr in frames])
+    print(
+        f"time per frame: odometry {odo_ms:.1f} ms (median), default disparity map of the same "
+        f"frame {disp_ms:.1f} ms, ratio {odo_ms / disp_ms:.2f}"
+    )
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument(
@@ -995,6 +1060,7 @@ def main() -> int:
             "centre_real",
             "timing",
             "covariance",
+            "odometry",
             "all",
         ],
     )
@@ -1023,6 +1089,8 @@ def main() -> int:
         bench_centre(DEFAULT, args.synth)
     if args.section in ("covariance", "all"):
         bench_covariance()
+    if args.section in ("odometry", "all"):
+        bench_odometry()
     if args.section in ("timing", "all"):
         bench_timing(variants, args.repeats)
     return 0
