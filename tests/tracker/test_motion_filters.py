@@ -91,7 +91,10 @@ def test_velocity_prior_is_wide_along_z_while_the_scene_motion_is_unknown():
     assert var[2] > 50.0 > var[0] > var[1]
     v0, var = velocity_prior("scene", v, np.array([3, 5]), 50.0)  # the scene motion is known
     np.testing.assert_allclose(v0, [0.5, 0.0, -11.0])
-    np.testing.assert_allclose(var, [50.0] * 3)
+    # around a known scene motion: z as configured, x / y no wider than the measured spread
+    np.testing.assert_allclose(var, [9.6, 0.17, 50.0])
+    _, var = velocity_prior("scene", v, np.array([3, 5]), 4.0)
+    np.testing.assert_allclose(var, [4.0, 0.17, 4.0])
     _, var = velocity_prior("zero", v, np.array([0, 0]), 50.0)  # the paper's prior
     np.testing.assert_allclose(var, [50.0] * 3)
 
