@@ -1012,9 +1012,11 @@ def bench_odometry() -> None:
         odo = FrameToFrameOdometry()
         steps, label_steps, vo_t = [], [], []
         prev: dict = {}
+        prev_boxes: list = []
         for f, gray, d, boxes, cars, _ in frames:
             t0 = time.perf_counter()
-            m = odo.step(int(f * 1e8), gray, d, geo, boxes, b)
+            m = odo.step(int(f * 1e8), gray, d, geo, prev_boxes, b)
+            prev_boxes = boxes
             vo_t.append(time.perf_counter() - t0)
             if m is not None:
                 steps.append(float(np.linalg.norm(m.translation)))

@@ -70,8 +70,8 @@ def test_frame_to_frame_odometry_chains_frames_and_restarts_after_a_lost_one(syn
     speed, g, gray0, d0, gray1, boxes = synthetic_pair
     d1 = d0  # the later frame's map only serves as the next reference
     odo = FrameToFrameOdometry()
-    assert odo.step(0, gray0, d0, g, boxes) is None  # no earlier frame
-    m = odo.step(100_000_000, gray1, d1, g)
+    assert odo.step(0, gray0, d0, g) is None  # no earlier frame
+    m = odo.step(100_000_000, gray1, d1, g, boxes)  # the earlier frame's vehicle boxes
     assert m is not None and m.dt == pytest.approx(0.1)
     assert m.translation[2] == pytest.approx(-speed * FRAME_DT, rel=0.05)
     assert odo.step(100_000_000, gray1, d1, g) is None  # stamp not after the reference's

@@ -20,6 +20,7 @@ from rclpy.qos import QoSProfile
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
+from vehicle_common.camera_motion import CameraMotion
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
@@ -118,7 +119,7 @@ class _Frame:
     disparity: np.ndarray | None
     geometry: StereoGeometry | None
     images: tuple[np.ndarray, np.ndarray] | None = None  # gray (left, right), for refinement
-    left_gray: np.ndarray | None = None  # for visual odometry
+    camera_motion: CameraMotion | None = None  # since the previous processed pair (odometry)
     skipped: bool = False  # superseded by a newer pair (latest-frame policy): no 3D array
 
 
@@ -146,6 +147,7 @@ class StereoDepthNode(Node):
         cv2.setNumThreads(p.num_threads)  # process-wide
         self.match_rows = (p.match_rows[0], p.match_rows[1])
         self.odometry = FrameToFrameOdometry() if p.visual_odometry else None
+        self._vehicle_boxes: list = []  # of the latest ranged frame, kept out of the odometry
         cache = p.sync_cache_size
         self.pair_sync = ExactStampSync(("left", "right"), cache, in_order=True)
         self.frame_sync = ExactStampSync(("frame", "detections"), cache, in_order=True)
@@ -301,8 +303,6 @@ class StereoDepthNode(Node):
             frame.disparity = compute_disparity(left, right, params)
             if self.ranging_params.refine != "none":
                 frame.images = (to_gray(left), to_gray(right))
-            if self.odometry is not None:
-                frame.left_gray = frame.images[0] if frame.images else to_gray(left)
         except (ImageConversionError, ValueError) as exc:
             self.frames_failed += 1
             # a bad calibration was reported when it arrived; a missing one is reported here
@@ -311,6 +311,7 @@ class StereoDepthNode(Node):
                 log = self.get_logger().warning
             log(f"{TOPIC_LEFT}/{TOPIC_RIGHT}: {exc}; frame skipped")
             frame.disparity = None
+        self._camera_motion(frame, left if frame.disparity is not None else None)
         if frame.disparity is not None:
             self.frames_processed += 1
             if self.publish_disparity:
@@ -352,7 +353,12 @@ class StereoDepthNode(Node):
             )
         else:
             results = [None] * len(dets)
-        self._camera_motion(frame, dets, out)
+        self._vehicle_boxes = [bbox_to_xyxy(d.bbox) for d in dets]
+        if frame.camera_motion is not None:
+            out.camera_motion_dt = frame.camera_motion.dt
+            write_transform(
+                frame.camera_motion.rotation, frame.camera_motion.translation, out.camera_motion
+            )
         for d, r in zip(dets, results, strict=True):
             if r is None:
                 self.unranged_detections += 1
@@ -365,32 +371,30 @@ class StereoDepthNode(Node):
         self.pub_det3d.publish(out)
         self.frames.published()
 
-    def _camera_motion(self, frame: _Frame, dets, out) -> None:
-        """Fill ``out.camera_motion`` with the motion since the previous ranged frame (visual
-        odometry); dt 0 when unknown."""
+    def _camera_motion(self, frame: _Frame, left: np.ndarray | None) -> None:
+        """Visual odometry when a pair is processed (beside the detector, not after it): the
+        camera's motion since the previous processed pair, into ``frame.camera_motion``; a
+        lost pair (``left`` None) breaks the chain."""
         if self.odometry is None:
             return
-        if frame.disparity is None or frame.left_gray is None:
-            self.odometry.reset()  # a lost frame breaks the chain
+        if left is None:
+            self.odometry.reset()
             return
+        gray = frame.images[0] if frame.images else to_gray(left)
         bias = disparity_bias_at(
             np.arange(frame.disparity.shape[1]), frame.geometry, self.ranging_params
         )
         try:
-            motion = self.odometry.step(
+            frame.camera_motion = self.odometry.step(
                 stamp_ns(frame.header),
-                frame.left_gray,
+                gray,
                 frame.disparity,
                 frame.geometry,
-                [bbox_to_xyxy(d.bbox) for d in dets],
+                self._vehicle_boxes,
                 bias,
             )
         except (ValueError, cv2.error) as exc:
             self.get_logger().warning(f"visual odometry failed: {exc}")
-            return
-        if motion is not None:
-            out.camera_motion_dt = motion.dt
-            write_transform(motion.rotation, motion.translation, out.camera_motion)
 
 
 def main(args=None) -> int:

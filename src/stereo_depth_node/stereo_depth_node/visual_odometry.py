@@ -161,7 +161,7 @@ class FrameToFrameOdometry:
 
     def __init__(self, params: OdometryParams | None = None):
         self.params = params or OdometryParams()
-        self._ref: tuple[int, np.ndarray, np.ndarray, list] | None = None
+        self._ref: tuple[int, np.ndarray, np.ndarray] | None = None
 
     def reset(self) -> None:
         self._ref = None
@@ -172,16 +172,18 @@ class FrameToFrameOdometry:
         gray: np.ndarray,
         disparity: np.ndarray,
         geometry: StereoGeometry,
-        boxes=(),
+        reference_boxes=(),
         disparity_bias=0.0,
     ) -> CameraMotion | None:
         """The motion from the previous frame to this one (``stamp_ns``, gray left image, its
-        disparity map, vehicle boxes (x1, y1, x2, y2) kept free of corners). ``disparity_bias``
-        as in :func:`estimate_camera_motion` (the same at every frame: the camera's)."""
-        ref, self._ref = self._ref, (int(stamp_ns), gray, disparity, list(boxes))
+        disparity map). ``reference_boxes``: vehicle boxes (x1, y1, x2, y2) in the previous
+        frame, kept free of corners (the latest known ones do: vehicles move little from one
+        frame to the next). ``disparity_bias`` as in :func:`estimate_camera_motion` (the same
+        at every frame: the camera's)."""
+        ref, self._ref = self._ref, (int(stamp_ns), gray, disparity)
         if ref is None or ref[0] >= stamp_ns or ref[1].shape != gray.shape:
             return None
         motion = estimate_camera_motion(
-            ref[1], ref[2], gray, geometry, ref[3], self.params, disparity_bias
+            ref[1], ref[2], gray, geometry, reference_boxes, self.params, disparity_bias
         )
         return None if motion is None else replace(motion, dt=(stamp_ns - ref[0]) * 1e-9)
