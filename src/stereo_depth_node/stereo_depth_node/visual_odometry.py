@@ -118,14 +118,7 @@ def estimate_camera_motion(
     if int(good.sum()) < p.min_inliers:
         return None
     uv0, uv1, d = uv0[good], uv1[good], d[good]
-    z = geometry.fx * geometry.baseline / d
-    pts = np.column_stack(
-        [
-            (uv0[:, 0] - geometry.cx) * z / geometry.fx,
-            (uv0[:, 1] - geometry.cy) * z / geometry.fy,
-            z,
-        ]
-    )
+    pts = geometry.backproject(uv0[:, 0], uv0[:, 1], geometry.depth(d))
     K = np.array(
         [[geometry.fx, 0.0, geometry.cx], [0.0, geometry.fy, geometry.cy], [0.0, 0.0, 1.0]]
     )

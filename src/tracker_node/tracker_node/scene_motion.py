@@ -118,10 +118,7 @@ def restarted_velocity_prior(
     known from established tracks (then their median keeps priority, :func:`velocity_prior`)."""
     if not len(static_velocity) or mode != "scene" or scene_known(velocity, updates):
         return None
-    v0, v_var = velocity_prior(
-        mode, velocity, updates, velocity_var, static_velocity=static_velocity
-    )
-    return np.broadcast_to(v0, (len(static_velocity), 3)), v_var
+    return np.asarray(static_velocity, float), known_scene_var(velocity_var)
 
 
 def reset_velocity_covariance(cov: np.ndarray, rows: np.ndarray, v_var: np.ndarray) -> None:

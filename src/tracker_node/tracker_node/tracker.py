@@ -176,6 +176,8 @@ class Tracker:
         ``camera_motion``: the camera's motion since the previous frame when known (visual
         odometry); it gives new tracks the velocity of the static scene while no track is
         established (:func:`.scene_motion.velocity_prior`)."""
+        if camera_motion is not None and not camera_motion.dt > 0:
+            camera_motion = None  # no time span: no velocity to derive
         self._camera_motion = camera_motion
         R, shared_R = self._det_covariances(dets)
         det_yaw = self._det_yaw(dets)
@@ -258,10 +260,8 @@ class Tracker:
         k = len(idx)
         if not k:
             return
-        static_v = None
         motion = self._camera_motion
-        if motion is not None and motion.dt > 0:
-            static_v = motion.static_point_velocity(dets.position[idx])
+        static_v = None if motion is None else motion.static_point_velocity(dets.position[idx])
         self.filter.add(dets.position[idx], R[idx], static_v)
         size = dets.size[idx]
         yaw = det_yaw[idx]
