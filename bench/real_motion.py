@@ -440,7 +440,7 @@ def _ap_table(gt, preds: dict[str, dict]) -> dict[str, dict]:
             (lvl, d): 100
             * precision_recall(
                 gt, pred, criterion="centre_distance", threshold=d, difficulty=lvl
-            ).ap_r41
+            ).ap_r40
             for lvl in LEVELS
             for d in DISTANCES
         }
@@ -475,7 +475,7 @@ def evaluate_split(datas: list[SequenceData], cfg: TrackerConfig, filters, motio
 
 
 def print_ap(title: str, ap: dict) -> None:
-    print(f"\n{title}: 3D localisation AP (41-point, %) by centre distance")
+    print(f"\n{title}: 3D localisation AP|R40 (%, KITTI devkit interpolation) by centre distance")
     head = " | ".join(f"{lvl[:3]} @{d:g}m" for d in DISTANCES for lvl in LEVELS)
     print(f"| {'':8s} | {head} |")
     for name, row in ap.items():

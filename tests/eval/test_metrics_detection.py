@@ -193,9 +193,17 @@ def test_difficulty_filtering():
     r = precision_recall(gt2, pred2, difficulty="easy", criterion="iou2d", threshold=0.7)
     assert r.num_gt == N and r.ap_r41 == 1.0
     assert precision_recall(gt2, pred2, difficulty="hard").num_gt == 3 * N
-    # gt exactly at the minimum height (40 px) is easy; 39 px is not
-    assert precision_recall({0: [car(h=40.0)]}, {}, difficulty="easy").num_gt == 1
-    assert precision_recall({0: [car(h=39.0)]}, {}, difficulty="easy").num_gt == 0
+    # the server code (evaluate_object.cpp) ignores gt exactly at the minimum height (<=):
+    # 40 px is not easy, 40.5 px is; 25 px is not moderate
+    assert precision_recall({0: [car(h=40.0)]}, {}, difficulty="easy").num_gt == 0
+    assert precision_recall({0: [car(h=40.5)]}, {}, difficulty="easy").num_gt == 1
+    assert precision_recall({0: [car(h=25.0)]}, {}, difficulty="moderate").num_gt == 0
+    # a prediction exactly at the minimum height still counts (< for predictions): a 40 px
+    # false positive lowers the easy precision
+    gt3 = {0: [car(h=50.0)]}
+    pred3 = {0: [car(h=50.0, score=0.5), car(x1=400.0, h=40.0, score=0.9)]}
+    r3 = precision_recall(gt3, pred3, difficulty="easy", criterion="iou2d", threshold=0.7)
+    assert r3.tp_fp_fn.tolist() == [[1, 1, 0]]
 
 
 def test_van_ignored_other_class_not():

@@ -5,12 +5,13 @@ the recorded ``/kitti/ground_truth`` or from KITTI label files, and computes, in
 also the JSON output:
 
 - ``detections_3d`` / ``tracks_3d``: 3D localisation AP (centre distance 1.5/3/5/10 m) per
-  difficulty of the unfiltered 3D detections and of the tracks (AP by 41-point
-  interpolation, with the 40-point AP|R40 beside it, fractions);
-- ``detections_2d``: 2D AP at IoU 0.5 and 0.7 (41-point, and AP|R40) and Pascal VOC
+  difficulty of the unfiltered 3D detections and of the tracks (KITTI's AP|R40 with the
+  devkit's interpolation, with AP|R11 and the 41-point mean beside it, fractions);
+- ``detections_2d``: 2D AP|R40 at IoU 0.5 and 0.7 (AP|R11 and 41-point beside it) and Pascal VOC
   11-point AP at 0.5;
 - ``orientation``: orientation-bin accuracy and 4x4 confusion of the 2D detections;
-- ``tracking``: CLEAR-MOT and HOTA of the tracks (2D IoU 0.5; ``iou3d``: 3D IoU 0.25);
+- ``tracking``: CLEAR-MOT and HOTA of the tracks (2D IoU: CLEAR-MOT at 0.5, HOTA on 2D IoU;
+  ``iou3d``: CLEAR-MOT at 3D IoU 0.25 and HOTA on 3D IoU);
 - ``velocity``: velocity error (``rmse``, ``mae`` [m/s], per speed bucket) and stability;
 - ``filter_comparison``: the tracker core re-run on the recorded 3D detections with each
   filter (Table 1, 3D AP at 1.5 m per difficulty);
@@ -36,17 +37,11 @@ from eval_node.bag_reader import (
     RecordedRun,
     read_run,
 )
-from eval_node.detection_metrics import orientation_accuracy, precision_recall, voc07_ap
+from eval_node.detection_metrics import LEVELS, ap_table, orientation_accuracy, voc07_ap
 from eval_node.tracking_metrics import evaluate_tracking
 
 DISTANCES = (1.5, 3.0, 5.0, 10.0)
 IOUS = (0.5, 0.7)
-LEVELS = ("easy", "moderate", "hard")
-
-
-def key(threshold: float) -> str:
-    """JSON key of a threshold: 1.5 -> "1.5", 3.0 -> "3"."""
-    return f"{float(threshold):g}"
 
 
 def load_labels(labels_dir: str | Path, sequence: str) -> dict[int, list[KittiObject]]:
@@ -58,30 +53,13 @@ def load_labels(labels_dir: str | Path, sequence: str) -> dict[int, list[KittiOb
     raise BagReadError(f"{d / (sequence + '.txt')}: label file of sequence {sequence} not found")
 
 
-def _ap_table(gt, pred, criterion: str, thresholds, curves: dict | None = None) -> dict:
-    table: dict[str, dict[str, float]] = {}
-    for t in thresholds:
-        row = {}
-        for level in LEVELS:
-            pr = precision_recall(gt, pred, criterion=criterion, threshold=t, difficulty=level)
-            row[level] = pr.ap_r41
-            row[f"{level}_r40"] = pr.ap_r40
-            row[f"{level}_r11"] = pr.ap_r11
-            if curves is not None:
-                curves.setdefault(level, {})[key(t)] = {
-                    "precision": pr.precision.tolist(),
-                    "recall": pr.recall.tolist(),
-                }
-        table[key(t)] = row
-    return table
-
-
 def tracking_scores(gt, tracks) -> dict:
-    """CLEAR-MOT + HOTA of the tracks (KITTI devkit rules, 2D IoU 0.5) and CLEAR-MOT with 3D
-    IoU 0.25 under ``iou3d``."""
-    res = evaluate_tracking(gt, tracks, similarity="iou2d")
+    """CLEAR-MOT + HOTA of the tracks (KITTI devkit rules, 2D IoU 0.5, HOTA on 2D IoU) and the
+    same with 3D IoU (CLEAR-MOT at 0.25, HOTA on 3D IoU) under ``iou3d``."""
+    res = evaluate_tracking(gt, tracks, similarity="iou2d", hota_similarity="iou2d")
     res.pop("hota_per_alpha", None)
-    res3 = evaluate_tracking(gt, tracks, similarity="iou3d", hota=False)
+    res3 = evaluate_tracking(gt, tracks, similarity="iou3d", hota_similarity="iou3d")
+    res3.pop("hota_per_alpha", None)
     res["iou3d"] = {k: v for k, v in res3.items() if k != "all_rows"}
     return res
 
@@ -194,11 +172,9 @@ def evaluate_bag(
         "frames": len(run.frames),
         "topics": run.topics,
         "unmatched_stamps": run.unmatched_stamps,
-        "detections_3d": _ap_table(
-            gt, det3d, "centre_distance", DISTANCES, curves["detections_3d"]
-        ),
-        "tracks_3d": _ap_table(gt, ranked, "centre_distance", DISTANCES, curves["tracks_3d"]),
-        "detections_2d": _ap_table(gt, det2d, "iou2d", IOUS, curves["detections_2d"]),
+        "detections_3d": ap_table(gt, det3d, "centre_distance", DISTANCES, curves["detections_3d"]),
+        "tracks_3d": ap_table(gt, ranked, "centre_distance", DISTANCES, curves["tracks_3d"]),
+        "detections_2d": ap_table(gt, det2d, "iou2d", IOUS, curves["detections_2d"]),
     }
     res["detections_2d"]["voc11_0.5"] = {
         level: voc07_ap(gt, det2d, 0.5, difficulty=level) for level in LEVELS

@@ -1,6 +1,10 @@
-"""``evaluate``: offline evaluation of KITTI tracking results or of a recorded run (bag).
+"""``evaluate``: offline evaluation of KITTI tracking results, KITTI object-format detections or
+of a recorded run (bag).
 
-    evaluate tracking --results DIR --labels DIR [--seqs 0001 0006] [--calib DIR] --json FILE
+    evaluate tracking --results DIR --labels DIR [--seqs 0001 0006] [--calib DIR]
+                      [--similarity iou2d|iou3d] [--json FILE]
+    evaluate detection --results DIR --labels DIR|SSSS.txt [--class Car]
+                       [--interpolation kitti|recall] [--json FILE]
     evaluate bag BAG [--labels DIR] [--sequence 0000] [--calib DIR] [--images DIR]
                  [--json FILE] [--report DIR] [--no-filters] [--tracker-params FILE]
 
@@ -46,11 +50,19 @@ def _pct(v) -> str:
     return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{100 * v:.1f}"
 
 
-def tracking_table(res: dict) -> str:
-    """Compact per-sequence CLEAR-MOT/HOTA table of ``evaluate tracking``."""
+SIMILARITY_NAMES = {
+    "iou2d": "2D box IoU (CLEAR-MOT at 0.5, HOTA on 2D IoU)",
+    "iou3d": "3D box IoU (CLEAR-MOT at 0.25, HOTA on 3D IoU)",
+}
+
+
+def tracking_table(res: dict, similarity: str = "iou2d") -> str:
+    """Compact per-sequence CLEAR-MOT/HOTA table of ``evaluate tracking``, headed by the
+    similarity every figure uses."""
     cols = ["mota", "motp", "hota", "samota", "idsw", "frag", "fp", "fn"]
     rows = [(name, m) for name, m in res["per_sequence"].items()] + [("total", res["total"])]
-    lines = ["seq     " + " ".join(f"{c.upper():>7}" for c in cols)]
+    lines = [f"similarity: {SIMILARITY_NAMES[similarity]}"]
+    lines.append("seq     " + " ".join(f"{c.upper():>7}" for c in cols))
     for name, m in rows:
         cells = []
         for c in cols:
@@ -68,8 +80,29 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--labels", required=True, help="folder of SSSS.txt label files (label_02)")
     t.add_argument("--seqs", nargs="*", help="sequences (default: all with results)")
     t.add_argument("--calib", help="calib folder: fills missing 2D boxes by projection")
-    t.add_argument("--similarity", choices=["iou2d", "iou3d"], default="iou2d")
+    t.add_argument(
+        "--similarity",
+        choices=["iou2d", "iou3d"],
+        default="iou2d",
+        help="box similarity of every metric: CLEAR-MOT matching (2D IoU 0.5 / 3D IoU 0.25) "
+        "and HOTA",
+    )
     t.add_argument("--json", help="write the metrics here")
+    d = sub.add_parser("detection", help="score KITTI object-format detection files")
+    d.add_argument("--results", required=True, help="folder of NNNNNN.txt detection files")
+    d.add_argument(
+        "--labels",
+        required=True,
+        help="label_2 folder (object benchmark) or one tracking label file label_02/SSSS.txt",
+    )
+    d.add_argument("--class", dest="cls", default="Car", help="evaluated class (default Car)")
+    d.add_argument(
+        "--interpolation",
+        choices=["kitti", "recall"],
+        default="kitti",
+        help="precision interpolation: the devkit's (default) or at the actual recall",
+    )
+    d.add_argument("--json", help="write the metrics here")
     b = sub.add_parser("bag", help="evaluate a recorded run")
     b.add_argument("bag", help="bag directory (metadata.yaml + .mcap) or .mcap file")
     b.add_argument("--labels", help="label_02 folder (default: ground truth recorded in the bag)")
@@ -93,13 +126,36 @@ def _run_tracking(args) -> int:
     from eval_node.tracking_metrics import evaluate_tracking_dirs
 
     res = evaluate_tracking_dirs(
-        args.results, args.labels, seqs=args.seqs, calib_dir=args.calib, similarity=args.similarity
+        args.results,
+        args.labels,
+        seqs=args.seqs,
+        calib_dir=args.calib,
+        similarity=args.similarity,
+        hota_similarity=args.similarity,
     )
     for m in [res["total"], *res["per_sequence"].values()]:
         m.pop("hota_per_alpha", None)
+    res["similarity"] = args.similarity
     if args.json:
         write_json(args.json, res)
-    print(tracking_table(res))
+    print(tracking_table(res, args.similarity))
+    return 0
+
+
+def _run_detection(args) -> int:
+    from eval_node.detection_files import detection_table, evaluate_detections, read_detection_dirs
+
+    gt, pred, n_missing = read_detection_dirs(args.results, args.labels)
+    if n_missing:
+        print(
+            f"note: {n_missing} labelled frames have no result file in {args.results}: "
+            "counted as frames without detections",
+            file=sys.stderr,
+        )
+    res = evaluate_detections(gt, pred, cls=args.cls, interpolation=args.interpolation)
+    if args.json:
+        write_json(args.json, res)
+    print(detection_table(res))
     return 0
 
 
@@ -143,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``evaluate`` console script."""
     args = build_parser().parse_args(argv)
     try:
-        return _run_tracking(args) if args.command == "tracking" else _run_bag(args)
+        run = {"tracking": _run_tracking, "detection": _run_detection, "bag": _run_bag}
+        return run[args.command](args)
     except (KittiFormatError, OSError) as exc:
         msg = str(exc) if isinstance(exc, KittiFormatError) else f"{exc.filename}: {exc.strerror}"
         print("error: " + " ".join(msg.split()), file=sys.stderr)

@@ -11,9 +11,19 @@ kitti-object-eval-python ``eval.py``): per-frame greedy matching of each ground 
 remaining prediction, ignored ground truth (neighbouring class ``Van``, outside the difficulty) and
 ignored predictions (below the level's minimum height; unmatched predictions covering a DontCare box
 with intersection over their own area > ``dontcare_overlap``), score thresholds sampled from the
-true positives' scores, precision interpolated at 41 recall points r = 0, 1/40, ..., 1 (the best
-precision at recall >= r; unlike the devkit's sampling this does not cap AP near num_gt/41 when
-fewer than 40 ground-truth boxes are counted), then
+true positives' scores (at most 41, spaced about 1/40 apart in recall), then 41 precision samples
+by one of two interpolations:
+
+- ``"kitti"`` (default; the official devkit's ``eval_class``, what the leaderboard reports): the
+  k-th sampled score threshold's precision is booked at recall k/40, then each sample takes the
+  maximum over itself and all later ones (missing samples are 0). With fewer than 40 counted
+  ground-truth boxes every true positive is a threshold and the AP is capped near num_gt/40; with
+  40-250 boxes the booked recall k/40 trails the actual recall at high recall, so it is not the
+  same as
+- ``"recall"`` (a named option): each sample r = 0, 1/40, ..., 1 takes the best precision of any
+  sampled operating point whose actual recall is >= r (no cap with few boxes),
+
+and the AP summaries are
 
 - ``ap_r11``: mean precision at recall 0, 0.1, ..., 1 (every 4th of the 41 samples; KITTI's original
   metric, "AP|R11"),
@@ -49,6 +59,10 @@ N_SAMPLE_PTS = 41
 DEFAULT_DISTANCES = (1.5, 3.0, 5.0, 10.0)
 #: Default 2D IoU thresholds of the 2D detection AP.
 DEFAULT_IOUS = (0.5, 0.7)
+#: The object benchmark's difficulty levels, in order.
+LEVELS = ("easy", "moderate", "hard")
+#: Precision interpolations of :func:`precision_recall` (the first is the default).
+INTERPOLATIONS = ("kitti", "recall")
 
 # ----------------------------------------------------------------------------- geometry
 
@@ -276,6 +290,7 @@ def precision_recall(
     cls: str = "Car",
     n_sample_pts: int = N_SAMPLE_PTS,
     dontcare_overlap: float | None = None,
+    interpolation: str = "kitti",
 ) -> PrecisionRecall:
     """KITTI-devkit precision/recall curve of ``pred`` against ``gt``.
 
@@ -284,7 +299,11 @@ def precision_recall(
     ``dontcare_overlap``: intersection-over-prediction-area above which an unmatched prediction
     covering a DontCare box is ignored (default: ``threshold`` for ``iou2d`` as the devkit does,
     0.5 for ``centre_distance``).
+    ``interpolation``: ``"kitti"`` (the devkit's: threshold k booked at recall k/40) or
+    ``"recall"`` (each threshold at its actual recall); see the module docstring.
     """
+    if interpolation not in INTERPOLATIONS:
+        raise ValueError(f"unknown interpolation {interpolation!r} ({' or '.join(INTERPOLATIONS)})")
     level = DIFFICULTIES[difficulty] if isinstance(difficulty, str) else difficulty
     if dontcare_overlap is None:
         dontcare_overlap = threshold if criterion == "iou2d" else 0.5
@@ -316,14 +335,17 @@ def precision_recall(
     with np.errstate(divide="ignore", invalid="ignore"):
         op_recall = np.where(tp + fn > 0, tp / (tp + fn), 0.0)
         op_precision = np.where(tp + fp > 0, tp / (tp + fp), 0.0)
-    # Interpolated precision at the recall sample points r_k = k / (n - 1): the best precision
-    # of any operating point with recall >= r_k (0 where recall r_k is never reached). With many
-    # ground-truth boxes this equals the devkit's "k-th threshold" sampling; with few (< 40) it
-    # avoids the devkit's artefact of capping AP at about num_gt / 41.
     recall[:] = np.linspace(0.0, 1.0, n_sample_pts)
-    for k, r in enumerate(recall):
-        reached = op_precision[op_recall >= r - 1e-9]
-        precision[k] = reached.max() if reached.size else 0.0
+    if interpolation == "kitti":
+        # evaluate_object.cpp: precision[i] of the i-th threshold, then max over i..end; the
+        # samples after the last threshold stay 0.
+        n = len(op_precision)
+        precision[:n] = np.maximum.accumulate(op_precision[::-1])[::-1]
+    else:
+        # the best precision of any operating point with actual recall >= r_k (0 where never)
+        for k, r in enumerate(recall):
+            reached = op_precision[op_recall >= r - 1e-9]
+            precision[k] = reached.max() if reached.size else 0.0
     max_recall = float(op_recall.max()) if op_recall.size else 0.0
     return PrecisionRecall(precision, recall, thresholds, num_gt, pr, max_recall)
 
@@ -334,13 +356,20 @@ def localisation_ap(
     distances: Iterable[float] = DEFAULT_DISTANCES,
     difficulties: Iterable[str] = ("easy", "moderate", "hard"),
     cls: str = "Car",
+    interpolation: str = "kitti",
 ) -> dict[str, dict[float, dict]]:
     """3D localisation AP by centre-of-mass distance: ``{difficulty: {d: {"ap_r41", "ap_r11",
     "ap_r40", "num_gt"}}}`` (fractions, NaN without counted ground truth)."""
     return {
         diff: {
             float(d): precision_recall(
-                gt, pred, criterion="centre_distance", threshold=float(d), difficulty=diff, cls=cls
+                gt,
+                pred,
+                criterion="centre_distance",
+                threshold=float(d),
+                difficulty=diff,
+                cls=cls,
+                interpolation=interpolation,
             ).as_dict()
             for d in distances
         }
@@ -354,18 +383,71 @@ def detection_ap_2d(
     ious: Iterable[float] = DEFAULT_IOUS,
     difficulties: Iterable[str] = ("easy", "moderate", "hard"),
     cls: str = "Car",
+    interpolation: str = "kitti",
 ) -> dict[str, dict[float, dict]]:
     """2D detection AP (KITTI devkit, IoU > t): ``{difficulty: {iou: {"ap_r41", "ap_r11",
     "ap_r40", "num_gt"}}}``."""
     return {
         diff: {
             float(t): precision_recall(
-                gt, pred, criterion="iou2d", threshold=float(t), difficulty=diff, cls=cls
+                gt,
+                pred,
+                criterion="iou2d",
+                threshold=float(t),
+                difficulty=diff,
+                cls=cls,
+                interpolation=interpolation,
             ).as_dict()
             for t in ious
         }
         for diff in difficulties
     }
+
+
+def key(threshold: float) -> str:
+    """JSON key of a threshold: 1.5 -> "1.5", 3.0 -> "3"."""
+    return f"{float(threshold):g}"
+
+
+def ap_table(
+    gt: Frames,
+    pred: Frames,
+    criterion: str,
+    thresholds: Iterable[float],
+    curves: dict | None = None,
+    *,
+    cls: str = "Car",
+    interpolation: str = "kitti",
+) -> dict[str, dict[str, float]]:
+    """AP per threshold and difficulty in the layout of ``results.json``: ``{key(t): {"easy":
+    AP|R40, "easy_r40", "easy_r11", "easy_r41", "easy_num_gt", "moderate": ..., ...}}``
+    (fractions). ``curves``, when given, receives ``{level: {key(t): {"precision", "recall"}}}``.
+    """
+    table: dict[str, dict[str, float]] = {}
+    for t in thresholds:
+        row: dict[str, float] = {}
+        for level in LEVELS:
+            pr = precision_recall(
+                gt,
+                pred,
+                criterion=criterion,
+                threshold=t,
+                difficulty=level,
+                cls=cls,
+                interpolation=interpolation,
+            )
+            row[level] = pr.ap_r40
+            row[f"{level}_r40"] = pr.ap_r40
+            row[f"{level}_r11"] = pr.ap_r11
+            row[f"{level}_r41"] = pr.ap_r41
+            row[f"{level}_num_gt"] = pr.num_gt
+            if curves is not None:
+                curves.setdefault(level, {})[key(t)] = {
+                    "precision": pr.precision.tolist(),
+                    "recall": pr.recall.tolist(),
+                }
+        table[key(t)] = row
+    return table
 
 
 # ----------------------------------------------------------------------------- Pascal VOC 2007

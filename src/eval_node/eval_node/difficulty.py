@@ -10,9 +10,11 @@ moderate    25 px                  1               0.30
 hard        25 px                  2               0.50
 ==========  =====================  ==============  ===============
 
-A ground truth exactly at the minimum height is inside the level (the C++ devkit's
-``height < MIN_HEIGHT`` rule; kitti-object-eval-python uses ``<=``). Ground truth of the evaluated
-class outside the level, and ground truth of the neighbouring class
+A ground truth exactly at the minimum height is outside the level: the devkit's server code
+(``evaluate_object.cpp``, which produces the leaderboard) ignores ground truth with
+``height <= MIN_HEIGHT``, as kitti-object-eval-python does. Predictions are ignored below the
+minimum (``height < MIN_HEIGHT``), so a prediction exactly at it counts. Ground truth of the
+evaluated class outside the level, and ground truth of the neighbouring class
 (``Van`` for ``Car``, ``Person_sitting`` for ``Pedestrian``), is *ignored*: matching it is neither a
 true nor a false positive, missing it is not a false negative. Predictions lower than the level's
 minimum height are ignored too.
@@ -68,9 +70,9 @@ def class_status(obj_type: str, cls: str) -> int:
 
 
 def gt_within_difficulty(obj: KittiObject, level: Difficulty) -> bool:
-    """Whether a ground-truth box satisfies a level (height >= min, occlusion, truncation)."""
+    """Whether a ground-truth box satisfies a level (height > min, occlusion, truncation)."""
     return (
-        obj.height_px >= level.min_height
+        obj.height_px > level.min_height
         and int(obj.occluded) <= level.max_occlusion
         and float(obj.truncated) <= level.max_truncation
     )

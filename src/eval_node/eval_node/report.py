@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eval_node.bag_evaluation import DISTANCES, IOUS, LEVELS, key
+from eval_node.bag_evaluation import DISTANCES, IOUS
+from eval_node.detection_metrics import LEVELS, key
 
 RED, GREEN = (230, 40, 40), (40, 220, 60)
 
@@ -50,7 +51,7 @@ def table_rows(res: dict) -> tuple[list[str], list[list[str]]]:
     voc = res["detections_2d"].get("voc11_0.5")
     if voc:
         rows.append(["2D det VOC11 @ 0.5"] + [_pct(voc[lv]) for lv in LEVELS])
-    return ["metric (AP %)", *LEVELS], rows
+    return ["metric (AP|R40 %)", *LEVELS], rows
 
 
 def filter_rows(res: dict) -> tuple[list[str], list[list[str]]]:
@@ -59,7 +60,7 @@ def filter_rows(res: dict) -> tuple[list[str], list[list[str]]]:
         [name] + [_pct(r[lv]) for lv in LEVELS] + [_num(r.get("fps"), "{:.0f}")]
         for name, r in res.get("filter_comparison", {}).items()
     ]
-    return ["filter (3D AP @ 1.5 m)", *LEVELS, "tracker fps"], rows
+    return ["filter (3D AP|R40 @ 1.5 m)", *LEVELS, "tracker fps"], rows
 
 
 def _text_table(header, rows) -> str:
@@ -85,9 +86,11 @@ def _html_table(header, rows) -> str:
 def _summary_rows(res: dict) -> list[list[str]]:
     t, v, o, th = res["tracking"], res["velocity"], res["orientation"], res["throughput"]
     rows = [
-        ["MOTA", _pct(t.get("mota"))],
-        ["MOTP", _pct(t.get("motp"))],
-        ["HOTA", _pct(t.get("hota"))],
+        ["MOTA (2D IoU 0.5)", _pct(t.get("mota"))],
+        ["MOTP (2D IoU)", _pct(t.get("motp"))],
+        ["HOTA (2D IoU)", _pct(t.get("hota"))],
+        ["MOTA (3D IoU 0.25)", _pct(t.get("iou3d", {}).get("mota"))],
+        ["HOTA (3D IoU)", _pct(t.get("iou3d", {}).get("hota"))],
         ["ID switches", _num(t.get("idsw"), "{:.0f}")],
         ["fragmentations", _num(t.get("frag"), "{:.0f}")],
         ["orientation accuracy", _pct(o.get("accuracy"))],
@@ -305,7 +308,7 @@ def write_report(
             write_gif(frames, files["gif"])
 
     sections = [
-        ("Detection and localisation AP (41-point interpolation, %)", table_rows(results)),
+        ("Detection and localisation AP|R40 (KITTI devkit interpolation, %)", table_rows(results)),
         ("Tracking and motion", (["metric", "value"], _summary_rows(results))),
     ]
     if results.get("filter_comparison"):
