@@ -196,6 +196,15 @@ def offline_stage_times(root: Path, sequence: str, repeats: int = 5) -> dict[str
     import torch
     from detector_node.inference import CnnDetector
     from stereo_depth_node.disparity import DisparityParams, compute_disparity
+    from stereo_depth_node.ranging import (
+        RangingParams,
+        RangingSetup,
+        disparity_bias_at,
+        range_boxes,
+    )
+    from stereo_depth_node.region_matching import to_gray
+    from stereo_depth_node.reprojection import StereoGeometry
+    from stereo_depth_node.visual_odometry import estimate_camera_motion
     from vehicle_common.image_conversion import image_to_rgb, numpy_to_image
     from vehicle_common.kitti import TrackingSequence
 
@@ -218,6 +227,14 @@ def offline_stage_times(root: Path, sequence: str, repeats: int = 5) -> dict[str
     detector = CnnDetector.from_checkpoint("", "cpu")
     cv2.setNumThreads(cv_threads)
     params = DisparityParams()  # the node's defaults = the parameter file's
+    geometry = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
+    ranging = RangingSetup.from_params(RangingParams())
+    boxes = [o.bbox for o in seq.objects(frames[0]) if o.type in ("Car", "Van")]
+    disp0 = compute_disparity(*seq.read_stereo(frames[0]), params)
+    left1, right1 = seq.read_stereo(frames[1])
+    disp1 = compute_disparity(left1, right1, params)
+    gray0, gray1 = to_gray(left), to_gray(left1)
+    bias = disparity_bias_at(np.arange(left.shape[1]), geometry, ranging.params)
     return {
         "read pair (2 PNG)": median_ms(lambda: seq.read_stereo(frames[-1])),
         "image message, build + convert": median_ms(
@@ -228,6 +245,30 @@ def offline_stage_times(root: Path, sequence: str, repeats: int = 5) -> dict[str
         f"disparity ({cv_threads} threads)": median_ms(
             lambda: compute_disparity(left, right, params)
         ),
+        "odometry": median_ms(
+            lambda: estimate_camera_motion(gray0, disp0, gray1, geometry, boxes, None, bias)
+        ),
+        "ranging": median_ms(
+            lambda: range_boxes(disp1, boxes, geometry, ranging, None, (gray1, to_gray(right1)))
+        ),
+    }
+
+
+def stage_ratios(figures: dict, alone: dict[str, float]) -> dict[str, tuple[float, float]]:
+    """In-graph time (p50) against the same work alone, per stage: ``{stage: (in graph ms,
+    alone ms)}``. detect: image -> 2D detections vs the CNN alone; image -> 3D detections vs
+    the stereo node's critical path alone (the later of the CNN and the disparity map, then the
+    ranging; the odometry runs beside the disparity map); tracks: image -> tracks vs the same
+    path (the tracker's own step is well under a millisecond)."""
+    det = next(v for k, v in alone.items() if k.startswith("detect"))
+    disp = next(v for k, v in alone.items() if k.startswith("disparity"))
+    path = max(det, disp, alone["odometry"]) + alone["ranging"]
+    st = figures["stage_ms_p50"]
+    to_3d = st["detect"] + st["range"]
+    return {
+        "image -> 2D": (st["detect"], det),
+        "image -> 3D": (to_3d, path),
+        "image -> tracks": (figures["latency_ms"]["p50"], path),
     }
 
 
@@ -305,10 +346,11 @@ def main(argv=None) -> int:
     modes = ([] if args.no_realtime else [("realtime", False, 1)]) + [
         (f"lockstep {w}", True, w) for w in windows
     ]
-    offline = {}
-    if datasets and not args.no_offline:
-        print("[bench] offline stage times ...", file=sys.stderr, flush=True)
-        offline = offline_stage_times(datasets[0][1], datasets[0][2])
+    offline: dict[str, dict[str, float]] = {}  # per dataset label
+    if not args.no_offline:
+        for label, root, seq in datasets:
+            print(f"[bench] offline stage times, {label} ...", file=sys.stderr, flush=True)
+            offline[label] = offline_stage_times(root, seq)
     rows, stamp = [], time.strftime("%Y%m%d_%H%M%S")
     for label, root, seq in datasets:
         for mode, lockstep, window in modes:
@@ -320,12 +362,20 @@ def main(argv=None) -> int:
     print(f"machine: {os.cpu_count()} CPUs, load average {' '.join(load)} (1/5/15 min)")
     if args.param:
         print("parameters: " + " ".join(args.param))
-    if offline:
+    for label, times in offline.items():
         print(
-            f"each stage alone on one {datasets[0][0]} frame (median ms): "
-            + ", ".join(f"{k} {v:.1f}" for k, v in offline.items())
+            f"each stage alone on one {label} frame (median ms): "
+            + ", ".join(f"{k} {v:.1f}" for k, v in times.items())
         )
     print(_table(rows))
+    if offline:
+        print("in graph (p50) / alone, per stage (1.0 = no overhead beyond the work itself):")
+        for data, mode, f in rows:
+            ratios = stage_ratios(f, offline[data])
+            cells = ", ".join(
+                f"{k} {g:.0f} / {a:.0f} ms = {g / a:.2f}x" for k, (g, a) in ratios.items()
+            )
+            print(f"  {data:<16} {mode:<11} {cells}")
     if args.json:
         out = {"offline_ms": offline, "load": load, "parameters": args.param}
         out["runs"] = [{"data": d, "mode": m, **f} for d, m, f in rows]

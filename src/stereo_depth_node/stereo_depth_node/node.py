@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -147,6 +148,12 @@ class StereoDepthNode(Node):
         cv2.setNumThreads(p.num_threads)  # process-wide
         self.match_rows = (p.match_rows[0], p.match_rows[1])
         self.odometry = FrameToFrameOdometry() if p.visual_odometry else None
+        # the odometry of a pair needs only its left image and the previous pair's disparity:
+        # it runs in this thread while the pair's disparity map is computed (not after it, on
+        # the ranging path)
+        self._odometry_thread = (
+            ThreadPoolExecutor(1, thread_name_prefix="odometry") if p.visual_odometry else None
+        )
         self._vehicle_boxes: list = []  # of the latest ranged frame, kept out of the odometry
         cache = p.sync_cache_size
         self.pair_sync = ExactStampSync(("left", "right"), cache, in_order=True)
@@ -194,6 +201,8 @@ class StereoDepthNode(Node):
 
     def destroy_node(self):
         self.worker.stop()  # the frames in hand and waiting are finished first
+        if self._odometry_thread is not None:
+            self._odometry_thread.shutdown(wait=True)
         super().destroy_node()
 
     def _match_band(self, height: int):
@@ -288,6 +297,7 @@ class StereoDepthNode(Node):
     # ------------------------------------------------------------------ processing
     def _process_pair(self, left_msg, right_msg) -> None:
         frame = _Frame(left_msg.header, None, None)
+        odometry = gray = None
         try:
             if self.geometry is None:
                 raise _NoGeometry(self._geometry_error)
@@ -299,10 +309,12 @@ class StereoDepthNode(Node):
                     f"left {left.shape[1]}x{left.shape[0]} and right "
                     f"{right.shape[1]}x{right.shape[0]} sizes differ"
                 )
+            gray = to_gray(left)
+            odometry = self._start_odometry(frame, gray)
             params = self._disparity_params_for(left.shape[0])
             frame.disparity = compute_disparity(left, right, params)
             if self.ranging_params.refine != "none":
-                frame.images = (to_gray(left), to_gray(right))
+                frame.images = (gray, to_gray(right))
         except (ImageConversionError, ValueError) as exc:
             self.frames_failed += 1
             # a bad calibration was reported when it arrived; a missing one is reported here
@@ -311,7 +323,7 @@ class StereoDepthNode(Node):
                 log = self.get_logger().warning
             log(f"{TOPIC_LEFT}/{TOPIC_RIGHT}: {exc}; frame skipped")
             frame.disparity = None
-        self._camera_motion(frame, left if frame.disparity is not None else None)
+        self._finish_odometry(frame, odometry, gray)
         if frame.disparity is not None:
             self.frames_processed += 1
             if self.publish_disparity:
@@ -371,30 +383,37 @@ class StereoDepthNode(Node):
         self.pub_det3d.publish(out)
         self.frames.published()
 
-    def _camera_motion(self, frame: _Frame, left: np.ndarray | None) -> None:
-        """Visual odometry when a pair is processed (beside the detector, not after it): the
-        camera's motion since the previous processed pair, into ``frame.camera_motion``; a
-        lost pair (``left`` None) breaks the chain."""
+    def _start_odometry(self, frame: _Frame, gray: np.ndarray):
+        """Visual odometry of a pair, started beside its disparity map (and the detector): the
+        camera's motion since the previous processed pair. Returns the future, or None."""
+        if self.odometry is None:
+            return None
+        bias = disparity_bias_at(np.arange(gray.shape[1]), frame.geometry, self.ranging_params)
+        return self._odometry_thread.submit(
+            self.odometry.estimate,
+            stamp_ns(frame.header),
+            gray,
+            frame.geometry,
+            list(self._vehicle_boxes),
+            bias,
+        )
+
+    def _finish_odometry(self, frame: _Frame, odometry, gray: np.ndarray | None) -> None:
+        """``frame.camera_motion`` from the started odometry; the pair (its gray left image)
+        becomes the next reference. A lost pair (no disparity) breaks the chain."""
         if self.odometry is None:
             return
-        if left is None:
+        motion = None
+        if odometry is not None:
+            try:
+                motion = odometry.result()
+            except (ValueError, cv2.error) as exc:
+                self.get_logger().warning(f"visual odometry failed: {exc}")
+        if frame.disparity is None:
             self.odometry.reset()
             return
-        gray = frame.images[0] if frame.images else to_gray(left)
-        bias = disparity_bias_at(
-            np.arange(frame.disparity.shape[1]), frame.geometry, self.ranging_params
-        )
-        try:
-            frame.camera_motion = self.odometry.step(
-                stamp_ns(frame.header),
-                gray,
-                frame.disparity,
-                frame.geometry,
-                self._vehicle_boxes,
-                bias,
-            )
-        except (ValueError, cv2.error) as exc:
-            self.get_logger().warning(f"visual odometry failed: {exc}")
+        frame.camera_motion = motion
+        self.odometry.set_reference(stamp_ns(frame.header), gray, frame.disparity)
 
 
 def main(args=None) -> int:

@@ -150,7 +150,9 @@ class FrameToFrameOdometry:
 
     :meth:`step` keeps the frame as the next reference and returns the motion with its ``dt``,
     or None (first frame, a stamp not after the reference's, a size change, too few points);
-    :meth:`reset` drops the reference (a lost frame: the next one has no earlier frame)."""
+    :meth:`reset` drops the reference (a lost frame: the next one has no earlier frame).
+    ``step`` is :meth:`estimate` (needs only the new frame's gray image, so it can run while
+    that frame's disparity map is computed) followed by :meth:`set_reference`."""
 
     def __init__(self, params: OdometryParams | None = None):
         self.params = params or OdometryParams()
@@ -173,10 +175,27 @@ class FrameToFrameOdometry:
         frame, kept free of corners (the latest known ones do: vehicles move little from one
         frame to the next). ``disparity_bias`` as in :func:`estimate_camera_motion` (the same
         at every frame: the camera's)."""
-        ref, self._ref = self._ref, (int(stamp_ns), gray, disparity)
+        motion = self.estimate(stamp_ns, gray, geometry, reference_boxes, disparity_bias)
+        self.set_reference(stamp_ns, gray, disparity)
+        return motion
+
+    def estimate(
+        self,
+        stamp_ns: int,
+        gray: np.ndarray,
+        geometry: StereoGeometry,
+        reference_boxes=(),
+        disparity_bias=0.0,
+    ) -> CameraMotion | None:
+        """The motion from the reference frame to this one, without changing the reference."""
+        ref = self._ref
         if ref is None or ref[0] >= stamp_ns or ref[1].shape != gray.shape:
             return None
         motion = estimate_camera_motion(
             ref[1], ref[2], gray, geometry, reference_boxes, self.params, disparity_bias
         )
         return None if motion is None else replace(motion, dt=(stamp_ns - ref[0]) * 1e-9)
+
+    def set_reference(self, stamp_ns: int, gray: np.ndarray, disparity: np.ndarray) -> None:
+        """Keep this frame (gray left image and its disparity map) as the next reference."""
+        self._ref = (int(stamp_ns), gray, disparity)
