@@ -13,8 +13,9 @@ best-threshold MOTA / IDSW / FP / FN / FRAG / MOTP / sAMOTA, the same at the fix
 
 AB3DMOT is the package ``pure-ab-3d-mot`` 2.2.0 (PyPI; Xinshuo Weng's AB3DMOT refactored by Peter
 Koval, stated to give the original's results without the ego-motion ("centre of motion")
-compensation; BSD-style licence of the original). It pins numpy<=2.3.4; it runs unchanged on this
-project's numpy 2.4.6, so it is installed without its pins (not a project dependency):
+compensation; MIT licence, as association-quality-clavia). It pins numpy<=2.3.4; it runs
+unchanged on this project's numpy 2.4.6, so it is installed without its pins (not a project
+dependency):
 
     .venv/bin/pip install --no-deps pure-ab-3d-mot==2.2.0 association-quality-clavia==0.3.2
 
