@@ -2,6 +2,7 @@
 
     python bench/bench_tracker.py mot     [--seqs 1,6,8,10,12,13] [--quick] [--lookahead N]
     python bench/bench_tracker.py compare [NAME=PARAMS.yaml[@LOOKAHEAD] ...] [--only DEV|TUNE]
+                                          [--similarity iou3d,iou2d]
     python bench/bench_tracker.py tune    [--params START.yaml] [--seqs 0,2,...] [--rounds 1]
     python bench/bench_tracker.py speed
     python bench/bench_tracker.py sim
@@ -10,7 +11,8 @@
 ``mot``: tracker_offline's core over ../shared/kitti/detections/pointrcnn_Car_val, scored with
 eval_node.tracking_metrics (KITTI devkit rules; 3D IoU 0.25 and 2D IoU 0.5), per filter x
 association x cost, per sequence and total. ``compare``: the issue #14 table (best-threshold,
-fixed-threshold and no-threshold CLEAR-MOT, HOTA, sAMOTA; one evaluator) on DEV and TUNE.
+fixed-threshold and no-threshold CLEAR-MOT, HOTA, sAMOTA; one evaluator, every figure with the
+similarity named in the table's title) on DEV and TUNE; AB3DMOT's rows: bench/bench_ab3dmot.py.
 ``tune``: coordinate descent over TUNE_GRID on the tuning sequences only (DEV refused).
 ``speed``: Tracker.step time with 20 and 100 vehicles.
 ``sim``: noisy stereo detections of the labelled cars (sigma_z = z^2 sigma_d / (f B), dropped
@@ -67,39 +69,46 @@ def evaluate(
         }
 
 
-def compare_modes(cfg: TrackerConfig, seqs: list[str], lookahead: int = 0) -> dict:
-    """The issue #14 figures of one mode, ``evaluate tracking --similarity iou3d`` (Car, 3D IoU
-    0.25): best-threshold CLEAR-MOT and sAMOTA, HOTA and CLEAR-MOT with no threshold, and
-    CLEAR-MOT at FIXED_THRESHOLD (tracks whose mean score is below it removed)."""
+def score_results(res_dir: Path, seqs: list[str], similarity: str = "iou3d") -> dict:
+    """The issue #14 figures of one result folder, as ``evaluate tracking --similarity
+    SIMILARITY`` computes them (every metric, HOTA included, with that similarity; Car, 3D IoU
+    0.25 or 2D IoU 0.5): ``best`` = best-threshold CLEAR-MOT, sAMOTA and HOTA (HOTA on all
+    rows), ``none`` = CLEAR-MOT with no threshold, ``fixed`` = CLEAR-MOT at FIXED_THRESHOLD
+    (tracks whose mean score is below it removed)."""
     from eval_node.tracking_metrics import evaluate_tracking_dirs, track_mean_scores
     from vehicle_common.kitti import read_tracking_labels, write_tracking_labels
 
-    with tempfile.TemporaryDirectory() as tmp:
-        res_dir, fixed_dir = Path(tmp) / "all", Path(tmp) / "fixed"
-        t0 = time.perf_counter()
-        run(DETS, res_dir, seqs, cfg, find_calib_dir(DETS), lookahead)
-        elapsed = time.perf_counter() - t0
-        full = evaluate_tracking_dirs(res_dir, LABELS, seqs=seqs, similarity="iou3d")["total"]
-        fixed_dir.mkdir()
+    sim = {"similarity": similarity, "hota_similarity": similarity}
+    full = evaluate_tracking_dirs(res_dir, LABELS, seqs=seqs, **sim)["total"]
+    with tempfile.TemporaryDirectory() as fixed_dir:
         for s in seqs:
-            pred = track_mean_scores(read_tracking_labels(res_dir / f"{s}.txt"))
+            pred = track_mean_scores(read_tracking_labels(Path(res_dir) / f"{s}.txt"))
             kept = [o for objs in pred.values() for o in objs if o.score >= FIXED_THRESHOLD]
-            write_tracking_labels(fixed_dir / f"{s}.txt", kept)
-        fixed = evaluate_tracking_dirs(
-            fixed_dir, LABELS, seqs=seqs, similarity="iou3d", hota=False
-        )["total"]["all_rows"]
-    frames = sum(int(read_detection_file(DETS / f"{s}.txt").frame.max()) + 1 for s in seqs)
-    return {
-        "best": full,
-        "none": full["all_rows"],
-        "fixed": fixed,
-        "seconds": elapsed,
-        "frames": frames,
-    }
+            write_tracking_labels(Path(fixed_dir) / f"{s}.txt", kept)
+        fixed = evaluate_tracking_dirs(fixed_dir, LABELS, seqs=seqs, hota=False, **sim)
+    return {"best": full, "none": full["all_rows"], "fixed": fixed["total"]["all_rows"]}
+
+
+def sequence_frames(seqs: list[str]) -> int:
+    """Frames tracked in ``seqs`` (0 .. the last frame with a detection)."""
+    return sum(int(read_detection_file(DETS / f"{s}.txt").frame.max()) + 1 for s in seqs)
+
+
+def compare_modes(
+    cfg: TrackerConfig, seqs: list[str], lookahead: int = 0, similarities=("iou3d",)
+) -> dict:
+    """:func:`score_results` of one mode of ``tracker_offline`` per similarity (keys
+    ``similarities``), with the tracking time (``seconds``, file I/O included) and ``frames``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        run(DETS, Path(tmp), seqs, cfg, find_calib_dir(DETS), lookahead)
+        elapsed = time.perf_counter() - t0
+        out = {sim: score_results(Path(tmp), seqs, sim) for sim in similarities}
+    return {**out, "seconds": elapsed, "frames": sequence_frames(seqs)}
 
 
 def compare_row(name: str, r: dict) -> str:
-    """One Markdown table row of :func:`compare_modes`' figures."""
+    """One Markdown table row of :func:`score_results`' figures."""
     b, n, f = r["best"], r["none"], r["fixed"]
 
     def clear(m):
@@ -111,11 +120,16 @@ def compare_row(name: str, r: dict) -> str:
     )
 
 
-COMPARE_HEADER = (
-    "| mode | best-thr MOTA | IDSW | FP | FN | FRAG | MOTP | sAMOTA "
-    f"| MOTA @{FIXED_THRESHOLD:g} | IDSW | FP | FN | MOTA no thr | IDSW | FP | FN | HOTA |\n"
-    "|---|" + "---|" * 17
-)
+SIMILARITY_LABELS = {"iou3d": "3D IoU", "iou2d": "2D IoU"}
+
+
+def compare_header(similarity: str) -> str:
+    """Header of :func:`compare_row`'s table; every figure uses ``similarity``."""
+    return (
+        "| mode | best-thr MOTA | IDSW | FP | FN | FRAG | MOTP | sAMOTA "
+        f"| MOTA @{FIXED_THRESHOLD:g} | IDSW | FP | FN | MOTA no thr | IDSW | FP | FN "
+        f"| HOTA ({SIMILARITY_LABELS[similarity]}) |\n" + "|---|" + "---|" * 16
+    )
 
 
 def cmd_compare(args) -> None:
@@ -125,21 +139,28 @@ def cmd_compare(args) -> None:
         path, _, la = rest.partition("@")
         cfg = TrackerConfig.from_yaml(path) if path else TrackerConfig()
         modes.append((name, cfg, int(la or 0)))
+    sims = args.similarity.split(",")
     for set_name, seqs in (("DEV (report)", DEV), ("TUNE (tuning only)", TUNE)):
         if args.only and args.only not in set_name:
             continue
-        print(f"\n{set_name}: sequences {','.join(seqs)}")
-        print(COMPARE_HEADER)
+        rows = {sim: [] for sim in sims}
         for name, cfg, la in modes:
             label = f"{name}, LOOK-AHEAD {la}" if la else name
-            r = compare_modes(cfg, seqs, la)
+            r = compare_modes(cfg, seqs, la, sims)
             fps = r["frames"] / r["seconds"]
+            for sim in sims:
+                rows[sim].append(
+                    compare_row(label, r[sim]) + f"  <!-- tracker_offline incl. file I/O: "
+                    f"{r['frames']} frames in {r['seconds']:.1f} s = {fps:.0f} frames/s, "
+                    f"{fps / AB3DMOT_FPS:.1f}x AB3DMOT's ~{AB3DMOT_FPS} frames/s here -->"
+                )
+        for sim in sims:
             print(
-                compare_row(label, r) + f"  <!-- tracker_offline incl. file I/O: {r['frames']} "
-                f"frames in {r['seconds']:.1f} s = {fps:.0f} frames/s, "
-                f"{fps / AB3DMOT_FPS:.1f}x AB3DMOT's ~{AB3DMOT_FPS} frames/s here -->"
+                f"\n{set_name}: sequences {','.join(seqs)}; every figure {SIMILARITY_LABELS[sim]}"
             )
-            sys.stdout.flush()
+            print(compare_header(sim))
+            print("\n".join(rows[sim]))
+        sys.stdout.flush()
 
 
 def fmt(m: dict) -> str:
@@ -405,6 +426,9 @@ def main() -> None:
         "modes", nargs="*", help="extra modes NAME=PARAMS.yaml[@LOOKAHEAD] (default mode first)"
     )
     c.add_argument("--only", help="DEV or TUNE")
+    c.add_argument(
+        "--similarity", default="iou3d", help="iou3d and/or iou2d, comma separated (one table each)"
+    )
     t = sub.add_parser("tune")
     t.add_argument("--seqs", default=",".join(TUNE))
     t.add_argument("--params", help="start from this parameter file")
