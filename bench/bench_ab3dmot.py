@@ -17,7 +17,7 @@ compensation; MIT licence, as association-quality-clavia). It pins numpy<=2.3.4;
 unchanged on this project's numpy 2.4.6, so it is installed without its pins (not a project
 dependency):
 
-    .venv/bin/pip install --no-deps pure-ab-3d-mot==2.2.0 association-quality-clavia==0.3.2
+    (installed by scripts/setup.sh: pip install --no-deps pure-ab-3d-mot==2.2.0 association-quality-clavia==0.3.2)
 
 (filterpy and scipy, its other dependencies, are the project's). Without it this script prints
 that command and exits with code 2; nothing is downloaded at run time.

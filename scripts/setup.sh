@@ -51,6 +51,16 @@ if ! step_done pip "$h"; then
   mark_done pip "$h"
 fi
 
+# 1b. benchmark-only packages whose declared pins conflict with ours (pure-ab-3d-mot pins
+#     numpy<=2.3.4 and runs on ours): installed without their dependencies, versions pinned
+BENCH_NODEPS="pure-ab-3d-mot==2.2.0 association-quality-clavia==0.3.2"
+if ! step_done bench_nodeps "$BENCH_NODEPS"; then
+  log "installing benchmark packages: $BENCH_NODEPS"
+  # shellcheck disable=SC2086
+  pip_install --no-deps $BENCH_NODEPS
+  mark_done bench_nodeps "$BENCH_NODEPS"
+fi
+
 # 2. interface package (rosidl) into the venv prefix
 export AMENT_PREFIX_PATH="$VENV"
 h=$(inputs_hash msg_defs requirements.txt constraints.txt)
