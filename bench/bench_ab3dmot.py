@@ -17,7 +17,9 @@ compensation; MIT licence, as association-quality-clavia). It pins numpy<=2.3.4;
 unchanged on this project's numpy 2.4.6, so it is installed without its pins (not a project
 dependency):
 
-    (installed by scripts/setup.sh: pip install --no-deps pure-ab-3d-mot==2.2.0 association-quality-clavia==0.3.2)
+    pip install --no-deps pure-ab-3d-mot==2.2.0 association-quality-clavia==0.3.2
+
+(scripts/setup.sh does it)
 
 (filterpy and scipy, its other dependencies, are the project's). Without it this script prints
 that command and exits with code 2; nothing is downloaded at run time.
