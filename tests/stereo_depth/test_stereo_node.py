@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 
 import cv2
@@ -12,6 +13,7 @@ pytest.importorskip("rclpy")
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from stereo_depth_node.plausibility import PlausibilityParams  # noqa: E402
 from stereo_depth_node.ranging import RangingParams, bin_centre_offsets  # noqa: E402
 from vehicle_common.image_conversion import (  # noqa: E402
     camera_info_from_projection,
@@ -35,6 +37,9 @@ class Harness:
         from stereo_msgs.msg import DisparityImage
         from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
 
+        # the test scene is one fronto-parallel textured plane, no road: the plausibility
+        # check only flags here (tests of the check itself set the action)
+        params = {"plausibility_action": "flag", **params}
         overrides = [Parameter("num_disparities", value=48)]
         overrides += [Parameter(k, value=v) for k, v in params.items()]
         self.node = StereoDepthNode(context=ctx, parameter_overrides=overrides)
@@ -356,3 +361,67 @@ def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_track
             assert abs(g.position.z - gt[2]) < 0.15 * gt[2]
     finally:
         h.close()
+
+
+def test_floating_box_is_rejected_and_counted_with_the_default_action(rclpy_context):
+    """The test scene has no road: the level prior 1.65 m below the camera stands in. The box's
+    bottom edge (row 90, 30 px below the principal point) at the plane's 17.5 m is 0.75 m below
+    the camera, 0.9 m above that road: floating, so the default action drops it."""
+    h = Harness(rclpy_context, plausibility_action="reject", disparity_bias=0.0)
+    try:
+        h.send_frame(3)
+        h.send_detections(3, [(150, 30, 250, 90)])
+        assert h.spin_until(lambda: h.det3d)
+        assert h.det3d[0].detections == []
+        assert h.node.implausible_detections == 1
+    finally:
+        h.close()
+
+
+def test_flag_action_publishes_the_check_and_its_inputs(rclpy_context):
+    h = Harness(rclpy_context, plausibility_action="flag", disparity_bias=0.0)
+    try:
+        h.send_frame(4)
+        # floating box, and one whose bottom edge (row 113 at 17.5 m: 1.33 m below the camera)
+        # is 0.32 m above the road: it stands on the road
+        h.send_detections(4, [(150, 30, 250, 90), (60, 53, 140, 113)])
+        assert h.spin_until(lambda: h.det3d)
+        floating, standing = h.det3d[0].detections
+        z = FX * B / DISP
+        assert floating.metric_height == pytest.approx(60 * z / FX, rel=0.03)
+        assert floating.metric_width == pytest.approx(100 * z / FX, rel=0.03)
+        assert floating.bottom_height == pytest.approx(1.65 - 30 * z / FX, abs=0.05)
+        excess = floating.bottom_height - PlausibilityParams().max_bottom_height
+        assert not floating.plausible
+        assert floating.plausibility == pytest.approx(
+            math.exp(-0.5 * (excess / 0.2) ** 2), rel=1e-4
+        )
+        assert standing.bottom_height == pytest.approx(1.65 - 53 * z / FX, abs=0.05)
+        assert standing.plausible and standing.plausibility == 1.0
+        assert floating.score == standing.score == pytest.approx(0.9)
+        assert h.node.implausible_detections == 0
+    finally:
+        h.close()
+
+
+def test_score_action_lowers_the_score_of_an_implausible_box(rclpy_context):
+    h = Harness(rclpy_context, plausibility_action="score", disparity_bias=0.0)
+    try:
+        h.send_frame(5)
+        h.send_detections(5, [(150, 30, 250, 90)])
+        assert h.spin_until(lambda: h.det3d)
+        (det,) = h.det3d[0].detections
+        assert det.score == pytest.approx(0.9 * det.plausibility) and det.score < 0.05
+    finally:
+        h.close()
+
+
+def test_bad_plausibility_parameter_is_refused(rclpy_context):
+    from stereo_depth_node.node import StereoDepthNode
+    from vehicle_common.node_parameters import ParameterError
+
+    with pytest.raises(ParameterError, match="plausibility_action"):
+        StereoDepthNode(
+            context=rclpy_context,
+            parameter_overrides=[Parameter("plausibility_action", value="drop")],
+        )
