@@ -127,8 +127,8 @@ class GroundPlane:
 
     @property
     def pitch_deg(self) -> float:
-        """Angle [deg] of the normal toward +z (+: the road falls away along the optical axis,
-        e.g. the camera pitched down)."""
+        """Angle [deg] of the normal toward +z (+: the road rises along the optical axis in the
+        camera frame: the camera pitched down, or an uphill grade ahead)."""
         return math.degrees(math.atan2(self.normal[2], self.normal[1]))
 
     @property
