@@ -425,3 +425,45 @@ def test_bad_plausibility_parameter_is_refused(rclpy_context):
             context=rclpy_context,
             parameter_overrides=[Parameter("plausibility_action", value="drop")],
         )
+
+
+def test_continuous_observation_angle_moves_the_centre_when_given(rclpy_context):
+    """With the detector's observation_angle (variance >= 0) the centre offset is the one at
+    that angle; a variance < 0 (old checkpoints) keeps the bin's centre angle. Runs once
+    VehicleDetection2D has the fields (interfaces: added by the detector's issue)."""
+    from stereo_depth_node.ranging import centre_depth_behind_surface
+    from stereo_vehicle_msgs.msg import VehicleDetection2D, VehicleDetection2DArray
+
+    if not hasattr(VehicleDetection2D(), "observation_angle_variance"):
+        pytest.skip("VehicleDetection2D has no observation_angle yet (detector's issue)")
+    h = Harness(rclpy_context, disparity_bias=0.0, disparity_bias_column=0.0, lateral_fit=False)
+    try:
+        h.send_frame(6)
+        msg = VehicleDetection2DArray(header=h.header(6))
+        for i, var in enumerate((0.01, -1.0)):
+            d = VehicleDetection2D(id=str(i), class_id="car", score=0.9, orientation_bin=2)
+            d.bbox.center_x, d.bbox.center_y, d.bbox.size_x, d.bbox.size_y = (
+                200.0,
+                60.0,
+                100.0,
+                60.0,
+            )
+            d.orientation_probs = [0.1, 0.1, 0.7, 0.1]
+            d.observation_angle, d.observation_angle_variance = math.radians(-70.0), var
+            msg.detections.append(d)
+        h.pubs["det"].publish(msg)
+        assert h.spin_until(lambda: h.det3d)
+        given, absent = h.det3d[0].detections
+        rp = RangingParams()
+        shift = centre_depth_behind_surface(
+            math.radians(90.0), 3.9, 1.6, "blend", rp.surface_blend
+        ) - centre_depth_behind_surface(math.radians(-70.0), 3.9, 1.6, "blend", rp.surface_blend)
+        assert shift > 0.1
+        # the same ray: the distance differs by the two offsets
+        dist = [
+            math.dist((0, 0, 0), (p.position.x, p.position.y, p.position.z))
+            for p in (given, absent)
+        ]
+        assert dist[1] - dist[0] == pytest.approx(shift, abs=0.02)
+    finally:
+        h.close()

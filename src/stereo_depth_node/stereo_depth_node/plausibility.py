@@ -286,13 +286,13 @@ def ground_fraction(
     us = np.clip(np.linspace(x1, x2, samples).round().astype(int), 0, w - 1)
     vs = np.clip(np.linspace(y1, y2, samples).round().astype(int), 0, h - 1)
     d = disparity[np.ix_(vs, us)].astype(float)
-    valid = d > 0
-    if not valid.any():
-        return 0.0
-    vv, uu = np.meshgrid(vs, us, indexing="ij")
-    z = geometry.fx * geometry.baseline / d[valid]
-    heights = plane.height_above(geometry.backproject(uu[valid], vv[valid], z))
-    return float(np.count_nonzero(np.abs(heights) <= tolerance) / d.size)
+    # height above the plane of pixel (u, v) at disparity d, P = (u-cx, (v-cy) fx/fy, fx) B/d:
+    # offset - n.P = offset - (B / d) (nx (u - cx) + ny (v - cy) fx / fy + nz fx)
+    g, n = geometry, plane.normal
+    lin = n[0] * (us - g.cx)[None, :] + (n[1] * (vs - g.cy) * g.fx / g.fy + n[2] * g.fx)[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        heights = plane.offset - g.baseline * lin / d
+    return float(np.count_nonzero((d > 0) & (np.abs(heights) <= tolerance)) / d.size)
 
 
 def measure_box(
