@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 
@@ -363,30 +364,36 @@ def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_track
         h.close()
 
 
-def test_floating_box_is_rejected_and_counted_with_the_default_action(rclpy_context):
-    """The test scene has no road: the level prior 1.65 m below the camera stands in. The box's
-    bottom edge (row 90, 30 px below the principal point) at the plane's 17.5 m is 0.75 m below
-    the camera, 0.9 m above that road: floating, so the default action drops it."""
-    h = Harness(rclpy_context, plausibility_action="reject", disparity_bias=0.0)
+@contextlib.contextmanager
+def _checked_frame(ctx, action: str, boxes):
+    """A harness with ``plausibility_action``, one frame and its detections: (harness, the
+    published 3D detections)."""
+    h = Harness(ctx, plausibility_action=action, disparity_bias=0.0)
     try:
         h.send_frame(3)
-        h.send_detections(3, [(150, 30, 250, 90)])
+        h.send_detections(3, boxes)
         assert h.spin_until(lambda: h.det3d)
-        assert h.det3d[0].detections == []
-        assert h.node.implausible_detections == 1
+        yield h, list(h.det3d[0].detections)
     finally:
         h.close()
 
 
+def test_floating_box_is_rejected_and_counted_with_the_default_action(rclpy_context):
+    """The test scene has no road: the level prior 1.65 m below the camera stands in. The box's
+    bottom edge (row 90, 30 px below the principal point) at the plane's 17.5 m is 0.75 m below
+    the camera, 0.9 m above that road: floating, so the default action drops it."""
+    assert PlausibilityParams().plausibility_action == "reject"
+    with _checked_frame(rclpy_context, "reject", [(150, 30, 250, 90)]) as (h, dets):
+        assert dets == []
+        assert h.node.implausible_detections == 1
+
+
 def test_flag_action_publishes_the_check_and_its_inputs(rclpy_context):
-    h = Harness(rclpy_context, plausibility_action="flag", disparity_bias=0.0)
-    try:
-        h.send_frame(4)
-        # floating box, and one whose bottom edge (row 113 at 17.5 m: 1.33 m below the camera)
-        # is 0.32 m above the road: it stands on the road
-        h.send_detections(4, [(150, 30, 250, 90), (60, 53, 140, 113)])
-        assert h.spin_until(lambda: h.det3d)
-        floating, standing = h.det3d[0].detections
+    # floating box, and one whose bottom edge (row 113 at 17.5 m: 1.33 m below the camera) is
+    # 0.32 m above the road: it stands on the road
+    boxes = [(150, 30, 250, 90), (60, 53, 140, 113)]
+    with _checked_frame(rclpy_context, "flag", boxes) as (h, dets):
+        floating, standing = dets
         z = FX * B / DISP
         assert floating.metric_height == pytest.approx(60 * z / FX, rel=0.03)
         assert floating.metric_width == pytest.approx(100 * z / FX, rel=0.03)
@@ -400,20 +407,12 @@ def test_flag_action_publishes_the_check_and_its_inputs(rclpy_context):
         assert standing.plausible and standing.plausibility == 1.0
         assert floating.score == standing.score == pytest.approx(0.9)
         assert h.node.implausible_detections == 0
-    finally:
-        h.close()
 
 
 def test_score_action_lowers_the_score_of_an_implausible_box(rclpy_context):
-    h = Harness(rclpy_context, plausibility_action="score", disparity_bias=0.0)
-    try:
-        h.send_frame(5)
-        h.send_detections(5, [(150, 30, 250, 90)])
-        assert h.spin_until(lambda: h.det3d)
-        (det,) = h.det3d[0].detections
+    with _checked_frame(rclpy_context, "score", [(150, 30, 250, 90)]) as (_, dets):
+        (det,) = dets
         assert det.score == pytest.approx(0.9 * det.plausibility) and det.score < 0.05
-    finally:
-        h.close()
 
 
 def test_bad_plausibility_parameter_is_refused(rclpy_context):
