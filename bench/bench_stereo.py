@@ -1,6 +1,7 @@
 """Stereo depth benchmarks: disparity accuracy, ranging accuracy, time per frame.
 
-Usage: python bench/bench_stereo.py [disparity|ranging|centre|odometry|timing|all] [--repeats N]
+Usage: python bench/bench_stereo.py [disparity|ranging|centre|odometry|plausibility|timing|all]
+       [--repeats N]
        [--synth ROOT:SEQ ...]
 Reads ../shared/kitti (KITTI Stereo 2015 training pairs 0..4 and tracking sequence 0005); prints
 tables. Uses the same core functions as the stereo_depth node (compute_disparity, range_boxes).
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import stereo_real  # the real-frame sections of issue #23 (bench/stereo_real.py)
 from stereo_depth_node.disparity import (
     DisparityParams,
     compute_disparity,
@@ -1059,10 +1061,12 @@ def main() -> int:
             "regions",
             "far",
             "centre",
+            "centre_keyframes",
             "centre_real",
             "timing",
             "covariance",
             "odometry",
+            "plausibility",
             "all",
         ],
     )
@@ -1088,11 +1092,16 @@ def main() -> int:
     if args.section in ("centre_real", "all"):
         bench_centre_real()
     if args.section in ("centre", "all"):
+        stereo_real.bench_centre_keyframes()
         bench_centre(DEFAULT, args.synth)
+    if args.section == "centre_keyframes":
+        stereo_real.bench_centre_keyframes()
     if args.section in ("covariance", "all"):
         bench_covariance()
     if args.section in ("odometry", "all"):
         bench_odometry()
+    if args.section in ("plausibility", "all"):
+        stereo_real.bench_plausibility()
     if args.section in ("timing", "all"):
         bench_timing(variants, args.repeats)
     return 0

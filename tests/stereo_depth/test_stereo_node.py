@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import math
 import time
 
 import cv2
@@ -12,6 +14,7 @@ pytest.importorskip("rclpy")
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from stereo_depth_node.plausibility import PlausibilityParams  # noqa: E402
 from stereo_depth_node.ranging import RangingParams, bin_centre_offsets  # noqa: E402
 from vehicle_common.image_conversion import (  # noqa: E402
     camera_info_from_projection,
@@ -35,6 +38,9 @@ class Harness:
         from stereo_msgs.msg import DisparityImage
         from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
 
+        # the test scene is one fronto-parallel textured plane, no road: the plausibility
+        # check only flags here (tests of the check itself set the action)
+        params = {"plausibility_action": "flag", **params}
         overrides = [Parameter("num_disparities", value=48)]
         overrides += [Parameter(k, value=v) for k, v in params.items()]
         self.node = StereoDepthNode(context=ctx, parameter_overrides=overrides)
@@ -354,5 +360,109 @@ def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_track
         for g in got:
             gt = seq.calib.cam0_to_left(cars[int(g.id)].centre_of_mass)
             assert abs(g.position.z - gt[2]) < 0.15 * gt[2]
+    finally:
+        h.close()
+
+
+@contextlib.contextmanager
+def _checked_frame(ctx, action: str, boxes):
+    """A harness with ``plausibility_action``, one frame and its detections: (harness, the
+    published 3D detections)."""
+    h = Harness(ctx, plausibility_action=action, disparity_bias=0.0)
+    try:
+        h.send_frame(3)
+        h.send_detections(3, boxes)
+        assert h.spin_until(lambda: h.det3d)
+        yield h, list(h.det3d[0].detections)
+    finally:
+        h.close()
+
+
+def test_floating_box_is_rejected_and_counted_with_the_default_action(rclpy_context):
+    """The test scene has no road: the level prior 1.65 m below the camera stands in. The box's
+    bottom edge (row 90, 30 px below the principal point) at the plane's 17.5 m is 0.75 m below
+    the camera, 0.9 m above that road: floating, so the default action drops it."""
+    assert PlausibilityParams().plausibility_action == "reject"
+    with _checked_frame(rclpy_context, "reject", [(150, 30, 250, 90)]) as (h, dets):
+        assert dets == []
+        assert h.node.implausible_detections == 1
+
+
+def test_flag_action_publishes_the_check_and_its_inputs(rclpy_context):
+    # floating box, and one whose bottom edge (row 113 at 17.5 m: 1.33 m below the camera) is
+    # 0.32 m above the road: it stands on the road
+    boxes = [(150, 30, 250, 90), (60, 53, 140, 113)]
+    with _checked_frame(rclpy_context, "flag", boxes) as (h, dets):
+        floating, standing = dets
+        z = FX * B / DISP
+        assert floating.metric_height == pytest.approx(60 * z / FX, rel=0.03)
+        assert floating.metric_width == pytest.approx(100 * z / FX, rel=0.03)
+        assert floating.bottom_height == pytest.approx(1.65 - 30 * z / FX, abs=0.05)
+        excess = floating.bottom_height - PlausibilityParams().max_bottom_height
+        assert not floating.plausible
+        assert floating.plausibility == pytest.approx(
+            math.exp(-0.5 * (excess / 0.2) ** 2), rel=1e-4
+        )
+        assert standing.bottom_height == pytest.approx(1.65 - 53 * z / FX, abs=0.05)
+        assert standing.plausible and standing.plausibility == 1.0
+        assert floating.score == standing.score == pytest.approx(0.9)
+        assert h.node.implausible_detections == 0
+
+
+def test_score_action_lowers_the_score_of_an_implausible_box(rclpy_context):
+    with _checked_frame(rclpy_context, "score", [(150, 30, 250, 90)]) as (_, dets):
+        (det,) = dets
+        assert det.score == pytest.approx(0.9 * det.plausibility) and det.score < 0.05
+
+
+def test_bad_plausibility_parameter_is_refused(rclpy_context):
+    from stereo_depth_node.node import StereoDepthNode
+    from vehicle_common.node_parameters import ParameterError
+
+    with pytest.raises(ParameterError, match="plausibility_action"):
+        StereoDepthNode(
+            context=rclpy_context,
+            parameter_overrides=[Parameter("plausibility_action", value="drop")],
+        )
+
+
+def test_continuous_observation_angle_moves_the_centre_when_given(rclpy_context):
+    """With the detector's observation_angle (variance >= 0) the centre offset is the one at
+    that angle; a variance < 0 (old checkpoints) keeps the bin's centre angle. Runs once
+    VehicleDetection2D has the fields (interfaces: added by the detector's issue)."""
+    from stereo_depth_node.ranging import centre_depth_behind_surface
+    from stereo_vehicle_msgs.msg import VehicleDetection2D, VehicleDetection2DArray
+
+    if not hasattr(VehicleDetection2D(), "observation_angle_variance"):
+        pytest.skip("VehicleDetection2D has no observation_angle yet (detector's issue)")
+    h = Harness(rclpy_context, disparity_bias=0.0, disparity_bias_column=0.0, lateral_fit=False)
+    try:
+        h.send_frame(6)
+        msg = VehicleDetection2DArray(header=h.header(6))
+        for i, var in enumerate((0.01, -1.0)):
+            d = VehicleDetection2D(id=str(i), class_id="car", score=0.9, orientation_bin=2)
+            d.bbox.center_x, d.bbox.center_y, d.bbox.size_x, d.bbox.size_y = (
+                200.0,
+                60.0,
+                100.0,
+                60.0,
+            )
+            d.orientation_probs = [0.1, 0.1, 0.7, 0.1]
+            d.observation_angle, d.observation_angle_variance = math.radians(-70.0), var
+            msg.detections.append(d)
+        h.pubs["det"].publish(msg)
+        assert h.spin_until(lambda: h.det3d)
+        given, absent = h.det3d[0].detections
+        rp = RangingParams()
+        shift = centre_depth_behind_surface(
+            math.radians(90.0), 3.9, 1.6, "blend", rp.surface_blend
+        ) - centre_depth_behind_surface(math.radians(-70.0), 3.9, 1.6, "blend", rp.surface_blend)
+        assert shift > 0.1
+        # the same ray: the distance differs by the two offsets
+        dist = [
+            math.dist((0, 0, 0), (p.position.x, p.position.y, p.position.z))
+            for p in (given, absent)
+        ]
+        assert dist[1] - dist[0] == pytest.approx(shift, abs=0.02)
     finally:
         h.close()

@@ -63,13 +63,16 @@ def disparity_message(
     return msg
 
 
-def detection_3d_message(det2d, result):
+def detection_3d_message(det2d, result, check=None, score: float | None = None):
     """stereo_vehicle_msgs/VehicleDetection3D of a 2D detection message and its ranging result
-    (:class:`.ranging.RangeResult`: position, covariance, disparity, valid pixel fraction)."""
+    (:class:`.ranging.RangeResult`: position, covariance, disparity, valid pixel fraction),
+    with its plausibility check (:class:`.plausibility.Plausibility`; None: fields left at 0,
+    ``plausible`` false) and ``score`` (None: the 2D detection's)."""
     from stereo_vehicle_msgs.msg import VehicleDetection3D
 
     m = VehicleDetection3D()
-    m.id, m.class_id, m.score = det2d.id, det2d.class_id, float(det2d.score)
+    m.id, m.class_id = det2d.id, det2d.class_id
+    m.score = float(det2d.score if score is None else score)
     m.position.x, m.position.y, m.position.z = (float(v) for v in result.position)
     m.position_covariance = [float(v) for v in result.covariance.ravel()]
     m.bbox = det2d.bbox
@@ -77,4 +80,9 @@ def detection_3d_message(det2d, result):
     m.orientation_probs = [float(v) for v in det2d.orientation_probs]
     m.disparity = float(result.disparity)
     m.valid_pixel_fraction = float(result.valid_pixel_fraction)
+    if check is not None:
+        c = check.measures
+        m.metric_height, m.metric_width = float(c.height), float(c.width)
+        m.bottom_height, m.ground_fraction = float(c.bottom_height), float(c.ground_fraction)
+        m.plausibility, m.plausible = float(check.plausibility), bool(check.plausible)
     return m

@@ -35,7 +35,14 @@ from vehicle_common import topics
 
 from .conversions import build_point_cloud, detection_3d_message, disparity_message
 from .disparity import DisparityParams, compute_disparity
-from .ranging import RangingParams, RangingSetup, disparity_bias_at, range_boxes
+from .plausibility import GroundEstimator, PlausibilityParams, check_boxes
+from .ranging import (
+    RangingParams,
+    RangingSetup,
+    disparity_bias_at,
+    observation_angles_of,
+    range_boxes,
+)
 from .region_matching import to_gray
 from .reprojection import StereoGeometry, decimated_points
 from .stamp_sync import ExactStampSync
@@ -83,6 +90,14 @@ RANGING_RULES = {
     "prior_height": {"low": 0, "low_open": True},
     "prior_log_sigma": {"low": 0},
     "correction_bin_spread": {"low": 0.0, "high": 1.0},
+    "surface_blend": {"low": 0.0, "high": 1.0},
+}
+PLAUSIBILITY_RULES = {
+    "max_ground_fraction": {"low": 0.0, "high": 1.0},
+    "ground_max_depth": {"low": 0, "low_open": True},
+    "ground_max_tilt": {"low": 0.0, "high": 45.0},
+    "ground_min_inliers": {"low": 3},
+    "ground_keep_frames": {"low": 0},
 }
 
 
@@ -138,6 +153,9 @@ class StereoDepthNode(Node):
         # declare_config validated it (a bad value is a ParameterError naming the parameter)
         self.ranging = RangingSetup.from_params(ranging_params)
         self.ranging_params = self.ranging.params
+        self.plausibility = declare_config(self, PlausibilityParams, rules=PLAUSIBILITY_RULES)
+        self.ground = GroundEstimator(self.plausibility, self.ranging_params.ground_height)
+        self.implausible_detections = 0
         self._band_params: tuple[int, DisparityParams] | None = None  # (height, params)
         p = declare_config(self, StereoNodeParameters)
         self.publish_disparity = p.publish_disparity
@@ -357,21 +375,27 @@ class StereoDepthNode(Node):
         out = VehicleDetection3DArray()
         out.header = frame.header if frame.disparity is not None else det_msg.header
         dets = list(det_msg.detections)
+        results, checks = [None] * len(dets), [None] * len(dets)
         if frame.disparity is not None and dets:
             boxes = [bbox_to_xyxy(d.bbox) for d in dets]
             bins = [int(d.orientation_bin) for d in dets]
-            results = range_boxes(
-                frame.disparity, boxes, frame.geometry, self.ranging, bins, frame.images
+            # the detector's continuous observation angle where it gives one (variance >= 0)
+            alphas = observation_angles_of(
+                [getattr(d, "observation_angle", float("nan")) for d in dets],
+                [getattr(d, "observation_angle_variance", -1.0) for d in dets],
             )
-        else:
-            results = [None] * len(dets)
+            results = range_boxes(
+                frame.disparity, boxes, frame.geometry, self.ranging, bins, frame.images, alphas
+            )
+            checks = self._check(frame, boxes, results)
         self._vehicle_boxes = [bbox_to_xyxy(d.bbox) for d in dets]
         if frame.camera_motion is not None:
             out.camera_motion_dt = frame.camera_motion.dt
             write_transform(
                 frame.camera_motion.rotation, frame.camera_motion.translation, out.camera_motion
             )
-        for d, r in zip(dets, results, strict=True):
+        action = self.plausibility.plausibility_action
+        for d, r, c in zip(dets, results, checks, strict=True):
             if r is None:
                 self.unranged_detections += 1
                 self.get_logger().debug(
@@ -379,9 +403,28 @@ class StereoDepthNode(Node):
                     f"({self.unranged_detections} unranged so far)"
                 )
                 continue
-            out.detections.append(detection_3d_message(d, r))
+            if action == "reject" and not c.plausible:
+                self.implausible_detections += 1
+                self.get_logger().debug(
+                    f"detection {d.id!r}: not a vehicle's size or ground contact (height "
+                    f"{c.measures.height:.2f} m, bottom {c.measures.bottom_height:+.2f} m); "
+                    f"dropped ({self.implausible_detections} so far)"
+                )
+                continue
+            score = d.score * c.plausibility if action == "score" else None
+            out.detections.append(detection_3d_message(d, r, c, score))
         self.pub_det3d.publish(out)
         self.frames.published()
+
+    def _check(self, frame: _Frame, boxes, results) -> list:
+        """Plausibility of the ranged boxes (:mod:`.plausibility`) against this frame's road
+        plane (fitted to the disparity map with the ranging's bias model subtracted)."""
+        geo = frame.geometry
+        bias = disparity_bias_at(np.arange(frame.disparity.shape[1]), geo, self.ranging_params)
+        plane = self.ground.update(frame.disparity, geo, bias)
+        fb = geo.fx * geo.baseline
+        depths = [fb / r.disparity if r is not None else None for r in results]
+        return check_boxes(frame.disparity, boxes, depths, geo, plane, self.plausibility)
 
     def _start_odometry(self, frame: _Frame, gray: np.ndarray):
         """Visual odometry of a pair, started beside its disparity map (and the detector): the

@@ -26,10 +26,11 @@ centre propagated with depth, plus the correlation that a depth error induces al
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from vehicle_common.orientation_bins import BIN_WIDTH, NUM_BINS
+from vehicle_common.orientation_bins import BIN_WIDTH, NUM_BINS, alpha_to_bin
 
 from .centre_fit import fit_lateral
 from .region_matching import REFINE_METHODS, RegionParams, box_disparity, refine_shift
@@ -37,11 +38,11 @@ from .reprojection import StereoGeometry
 
 METHODS = ("robust", "median")
 TRUNCATION_BORDER = 2.0  # [px] a box edge this near the image border: cut by the border
-SURFACE_MODELS = ("visible", "nearest")
+SURFACE_MODELS = ("visible", "nearest", "blend")
 
 
 def centre_depth_behind_surface(
-    alpha, length: float, width: float, model: str = "visible"
+    alpha, length: float, width: float, model: str = "visible", blend: float = 0.5
 ) -> np.ndarray:
     """Depth [m] of a box's centre behind its visible surface, along the viewing ray.
 
@@ -54,26 +55,41 @@ def centre_depth_behind_surface(
     - ``visible``: the mean depth of the visible faces weighted by their image width (what a
       disparity average over the box sees): the side face (image width 2a|cos alpha|, centre
       depth b|cos alpha|) and the front/back face (2b|sin alpha|, a|sin alpha|) give
-      a b / (a |cos alpha| + b |sin alpha|).
+      a b / (a |cos alpha| + b |sin alpha|);
+    - ``blend``: visible + ``blend`` x (nearest - visible). On real cars (LiDAR surfaces of the
+      tracking keyframes, docs section 8) the robust estimate sits a share of the way from the
+      visible faces' mean toward the nearest corner: real cars are rounded, their corners are
+      not where the box's are.
     """
     if model not in SURFACE_MODELS:
         raise ValueError(f"surface model {model!r} not one of {SURFACE_MODELS}")
     a, b = 0.5 * float(length), 0.5 * float(width)
     s, c = np.abs(np.sin(alpha)), np.abs(np.cos(alpha))
+    nearest = a * s + b * c
     if model == "nearest":
-        return a * s + b * c
-    return a * b / (a * c + b * s)
+        return nearest
+    visible = a * b / (a * c + b * s)
+    if model == "blend":
+        return visible + blend * (nearest - visible)
+    return visible
 
 
 def bin_centre_offsets(
-    length: float, width: float, model: str = "visible", spread: float = 0.0, samples: int = 46
+    length: float,
+    width: float,
+    model: str = "visible",
+    spread: float = 0.0,
+    samples: int = 46,
+    blend: float = 0.5,
 ) -> np.ndarray:
     """Mean of :func:`centre_depth_behind_surface` over each orientation bin's alpha range
     (bin k: alpha uniform in k*45 +- spread*22.5 deg; spread 0 = the bin's centre angle), shape
     (5,); index 4 holds the mean of the 4 bins (used when a detection has no bin)."""
     t = spread * ((np.arange(samples) + 0.5) / samples - 0.5)  # uniform in +-spread/2
     out = [
-        float(np.mean(centre_depth_behind_surface((k + t) * BIN_WIDTH, length, width, model)))
+        float(
+            np.mean(centre_depth_behind_surface((k + t) * BIN_WIDTH, length, width, model, blend))
+        )
         for k in range(NUM_BINS)
     ]
     return np.array(out + [float(np.mean(out))])
@@ -104,8 +120,13 @@ class RangingParams:
     prior_height: float = 1.5  # [m] typical car height for the depth prior from box height
     prior_log_sigma: float = 0.5  # log-depth std of that prior (0 disables the prior)
     centre_correction: bool = True  # move the surface estimate to the car's centre (geometry)
-    surface_model: str = "nearest"  # centre_depth_behind_surface model: visible | nearest
+    surface_model: str = "blend"  # centre_depth_behind_surface model: visible | nearest | blend
     truncated_surface_model: str = "visible"  # the same for boxes cut by the image border
+    # blend: share of the way from the visible model to the nearest-corner one (real cars)
+    surface_blend: float = 0.625
+    # [m] depth of the real visible surface behind the model box's faces (rounded cars),
+    # subtracted from the centre correction (chosen on real LiDAR surfaces, docs section 8)
+    surface_inset: float = 0.2
     car_length: float = 3.9  # [m] mean car length of the centre correction
     car_width: float = 1.6  # [m] mean car width of the centre correction
     correction_bin_spread: float = 0.0  # share of the bin's +-22.5 deg averaged (0: centre)
@@ -132,8 +153,12 @@ class RangingParams:
         for name in ("surface_model", "truncated_surface_model"):
             if getattr(self, name) not in SURFACE_MODELS:
                 raise ValueError(f"{name}: {getattr(self, name)!r} not one of {SURFACE_MODELS}")
+        if not np.isfinite(self.surface_inset):
+            raise ValueError("surface_inset: must be finite")
         if self.car_length < 0 or self.car_width < 0:
             raise ValueError("car_length, car_width: must be >= 0")
+        if not 0.0 <= self.surface_blend <= 1.0:
+            raise ValueError(f"surface_blend: {self.surface_blend} not in [0, 1]")
         if not 0.0 <= self.correction_bin_spread <= 1.0:
             raise ValueError(f"correction_bin_spread: {self.correction_bin_spread} not in [0, 1]")
         if self.refine not in REFINE_METHODS:
@@ -172,8 +197,15 @@ class RangingSetup:
         for model in (params.surface_model, params.truncated_surface_model):
             centre = np.zeros(NUM_BINS + 1)
             if params.centre_correction:
-                centre = bin_centre_offsets(
-                    params.car_length, params.car_width, model, params.correction_bin_spread
+                centre = (
+                    bin_centre_offsets(
+                        params.car_length,
+                        params.car_width,
+                        model,
+                        params.correction_bin_spread,
+                        blend=params.surface_blend,
+                    )
+                    - params.surface_inset
                 )
             centre.setflags(write=False)
             offsets.append(centre)
@@ -310,6 +342,15 @@ def disparity_bias_at(u, geometry: StereoGeometry, params: RangingParams):
     return params.disparity_bias + params.disparity_bias_column * x * x
 
 
+def observation_angles_of(angles, variances) -> np.ndarray:
+    """Continuous observation angles [rad] for :func:`range_boxes` from a detector's outputs:
+    ``angles`` with their ``variances`` [rad^2]; a variance < 0 (or a non-finite value) means
+    not provided (old checkpoints) and gives nan (the bin's centre angle is used)."""
+    a = np.asarray(angles, float).reshape(-1)
+    var = np.asarray(variances, float).reshape(-1)
+    return np.where(np.isfinite(a) & np.isfinite(var) & (var >= 0), a, np.nan)
+
+
 def range_boxes(
     disparity: np.ndarray,
     boxes,
@@ -317,6 +358,7 @@ def range_boxes(
     params: RangingParams | RangingSetup | None = None,
     orientation_bins=None,
     images=None,
+    observation_angles=None,
 ) -> list[RangeResult | None]:
     """Range each box (x1, y1, x2, y2) [px] of the left image in a disparity map [px].
 
@@ -326,7 +368,10 @@ def range_boxes(
     (0..3 per box) selects the per-bin centre correction and ``depth_offset``; without bins, and
     for a bin outside 0..3, the correction's mean over all angles and bin 0's offset.
     ``images``: the (left, right) uint8 gray images of the pair, for ``params.refine`` (without
-    them the map's estimate is used, bias-corrected all the same).
+    them the map's estimate is used, bias-corrected all the same). ``observation_angles``: the
+    continuous observation angle alpha [rad] per box (any folding modulo pi; nan = not given):
+    where given, the centre correction and the lateral fit use it instead of the bin's centre
+    angle (:func:`observation_angles_of` turns detector outputs with a variance into these).
     """
     setup = params if isinstance(params, RangingSetup) else RangingSetup.from_params(params)
     params = setup.params
@@ -361,19 +406,32 @@ def range_boxes(
             continue
         z_surface = float(geometry.fx * geometry.baseline / d)
         b = int(orientation_bins[i]) if orientation_bins is not None else NUM_BINS
+        alpha = float(observation_angles[i]) if observation_angles is not None else math.nan
         cut = box[0] <= TRUNCATION_BORDER or box[2] >= width - 1 - TRUNCATION_BORDER
         centre = setup.truncated_offsets if cut else setup.centre_offsets
-        if 0 <= b < NUM_BINS:
+        if math.isfinite(alpha):  # the continuous angle: the correction at that angle
+            b = alpha_to_bin(alpha)
+            offset = params.depth_offset[b]
+            if params.centre_correction:
+                model = params.truncated_surface_model if cut else params.surface_model
+                offset += float(
+                    centre_depth_behind_surface(
+                        alpha, params.car_length, params.car_width, model, params.surface_blend
+                    )
+                    - params.surface_inset
+                )
+        elif 0 <= b < NUM_BINS:
             offset = float(centre[b] + params.depth_offset[b])
+            alpha = b * BIN_WIDTH
         else:  # no bin, or an invalid one: the mean correction over all angles
             offset = float(centre[NUM_BINS] + params.depth_offset[0])
         ray = geometry.backproject(u, v, 1.0)
         point = ray * z_surface + offset * ray / np.linalg.norm(ray)
-        if params.lateral_fit and 0 <= b < NUM_BINS:
+        if params.lateral_fit and math.isfinite(alpha):
             point = fit_lateral(
                 point,
                 box,
-                b * BIN_WIDTH,
+                alpha,
                 params.car_length,
                 params.car_width,
                 geometry,
