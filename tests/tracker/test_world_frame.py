@@ -154,3 +154,30 @@ def test_2d_box_is_the_detection_box_when_matched_and_the_projection_when_coasti
     expected = trk._project(ts.position[0], ts.size[0], ts.yaw[0])
     np.testing.assert_allclose(ts.bbox[0], expected)
     assert not np.allclose(ts.bbox[0], box[0] + 10)
+
+
+def test_implausible_detections_start_no_track_but_keep_one_alive():
+    """A box the stereo check finds implausible (floating, sunk, wrong size) starts no track;
+    it still updates a track that exists (second association stage); without the field (NaN)
+    nothing changes."""
+    cfg = TrackerConfig(min_hits=1, birth_plausibility=0.5)
+    trk = Tracker(cfg)
+    ts = trk.step(DetectionBatch.create([[0.0, 1.0, 20.0]], plausibility=[0.0]), stamp=0.0)
+    assert len(ts) == 0 and len(trk) == 0
+    ts = trk.step(DetectionBatch.create([[0.0, 1.0, 20.0]]), stamp=0.1)  # unknown: starts
+    assert len(ts) == 1
+    ts = trk.step(DetectionBatch.create([[0.0, 1.0, 19.9]], plausibility=[0.0]), stamp=0.2)
+    assert len(ts) == 1 and ts.det_index[0] == 0 and ts.frames_since_update[0] == 0
+
+
+def test_plausibility_is_read_from_a_detection_when_present():
+    from types import SimpleNamespace
+
+    from tracker_node.conversions import _plausibility
+
+    assert _plausibility(SimpleNamespace(plausibility=0.2)) == pytest.approx(0.2)
+    assert _plausibility(SimpleNamespace(plausibility=1.7)) == 1.0
+    assert _plausibility(SimpleNamespace(plausible=False)) == 0.0
+    assert _plausibility(SimpleNamespace(plausible=True)) == 1.0
+    assert np.isnan(_plausibility(SimpleNamespace()))  # messages without the fields
+    assert np.isnan(_plausibility(SimpleNamespace(plausibility=float("nan"))))

@@ -105,6 +105,10 @@ class TrackerConfig:
     coast_min_hits: int = param(0, low=0)  # coasting tracks are reported only after this many
     # matches
     score_ramp_hits: int = param(1, low=1)  # reported score x min(1, hits / this)
+    # detections whose stereo plausibility (VehicleDetection3D, when the stereo node gives it)
+    # is below this start no track (second association stage only, as below birth_score);
+    # 0: off. Detections without the field are never held back by it.
+    birth_plausibility: float = param(0.0, low=0.0, high=1.0)
 
     def validate(self) -> TrackerConfig:
         """Check every field's type, range and choices (see ``param``); raises

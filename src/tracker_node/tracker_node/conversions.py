@@ -20,6 +20,7 @@ from .tracker import DetectionBatch, TrackSet
 def detections_from_msg(msg) -> tuple[DetectionBatch, list[str]]:
     """A DetectionBatch from a VehicleDetection3DArray, and warnings for skipped detections."""
     pos, cov, bbox, bins, score, cls, problems = [], [], [], [], [], [], []
+    plaus = []
     for k, d in enumerate(msg.detections):
         p = (d.position.x, d.position.y, d.position.z)
         if not all(math.isfinite(v) for v in p):
@@ -39,6 +40,7 @@ def detections_from_msg(msg) -> tuple[DetectionBatch, list[str]]:
         bins.append(int(d.orientation_bin) if d.orientation_bin <= 3 else -1)
         score.append(float(d.score) if math.isfinite(d.score) else 0.0)
         cls.append(d.class_id or "car")
+        plaus.append(_plausibility(d))
     if not pos:
         return DetectionBatch.empty(), problems
     batch = DetectionBatch.create(
@@ -48,8 +50,20 @@ def detections_from_msg(msg) -> tuple[DetectionBatch, list[str]]:
         bbox=np.array(bbox),
         score=np.array(score),
         class_id=cls,
+        plausibility=np.array(plaus),
     )
     return batch, problems
+
+
+def _plausibility(d) -> float:
+    """A detection's stereo plausibility in [0, 1] when the message carries it (a float
+    ``plausibility`` score, else a bool ``plausible`` flag), NaN otherwise (older messages)."""
+    value = getattr(d, "plausibility", None)
+    if value is None:
+        flag = getattr(d, "plausible", None)
+        return math.nan if flag is None else float(bool(flag))
+    value = float(value)
+    return min(max(value, 0.0), 1.0) if math.isfinite(value) else math.nan
 
 
 def camera_motion_from_msg(msg) -> tuple[CameraMotion | None, list[str]]:

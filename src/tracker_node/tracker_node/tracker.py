@@ -49,7 +49,9 @@ class DetectionBatch:
 
     position: (M, 3) vehicle centres [m]; covariance: (M, 3, 3) [m^2] (NaN -> the configured
     measurement noise); size: (M, 3) length, width, height [m]; yaw: (M,) rotation_y [rad];
-    orientation_bin: (M,) 0..3 or -1; bbox: (M, 4) x1, y1, x2, y2 [px]; score: (M,).
+    orientation_bin: (M,) 0..3 or -1; bbox: (M, 4) x1, y1, x2, y2 [px]; score: (M,);
+    plausibility: (M,) the stereo plausibility of the box as a vehicle in [0, 1] (0: cannot be
+    a vehicle), NaN when the input does not give it.
     """
 
     position: np.ndarray
@@ -60,6 +62,11 @@ class DetectionBatch:
     bbox: np.ndarray
     score: np.ndarray
     class_id: list[str] = field(default_factory=list)
+    plausibility: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.plausibility is None:
+            self.plausibility = _nan(len(self.position))
 
     def __len__(self) -> int:
         return len(self.position)
@@ -75,6 +82,7 @@ class DetectionBatch:
         bbox=None,
         score=None,
         class_id=None,
+        plausibility=None,
     ) -> DetectionBatch:
         """Build a batch; omitted fields are unknown. Raises ValueError for a non-finite or
         mis-shaped position (the caller names the input)."""
@@ -94,6 +102,7 @@ class DetectionBatch:
             bbox=_nan((m, 4)) if bbox is None else np.asarray(bbox, float).reshape(m, 4),
             score=np.ones(m) if score is None else np.asarray(score, float).reshape(m),
             class_id=["car"] * m if class_id is None else list(class_id),
+            plausibility=None if plausibility is None else np.asarray(plausibility, float),
         )
 
     @classmethod
@@ -200,7 +209,7 @@ class Tracker:
         self._camera_motion = self._frame_motion(camera_motion, dt)
         self._predict(dt)
         cost = self._cost(dets, R, det_yaw, shared_R)
-        rows, cols = self._assign(cost, dets.score >= self.cfg.birth_score)
+        rows, cols = self._assign(cost, self._may_start(dets))
         self._update(dets, rows, cols, R, det_yaw)
         self._prune(rows)
         self._spawn(dets, cols, R, det_yaw)
@@ -286,8 +295,8 @@ class Tracker:
             self.tracks.keep(~dead)
 
     def _spawn(self, dets: DetectionBatch, matched_cols, R: np.ndarray, det_yaw) -> None:
-        """New tracks from the detections no track took that score >= ``birth_score``."""
-        new = dets.score >= self.cfg.birth_score
+        """New tracks from the detections no track took that may start one."""
+        new = self._may_start(dets)
         new[matched_cols] = False
         idx = np.nonzero(new)[0]
         k = len(idx)
@@ -316,6 +325,13 @@ class Tracker:
             det_index=idx,
         )
         self.next_id += k
+
+    def _may_start(self, dets: DetectionBatch) -> np.ndarray:
+        """Detections that may start a track and take part in the first association stage:
+        score >= ``birth_score`` and, when the input gives it, plausibility >=
+        ``birth_plausibility``. The others only keep existing tracks alive (second stage)."""
+        implausible = dets.plausibility < self.cfg.birth_plausibility  # NaN: unknown, passes
+        return (dets.score >= self.cfg.birth_score) & ~implausible
 
     def _det_covariances(self, dets: DetectionBatch) -> tuple[np.ndarray, bool]:
         """Per-detection covariances (M, 3, 3) and whether they all are the configured one."""
