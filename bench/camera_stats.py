@@ -12,7 +12,7 @@ statistics, per labelled Car:
 - miss rate by box height and by occlusion level (a Car is detected when a detection matches
   it); truncated Cars (truncation > 0.3) and Cars under 10 px are kept apart;
 - box noise by box height: median and 1.4826 MAD of each edge's error (x1, y1, x2, y2) [px];
-- the scores of the detections that matched a Car, by box height;
+- the scores of the detections that matched a Car, by box height and occlusion (none / some);
 - orientation confusion: labelled bin (alpha) x detected bin, 4 x 4 counts;
 - false positives per frame: detections matching no labelled vehicle (Car, Van, Truck, Tram
   with IoU >= 0.3) and lying not mostly (> 50 %) inside a DontCare region; their boxes and
@@ -44,7 +44,7 @@ VALIDATION_KEYFRAME_SEQUENCES = ("0005", "0001", "0008", "0010")
 VALIDATION_OBJECT_IDS = tuple(range(60, 80))
 HEIGHT_BINS = (0.0, 25.0, 40.0, 60.0, 100.0, math.inf)  # [px] box height
 VEHICLES = ("Car", "Van", "Truck", "Tram")
-SCHEMA = 2
+SCHEMA = 3
 
 
 @dataclass
@@ -227,6 +227,7 @@ def _measure(ck: Path, frames: list[LabelledFrame], settings: dict, verbose: boo
     trunc = [0, 0]  # truncated Cars: detected, total
     edge_err = [[] for _ in range(nb)]
     tp_score = [[] for _ in range(nb)]
+    tp_score_occluded = [[] for _ in range(nb)]  # labelled occlusion >= 1
     confusion = np.zeros((4, 4), int)
     fp_boxes, fp_scores, fp_counts = [], [], []
     persist = [0, 0]  # false positives of a sequence frame seen again in the next: n, of
@@ -250,7 +251,7 @@ def _measure(ck: Path, frames: list[LabelledFrame], settings: dict, verbose: boo
                 continue
             found[b, occ] += 1
             edge_err[b].append((boxes[j] - np.array(o.bbox)).tolist())
-            tp_score[b].append(float(scores[j]))
+            (tp_score_occluded if occ else tp_score)[b].append(float(scores[j]))
             if o.alpha > -math.pi - 1e-6:
                 confusion[int(alpha_to_bin(o.alpha)), int(bins[j])] += 1
         fp_counts.append(len(m["fp"]))
@@ -277,6 +278,7 @@ def _measure(ck: Path, frames: list[LabelledFrame], settings: dict, verbose: boo
         "truncated": trunc,
         "edge_err": edge_err,
         "tp_score": tp_score,
+        "tp_score_occluded": tp_score_occluded,
         "confusion": confusion.tolist(),
         "fp_boxes": fp_boxes,
         "fp_scores": fp_scores,
@@ -316,7 +318,8 @@ def print_stats(stats: dict) -> None:
         e = np.array(stats["edge_err"][b]).reshape(-1, 4)
         med = np.median(e, axis=0) if len(e) else np.full(4, np.nan)
         mad = 1.4826 * np.median(np.abs(e - med), axis=0) if len(e) else np.full(4, np.nan)
-        sc = np.median(stats["tp_score"][b]) if stats["tp_score"][b] else math.nan
+        both = stats["tp_score"][b] + stats["tp_score_occluded"][b]
+        sc = np.median(both) if both else math.nan
         print(
             f"| {name} | {int(t)} | {miss:.2f} | {occ} | "
             + " ".join(f"{v:+.1f}" for v in med)
@@ -324,6 +327,14 @@ def print_stats(stats: dict) -> None:
             + " ".join(f"{v:.1f}" for v in mad)
             + f" | {sc:.2f} |"
         )
+    occ = [s for ss in stats["tp_score_occluded"] for s in ss]
+    clear = [s for ss in stats["tp_score"] for s in ss]
+    for name, sc in (("not occluded", np.array(clear)), ("occluded", np.array(occ))):
+        if len(sc):
+            print(
+                f"true-positive scores, {name}: n {len(sc)}, median {np.median(sc):.2f}, "
+                f">= 0.7: {np.mean(sc >= 0.7):.2f}, >= 0.9: {np.mean(sc >= 0.9):.2f}"
+            )
     tr = stats["truncated"]
     if tr[1]:
         print(f"truncated Cars (> 0.3): {tr[1]}, miss rate {1 - tr[0] / tr[1]:.2f}")

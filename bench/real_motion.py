@@ -483,8 +483,12 @@ class CameraDetectionModel:
         self.edge_err = [
             np.array(e if len(e) >= 5 else pooled).reshape(-1, 4) for e in stats["edge_err"]
         ]
-        scores = [s for ss in stats["tp_score"] for s in ss]
-        self.tp_score = [np.array(s if len(s) >= 5 else scores) for s in stats["tp_score"]]
+        # scores by height bin, not occluded / occluded (occluded cars score lower; a bin with
+        # fewer than 5 takes that occlusion class's scores pooled over heights)
+        self.tp_score = []
+        for key in ("tp_score", "tp_score_occluded"):
+            pooled = [s for ss in stats[key] for s in ss]
+            self.tp_score.append([np.array(s if len(s) >= 5 else pooled) for s in stats[key]])
         c = np.array(stats["confusion"], float) + 0.5  # (a little smoothing for empty rows)
         self.confusion = c / c.sum(axis=1, keepdims=True)
         col = np.array(stats["confusion"], float).sum(axis=0) + 0.5
@@ -508,7 +512,8 @@ class CameraDetectionModel:
         if rng.random() < miss:
             return None
         err = self.edge_err[b][rng.integers(len(self.edge_err[b]))]
-        score = float(self.tp_score[b][rng.integers(len(self.tp_score[b]))])
+        scores = self.tp_score[int(o.occluded >= 1)][b]
+        score = float(scores[rng.integers(len(scores))])
         gbin = int(alpha_to_bin(o.alpha)) if o.alpha > -math.pi - 1e-6 else 2
         return err, score, int(rng.choice(4, p=self.confusion[gbin]))
 
