@@ -201,3 +201,15 @@ def test_graph_confirmation_rule_keeps_a_persistent_low_score_false_positive_unc
     confirmed = [{t for t, s in st.items() if s != 0} for st in states]
     assert confirmed[2] == {1} and confirmed[5] == {1}
     assert all(len(c) <= 1 for c in confirmed)  # the ghost never
+
+
+def test_world_frame_uses_its_own_process_noise():
+    """Relative to a moving camera a car's apparent acceleration includes the camera's; over the
+    ground only its own: the filter switches to world_process_noise with the first motion."""
+    cfg = TrackerConfig(process_noise=8.0, world_process_noise=0.5)
+    trk = Tracker(cfg)
+    trk.step(DetectionBatch.create([[0.0, 1.0, 20.0]]), stamp=0.0)
+    assert trk.filter.q == 8.0
+    _poses, motions = _drive(2)
+    trk.step(DetectionBatch.create([[0.0, 1.0, 18.8]]), stamp=0.1, camera_motion=motions[1])
+    assert trk.filter.q == 0.5

@@ -4,8 +4,8 @@ Every filter is batched over the tracks (row i = the tracker's i-th track) and o
 ``add(z, R, static_velocity=None)``, ``restart_velocity(rows, static_velocity)``,
 ``keep(mask)``, ``predict(dt)``, ``move_frame(R, t)`` (the camera's own motion: every track
 expressed in the new camera frame, :mod:`.ego_motion`), ``shift_velocity(dv)`` (a change of
-velocity reference), ``update(rows, z, R)`` and the arrays ``position`` (N, 3),
-``velocity`` (N, 3), ``position_cov`` (N, 3, 3), ``velocity_cov`` (N, 3, 3).
+velocity reference), ``set_process_noise(q)``, ``update(rows, z, R)`` and the arrays
+``position`` (N, 3), ``velocity`` (N, 3), ``position_cov`` (N, 3, 3), ``velocity_cov`` (N, 3, 3).
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ class MotionFilter(Protocol):
     def restart_velocity(self, rows: np.ndarray, static_velocity: np.ndarray) -> None: ...
     def predict(self, dt: float) -> None: ...
     def move_frame(self, R: np.ndarray, t: np.ndarray) -> None: ...
+    def set_process_noise(self, q: float) -> None: ...
     def shift_velocity(self, dv: np.ndarray) -> None: ...
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None: ...
 
@@ -97,6 +98,9 @@ class PassThroughFilter:
 
     def shift_velocity(self, dv: np.ndarray) -> None:
         self._vel = self._vel - dv
+
+    def set_process_noise(self, q: float) -> None:
+        """No motion model: nothing to change."""
 
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         if not len(rows):

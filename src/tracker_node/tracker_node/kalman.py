@@ -157,6 +157,11 @@ class BatchedKalmanFilter:
         P += Q
         self.P = P
 
+    def set_process_noise(self, q: float) -> None:
+        """Use white-acceleration density ``q`` from the next prediction on."""
+        self.q = float(q)
+        self._model_dt = None
+
     def move_frame(self, R: np.ndarray, t: np.ndarray) -> None:
         """Express every track in a new camera frame, ``X_new = R X + t`` (the camera's own
         motion, :mod:`.ego_motion`): positions moved, velocities (over the ground) rotated,

@@ -202,6 +202,11 @@ class BatchedParticleFilter:
             Pn += self._noise_Q
         self._mean = self._cov = None
 
+    def set_process_noise(self, q: float) -> None:
+        """Use white-acceleration density ``q`` from the next prediction on."""
+        self.q = float(q)
+        self._noise_dt = None
+
     def move_frame(self, R: np.ndarray, t: np.ndarray) -> None:
         """As :meth:`.kalman.BatchedKalmanFilter.move_frame`: every particle's position moved
         and velocity rotated into the new camera frame; the pending offset's covariance

@@ -238,10 +238,12 @@ class Tracker:
 
     def _enter_world_frame(self, motion: CameraMotion) -> None:
         """Velocities relative to the camera -> over the ground: minus the apparent velocity
-        of a static point at each track's position. Tracks seen once (velocity still the birth
-        prior) take the prior again, now that the static scene's velocity is known (zero over
-        the ground)."""
+        of a static point at each track's position; the process noise becomes
+        ``world_process_noise`` (a car's own acceleration only). Tracks seen once (velocity
+        still the birth prior) take the prior again, now that the static scene's velocity is
+        known (zero over the ground)."""
         self.world_frame = True
+        self.filter.set_process_noise(self.cfg.world_process_noise)
         if not len(self.tracks):
             return
         self.filter.shift_velocity(static_velocity_before(motion, self.filter.position, motion.dt))
