@@ -7,6 +7,7 @@
     python bench/bench_tracker.py sim
     python bench/bench_tracker.py real   [--source stereo,camera,pointrcnn] [--split tuning]
                                          [--set K=V] [--no-camera-motion] [--checkpoint PT]
+    python bench/bench_tracker.py graph  OUTPUT/bag [--sequence 0005]
 
 ``mot``: tracker_offline's core over ../shared/kitti/detections/pointrcnn_Car_val, scored with
 eval_node.tracking_metrics (KITTI devkit rules; 3D IoU 0.25 and 2D IoU 0.5), per filter x
@@ -17,7 +18,11 @@ fixed-threshold and no-threshold CLEAR-MOT, HOTA, sAMOTA; one evaluator) on DEV 
 ``sim``: noisy stereo detections of the labelled cars (sigma_z = z^2 sigma_d / (f B), dropped
 detections): mean position error of unfiltered / kalman / particle tracks. ``real``: the
 real-motion benchmark (the paper's Table 2 on the labelled KITTI trajectories, stereo error model
-measured on KITTI Stereo 2015, and the real PointRCNN detections; see bench/real_motion.py).
+measured on KITTI Stereo 2015, and the real PointRCNN detections; see bench/real_motion.py);
+``--source camera``: the shipped CNN's measured statistics replayed (bench/camera_stats.py);
+every source gets poses_orbslam3 as the camera motion unless ``--no-camera-motion``. ``graph``:
+a recorded whole-graph run (``make demo``) on a real sequence: velocity over the ground and the
+confirmed rows where no vehicle is.
 """
 
 from __future__ import annotations
