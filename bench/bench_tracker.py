@@ -6,7 +6,9 @@
     python bench/bench_tracker.py tune    [--params START.yaml] [--seqs 0,2,...] [--rounds 1]
     python bench/bench_tracker.py speed
     python bench/bench_tracker.py sim
-    python bench/bench_tracker.py real   [--source stereo,pointrcnn] [--split tuning] [--set K=V]
+    python bench/bench_tracker.py real   [--source stereo,camera,pointrcnn] [--split tuning]
+                                         [--set K=V] [--no-camera-motion] [--checkpoint PT]
+    python bench/bench_tracker.py graph  OUTPUT/bag [--sequence 0005]
 
 ``mot``: tracker_offline's core over ../shared/kitti/detections/pointrcnn_Car_val, scored with
 eval_node.tracking_metrics (KITTI devkit rules; 3D IoU 0.25 and 2D IoU 0.5), per filter x
@@ -18,7 +20,11 @@ similarity named in the table's title) on DEV and TUNE; AB3DMOT's rows: bench/be
 ``sim``: noisy stereo detections of the labelled cars (sigma_z = z^2 sigma_d / (f B), dropped
 detections): mean position error of unfiltered / kalman / particle tracks. ``real``: the
 real-motion benchmark (the paper's Table 2 on the labelled KITTI trajectories, stereo error model
-measured on KITTI Stereo 2015, and the real PointRCNN detections; see bench/real_motion.py).
+measured on KITTI Stereo 2015, and the real PointRCNN detections; see bench/real_motion.py);
+``--source camera``: the shipped CNN's measured statistics replayed (bench/camera_stats.py);
+every source gets poses_orbslam3 as the camera motion unless ``--no-camera-motion``. ``graph``:
+a recorded whole-graph run (``make demo``) on a real sequence: velocity over the ground and the
+confirmed rows where no vehicle is.
 """
 
 from __future__ import annotations
@@ -379,6 +385,7 @@ def cmd_real(args) -> None:
     # TrackerConfig defaults (tracker_offline's)
     configs = {
         "stereo": replace(TrackerConfig.from_yaml(GRAPH_PARAMS), **overrides),
+        "camera": replace(TrackerConfig.from_yaml(GRAPH_PARAMS), **overrides),
         "pointrcnn": replace(base, **overrides),
     }
     filters = args.filters.split(",")
@@ -388,26 +395,133 @@ def cmd_real(args) -> None:
     for source in args.source.split(","):
         cfg = configs[source]
         print(f"\n[{source}] tracker configuration: {cfg}")
-        if source == "stereo":
+        if source in ("stereo", "camera"):
             model = rm.measure_stereo_model()
             dm = rm.DetectionModel()
             print(f"detection model: {dm}")
+        if source == "camera":
+            import camera_stats
+
+            cam = rm.CameraDetectionModel(camera_stats.measure(args.checkpoint))
+            camera_stats.print_stats(camera_stats.measure(args.checkpoint, verbose=False))
+        motion = "off" if args.no_camera_motion else "poses_orbslam3"
+        print(f"camera motion given to the tracker: {motion}")
         for split, seqs in splits.items():
             t0 = time.perf_counter()
             if source == "stereo":
                 datas = [rm.stereo_sequence(s, model, dm, seed=int(s)) for s in seqs]
+            elif source == "camera":
+                datas = [rm.camera_sequence(s, model, cam, dm, seed=int(s)) for s in seqs]
             else:
                 datas = [rm.pointrcnn_sequence(s) for s in seqs]
+            datas = [rm.with_camera_motion(d) for d in datas]
             if args.cold_start:
                 datas = [p for d in datas for p in rm.segments(d, args.cold_start)]
                 split = f"{split} (cold starts every {args.cold_start} frames)"
-            ap, stats, times = rm.evaluate_split(datas, cfg, filters)
+            ap, stats, times = rm.evaluate_split(
+                datas, cfg, filters, use_camera_motion=not args.no_camera_motion, hota=True
+            )
             rm.print_ap(f"[{source}] {split} sequences {','.join(seqs)}", ap)
             rm.print_bars(source, ap)
-            if source == "stereo":
+            if source != "pointrcnn":
                 rm.print_covariance_check(datas)
             rm.print_motion(stats, times)
+            rm.print_tracking_summary(stats, bars=source == "camera" and split == "reporting")
             print(f"  ({time.perf_counter() - t0:.0f} s)")
+
+
+def cmd_graph(args) -> None:
+    """A recorded whole-graph run (``make demo`` output) on a real sequence: velocity over the
+    ground against the labels (taken to the world with ``poses_orbslam3``, as the real-motion
+    benchmark does), and the confirmed / coasting track rows where no vehicle is."""
+    import real_motion as rm
+    from eval_node.bag_reader import read_run
+    from scipy.optimize import linear_sum_assignment
+
+    run = read_run(args.bag)
+    seq = args.sequence or run.sequence
+    gt = {f.frame: f.gt for f in run.frames}
+    off = run.frames[0].offset if run.frames else np.zeros(3)
+    # the ground truth's velocity over the ground, with two pose sources: the estimated
+    # poses_orbslam3, and the graph's own visual odometry (the motions it recorded)
+    sources = {"poses_orbslam3": rm.read_poses(seq), "recorded odometry": _recorded_poses(run)}
+    v_ground = {
+        name: rm.ground_velocities(gt, poses, off)
+        for name, poses in sources.items()
+        if poses is not None
+    }
+    ground_err = {name: [] for name in v_ground}
+    false_rows, rows, out_of_view = [], 0, 0
+    vehicles = ("Car", "Van", "Truck", "Tram")
+    for f in run.frames:
+        cars = [o for o in f.gt if o.type == "Car" and o.location[2] > 0]
+        anything = [o for o in f.gt if o.type in vehicles]
+        boxes = [o.bbox for o in f.gt if o.type in vehicles or o.is_dontcare]
+        centres = np.array([o.centre_of_mass for o in anything]).reshape(-1, 3)
+        for o in f.tracks:
+            rows += 1
+            if o.bbox[2] <= o.bbox[0]:  # projected outside the image: a car that left the view
+                out_of_view += 1
+                continue
+            near = len(centres) and np.linalg.norm(centres - o.centre_of_mass, axis=1).min() < 3.0
+            overlap = any(_iou2d(o.bbox, b) >= 0.1 for b in boxes)
+            if not near and not overlap:
+                false_rows.append((f.frame, o.track_id, [round(float(v), 1) for v in o.location]))
+        if not cars or not f.tracks:
+            continue
+        g = np.array([o.centre_of_mass for o in cars])
+        t = np.array([o.centre_of_mass for o in f.tracks])
+        dist = np.linalg.norm(t[:, None] - g[None], axis=-1)
+        r, c = linear_sum_assignment(np.where(dist < 3.0, dist, 1e6))
+        for i, j in zip(r, c, strict=True):
+            if dist[i, j] >= 3.0:
+                continue
+            vg = f.track_ground_velocities[i]
+            for name, table in v_ground.items():
+                vw = table.get((f.frame, cars[j].track_id))
+                if vw is not None and np.isfinite(vg).all():
+                    ground_err[name].append(float(np.linalg.norm((vg - vw)[[0, 2]])))
+    print(f"{run.path}: sequence {seq}, {len(run.frames)} frames, {rows} output track rows")
+    for name, errs in ground_err.items():
+        ge = np.array(errs)
+        if not len(ge):
+            print(f"velocity over the ground ({name}): no matched row carries it")
+            continue
+        print(
+            f"velocity over the ground (x-z), tracks within 3 m of a labelled car: RMSE "
+            f"{np.sqrt(np.mean(ge**2)):.2f} m/s, median {np.median(ge):.2f} m/s (n = {len(ge)}; "
+            f"ground truth: labels taken to the world with {name})"
+        )
+    print(
+        f"confirmed / coasting rows where no vehicle is (> 3 m from every labelled vehicle and "
+        f"2D IoU < 0.1 with every vehicle or DontCare box): {len(false_rows)}; coasting rows "
+        f"projected outside the image (no 2D box: a car that left the view): {out_of_view}"
+    )
+    for fr, tid, loc in false_rows:
+        print(f"  frame {fr} track {tid} at {loc} (camera 0, bottom centre)")
+
+
+def _recorded_poses(run) -> list | None:
+    """Left-camera poses (``X_first = R X_k + t``) chained from the camera motions the 3D
+    arrays recorded (a frame without one repeats the previous); None when none is recorded."""
+    from tracker_node.conversions import camera_motion_from_msg
+
+    R, t, last, poses = np.eye(3), np.zeros(3), None, []
+    for k, f in enumerate(run.frames):
+        m = camera_motion_from_msg(f.det3d_msg)[0] if f.det3d_msg is not None else None
+        last = m or last
+        if k and last is not None:  # X_{k-1} = M' (X_k - m)
+            R, t = R @ last.rotation.T, t - R @ last.rotation.T @ last.translation
+        poses.append((R.copy(), t.copy()))
+    return poses if last is not None else None
+
+
+def _iou2d(a, b) -> float:
+    x1, y1 = max(a[0], b[0]), max(a[1], b[1])
+    x2, y2 = min(a[2], b[2]), min(a[3], b[3])
+    inter = max(x2 - x1, 0.0) * max(y2 - y1, 0.0)
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / union if union > 0 else 0.0
 
 
 def main() -> None:
@@ -438,7 +552,18 @@ def main() -> None:
     s.add_argument("--sigma-d", type=float, default=0.5, help="disparity noise [px]")
     s.add_argument("--drop", type=float, default=0.1, help="fraction of dropped detections")
     r = sub.add_parser("real")
-    r.add_argument("--source", default="stereo,pointrcnn")
+    r.add_argument(
+        "--source",
+        default="stereo,pointrcnn",
+        help="stereo (stated detection model), camera (the shipped CNN's measured statistics, "
+        "bench/camera_stats.py), pointrcnn",
+    )
+    r.add_argument("--checkpoint", default="", help="camera: detector checkpoint ('' = shipped)")
+    r.add_argument(
+        "--no-camera-motion",
+        action="store_true",
+        help="do not give the tracker the camera's motion (poses_orbslam3)",
+    )
     r.add_argument("--filters", default="none,kalman,particle")
     r.add_argument("--split", default="both", choices=("both", "tuning", "reporting"))
     r.add_argument("--seqs", default="", help="override the reporting sequences")
@@ -451,6 +576,9 @@ def main() -> None:
         help="cut each sequence into pieces of N frames, each tracked from a fresh tracker "
         "(the start-up transient; 0 = whole sequences)",
     )
+    g = sub.add_parser("graph", help="a recorded whole-graph run on a real sequence")
+    g.add_argument("bag", help="the demo's output folder or its bag")
+    g.add_argument("--sequence", default="", help="KITTI sequence (default: the recording's)")
     args = p.parse_args()
     if args.cmd in ("mot", "tune", "compare") and not DETS.is_dir():
         sys.exit(f"error: {DETS}: shared KITTI detections not found")
@@ -458,6 +586,7 @@ def main() -> None:
         sys.exit(f"error: {LABELS}: shared KITTI tracking labels not found")
     cmds = {"mot": cmd_mot, "tune": cmd_tune, "speed": cmd_speed, "sim": cmd_sim, "real": cmd_real}
     cmds["compare"] = cmd_compare
+    cmds["graph"] = cmd_graph
     cmds[args.cmd](args)
 
 

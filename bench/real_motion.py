@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -232,6 +232,79 @@ class SequenceData:
     det_gt_id: list[np.ndarray]  # per frame, the labelled track id of each detection (-1: none)
     raw: dict[int, list[KittiObject]]  # the detections as KITTI result objects
     errors: list[tuple[float, float, float]]  # (gt depth, measured - true depth, reported std)
+    # per frame, the camera's motion since the previous frame (None: unknown / not used)
+    motions: list | None = None
+    # {(frame, track id): velocity over the ground (3,) in that frame's camera axes} [m/s]
+    ground_velocity: dict | None = None
+
+
+# ----------------------------------------------------------------------------- camera poses
+
+
+def read_poses(seq: str) -> list[tuple[np.ndarray, np.ndarray]] | None:
+    """ORB-SLAM3's estimated left-camera poses of ``seq`` (``poses_orbslam3``: ``X_first = R
+    X_k + t``), or None when the file is absent."""
+    path = TRACKING / "poses_orbslam3" / f"{seq}.txt"
+    if not path.is_file():
+        return None
+    m = np.loadtxt(path).reshape(-1, 3, 4)
+    return [(a[:, :3], a[:, 3]) for a in m]
+
+
+def camera_motions(poses, offset: np.ndarray) -> list:
+    """Per frame the camera's motion since the previous one in camera-0 coordinates (the
+    benchmark's tracking frame): ``X0_k = M X0_{k-1} + m + M off - off`` with the left camera's
+    ``X2_k = M X2_{k-1} + m``, ``M = R_k' R_{k-1}``, ``m = R_k' (t_{k-1} - t_k)``; None for
+    frame 0."""
+    from vehicle_common.camera_motion import CameraMotion
+
+    out = [None]
+    for (R0, t0), (R1, t1) in zip(poses, poses[1:], strict=False):
+        M = R1.T @ R0
+        m = R1.T @ (t0 - t1)
+        out.append(CameraMotion(M, m + M @ offset - offset, FRAME_PERIOD))
+    return out
+
+
+def ground_velocities(gt, poses, offset: np.ndarray) -> dict:
+    """Velocity over the ground of every labelled car at every frame with a labelled neighbour
+    (central difference where both exist), in that frame's camera axes: the labels' centres
+    taken to the first frame's coordinates with the same poses the tracker is given (so the
+    figure measures the tracker, not the poses)."""
+    world = {}
+    for k, objs in gt.items():
+        if k >= len(poses):
+            continue
+        R, t = poses[k]
+        for o in _cars(objs):
+            world[(k, o.track_id)] = R @ (o.centre_of_mass + offset) + t
+    out = {}
+    for (k, tid), x in world.items():
+        before, after = world.get((k - 1, tid)), world.get((k + 1, tid))
+        if before is not None and after is not None:
+            v = (after - before) / (2 * FRAME_PERIOD)
+        elif after is not None:
+            v = (after - x) / FRAME_PERIOD
+        elif before is not None:
+            v = (x - before) / FRAME_PERIOD
+        else:
+            continue
+        out[(k, tid)] = poses[k][0].T @ v
+    return out
+
+
+def with_camera_motion(data: SequenceData) -> SequenceData:
+    """``data`` with the poses' camera motions and the ground truth's velocities over the
+    ground (unchanged when the sequence has no poses)."""
+    poses = read_poses(data.name)
+    if poses is None:
+        return data
+    off = read_calib(TRACKING / "calib" / f"{data.name}.txt").left_camera_offset
+    return replace(
+        data,
+        motions=camera_motions(poses, off)[: len(data.frames)],
+        ground_velocity=ground_velocities(data.gt, poses, off),
+    )
 
 
 def segments(data: SequenceData, length: int) -> list[SequenceData]:
@@ -252,6 +325,11 @@ def segments(data: SequenceData, length: int) -> list[SequenceData]:
                 [data.det_gt_id[k] for k in ks],
                 {k - k0: [o.with_(frame=k - k0) for o in data.raw.get(k, [])] for k in ks},
                 data.errors if k0 == 0 else [],  # the ranging errors once per sequence
+                # a fresh tracker has no earlier frame: no motion in its first
+                None if data.motions is None else [None] + data.motions[k0 + 1 : ks.stop],
+                None
+                if data.ground_velocity is None
+                else {(k - k0, g): v for (k, g), v in data.ground_velocity.items() if k in ks},
             )
         )
     return out
@@ -283,29 +361,72 @@ def _to_objects(batch: DetectionBatch, frame: int) -> list[KittiObject]:
     return out
 
 
+class _Ranger:
+    """Stereo ranging of a labelled point through the error model: the disparity at its depth
+    with the model's bias and spread, the box-to-centre depth error, the box centre's pixel
+    moved by the box noise (the point moves along its ray), and the covariance the ranging
+    reports (``stereo_depth_node.ranging.position_covariance``; it refines boxes up to
+    refine_max_disparity: disparity_std's ``refined``). ``errors``: (true depth, error,
+    reported std) of every measurement."""
+
+    def __init__(self, calib, model: StereoErrorModel, dm: DetectionModel, rng):
+        from stereo_depth_node.ranging import RangingParams
+        from stereo_depth_node.reprojection import StereoGeometry
+
+        self.calib, self.model, self.dm, self.rng = calib, model, dm, rng
+        self.geo = StereoGeometry.from_projections(calib.P2, calib.P3)
+        self.rparams = RangingParams()
+        self.fB = calib.fx * calib.baseline
+        self.errors: list[tuple[float, float, float]] = []
+
+    def covariance(self, u: float, v: float, z: float, d: float) -> np.ndarray:
+        from stereo_depth_node.ranging import disparity_std, position_covariance
+
+        sd = disparity_std(d, d <= self.rparams.refine_max_disparity, self.rparams)
+        return position_covariance(u, v, z, self.geo, self.rparams, sd)
+
+    def measure(self, c: np.ndarray, du=None, dv=None) -> tuple[np.ndarray, np.ndarray]:
+        """(measured point, reported covariance) of the point ``c`` (left optical frame);
+        ``du``, ``dv``: the box centre's pixel error (None: drawn from the stated box noise)."""
+        calib, model, rng = self.calib, self.model, self.rng
+        z = c[2]
+        d = self.fB / z
+        dm_ = max(d + float(model.bias(d)) + float(model.spread(d)) * rng.normal(), 0.5)
+        zm = self.fB / dm_ + rng.normal(scale=self.dm.centre_depth_std)
+        s = self.dm.box_noise_px / math.sqrt(2)
+        u = calib.fx * c[0] / z + calib.cx + (rng.normal(scale=s) if du is None else du)
+        v = calib.fy * c[1] / z + calib.cy + (rng.normal(scale=s) if dv is None else dv)
+        R = self.covariance(u, v, zm, dm_)
+        self.errors.append((z, zm - z, float(np.sqrt(R[2, 2]))))
+        return self.geo.backproject(u, v, zm), R
+
+
+def _batch(pos, cov, bbox, score, bins=None) -> DetectionBatch:
+    """One frame's simulated detections (lists) as a DetectionBatch."""
+    return DetectionBatch.create(
+        np.array(pos).reshape(-1, 3),
+        covariance=np.array(cov).reshape(-1, 3, 3),
+        bbox=np.array(bbox).reshape(-1, 4),
+        score=np.array(score),
+        orientation_bin=None if bins is None else np.array(bins, dtype=int),
+    )
+
+
 def stereo_sequence(
     seq: str, model: StereoErrorModel, dm: DetectionModel, seed: int
 ) -> SequenceData:
-    from stereo_depth_node.ranging import RangingParams, disparity_std, position_covariance
-    from stereo_depth_node.reprojection import StereoGeometry
     from vehicle_common.box3d import projected_bbox
 
     rng = np.random.default_rng(seed)
     calib = read_calib(TRACKING / "calib" / f"{seq}.txt")
     gt = read_tracking_labels(TRACKING / "label_02" / f"{seq}.txt")
-    geo = StereoGeometry.from_projections(calib.P2, calib.P3)
-    rparams = RangingParams()
-    f, fB = calib.fx, calib.fx * calib.baseline
-
-    def reported_covariance(u: float, v: float, z: float, d: float) -> np.ndarray:
-        """The covariance the ranging reports for a box at pixel (u, v) ranged at depth z from
-        disparity d (it refines boxes up to refine_max_disparity: disparity_std's ``refined``)."""
-        sd = disparity_std(d, d <= rparams.refine_max_disparity, rparams)
-        return position_covariance(u, v, z, geo, rparams, sd)
+    ranger = _Ranger(calib, model, dm, rng)
+    geo, f, fB = ranger.geo, calib.fx, ranger.fB
+    reported_covariance = ranger.covariance
 
     off = calib.left_camera_offset
     n_frames = max(gt) + 1
-    frames, ids, raw, errors = [], [], {}, []
+    frames, ids, raw = [], [], {}
     for k in range(n_frames):
         pos, cov, bbox, score, gid = [], [], [], [], []
         for o in _cars(gt.get(k, [])):
@@ -314,19 +435,9 @@ def stereo_sequence(
             miss = dm.miss_rate_occluded if o.occluded >= 2 else dm.miss_rate
             if rng.random() < miss:
                 continue
-            c = o.centre_of_mass + off  # left optical frame
-            z = c[2]
-            d = fB / z
-            dm_ = max(d + float(model.bias(d)) + float(model.spread(d)) * rng.normal(), 0.5)
-            zm = fB / dm_ + rng.normal(scale=dm.centre_depth_std)
-            # the box centre's pixel moves with the box noise; the point moves along its ray
-            u = f * c[0] / z + calib.cx + rng.normal(scale=dm.box_noise_px / math.sqrt(2))
-            v = calib.fy * c[1] / z + calib.cy + rng.normal(scale=dm.box_noise_px / math.sqrt(2))
-            p = geo.backproject(u, v, zm)
+            p, R = ranger.measure(o.centre_of_mass + off)  # left optical frame
             pos.append(p - off)
-            R = reported_covariance(u, v, zm, dm_)
             cov.append(R)
-            errors.append((z, zm - z, float(np.sqrt(R[2, 2]))))
             bbox.append(np.array(o.bbox) + rng.normal(scale=dm.box_noise_px, size=4))
             score.append(float(np.clip(0.9 - 0.1 * o.occluded + rng.normal(scale=0.05), 0, 1)))
             gid.append(o.track_id)
@@ -342,16 +453,149 @@ def stereo_sequence(
             bbox.append(np.array(b))
             score.append(float(rng.uniform(0.2, 0.6)))
             gid.append(-1)
-        batch = DetectionBatch.create(
-            np.array(pos).reshape(-1, 3),
-            covariance=np.array(cov).reshape(-1, 3, 3),
-            bbox=np.array(bbox).reshape(-1, 4),
-            score=np.array(score),
-        )
+        batch = _batch(pos, cov, bbox, score)
         frames.append(batch)
         ids.append(np.array(gid, dtype=int))
         raw[k] = _to_objects(batch, k)
-    return SequenceData(seq, gt, calib.P2, frames, ids, raw, errors)
+    return SequenceData(seq, gt, calib.P2, frames, ids, raw, ranger.errors)
+
+
+class CameraDetectionModel:
+    """The shipped CNN's measured statistics (:mod:`camera_stats`) as a detector of labelled
+    cars: miss rate by box height and occlusion (truncated cars apart), box edge errors and
+    scores drawn from the measured ones of the same height bin (bootstrap: their correlations
+    and tails kept), orientation bins from the confusion matrix; false positives per frame drawn
+    from the measured counts, each a static background object (the measured box and score at
+    a depth where its bottom edge meets the road) that is detected again in the next frame with
+    the measured probability."""
+
+    CAMERA_HEIGHT = 1.65  # [m] KITTI's camera above the road
+
+    def __init__(self, stats: dict):
+        edges = [h if h is not None else math.inf for h in stats["height_bins"]]
+        self.edges = np.array(edges)
+        found, total = np.array(stats["found"]), np.array(stats["total"])
+        per_bin = 1 - found.sum(axis=1) / np.maximum(total.sum(axis=1), 1)
+        self.miss = np.where(total >= 5, 1 - found / np.maximum(total, 1), per_bin[:, None])
+        tr = stats["truncated"]
+        self.miss_truncated = 1 - tr[0] / tr[1] if tr[1] else float(per_bin.mean())
+        pooled = [e for es in stats["edge_err"] for e in es]
+        self.edge_err = [
+            np.array(e if len(e) >= 5 else pooled).reshape(-1, 4) for e in stats["edge_err"]
+        ]
+        # scores by height bin, not occluded / occluded (occluded cars score lower; a bin with
+        # fewer than 5 takes that occlusion class's scores pooled over heights)
+        self.tp_score = []
+        for key in ("tp_score", "tp_score_occluded"):
+            pooled = [s for ss in stats[key] for s in ss]
+            self.tp_score.append([np.array(s if len(s) >= 5 else pooled) for s in stats[key]])
+        c = np.array(stats["confusion"], float) + 0.5  # (a little smoothing for empty rows)
+        self.confusion = c / c.sum(axis=1, keepdims=True)
+        col = np.array(stats["confusion"], float).sum(axis=0) + 0.5
+        self.fp_bin = col / col.sum()
+        self.fp_counts = np.array(stats["fp_counts"])
+        self.fp_boxes = np.array(stats["fp_boxes"]).reshape(-1, 4)
+        self.fp_scores = np.array(stats["fp_scores"])
+        pe = stats["fp_persist"]
+        self.fp_persist = pe[0] / pe[1] if pe[1] else 0.0
+
+    def _bin(self, h: float) -> int:
+        b = np.searchsorted(self.edges, h, side="right") - 1
+        return int(np.clip(b, 0, len(self.miss) - 1))
+
+    def detect(self, o: KittiObject, rng):
+        """(box edge errors (4,), score, orientation bin) of a labelled car, or None (missed)."""
+        from vehicle_common.orientation_bins import alpha_to_bin
+
+        b = self._bin(o.height_px)
+        miss = self.miss_truncated if o.truncated > 0.3 else self.miss[b, min(int(o.occluded), 3)]
+        if rng.random() < miss:
+            return None
+        err = self.edge_err[b][rng.integers(len(self.edge_err[b]))]
+        scores = self.tp_score[int(o.occluded >= 1)][b]
+        score = float(scores[rng.integers(len(scores))])
+        gbin = int(alpha_to_bin(o.alpha)) if o.alpha > -math.pi - 1e-6 else 2
+        return err, score, int(rng.choice(4, p=self.confusion[gbin]))
+
+    def new_false_objects(self, rng, n_alive: int, f: float, cx: float, cy: float):
+        """New static false objects for this frame, each (pixel centre u, v, depth [m], metric
+        half width, half height, score): as many as keep the measured count per frame given the
+        ``n_alive`` ones found again."""
+        births = max(int(self.fp_counts[rng.integers(len(self.fp_counts))]) - n_alive, 0)
+        out = []
+        for _ in range(births):
+            i = rng.integers(len(self.fp_boxes))
+            x1, y1, x2, y2 = self.fp_boxes[i]
+            if y2 - cy > 3.0:  # the bottom edge on the road
+                z = f * self.CAMERA_HEIGHT / (y2 - cy)
+            else:
+                z = f * 1.5 / max(y2 - y1, 1.0)  # a 1.5 m tall thing
+            z = float(np.clip(z, 3.0, 80.0))
+            hw, hh = (x2 - x1) * z / (2 * f), (y2 - y1) * z / (2 * f)
+            out.append(((x1 + x2) / 2, (y1 + y2) / 2, z, hw, hh, float(self.fp_scores[i])))
+        return out
+
+
+def camera_sequence(
+    seq: str, model: StereoErrorModel, cam: CameraDetectionModel, dm: DetectionModel, seed: int
+) -> SequenceData:
+    """Detections of the labelled cars of ``seq`` as the shipped CNN makes them (``cam``'s
+    measured statistics), ranged with the stereo error model as :func:`stereo_sequence`; false
+    positives are static background objects (world-fixed through the estimated camera poses, so
+    a false positive found again stands where it stood), with the camera's motion and the
+    ground truth's velocities over the ground attached (:func:`with_camera_motion`)."""
+    rng = np.random.default_rng(seed)
+    calib = read_calib(TRACKING / "calib" / f"{seq}.txt")
+    gt = read_tracking_labels(TRACKING / "label_02" / f"{seq}.txt")
+    ranger = _Ranger(calib, model, dm, rng)
+    f, off = calib.fx, calib.left_camera_offset
+    poses = read_poses(seq)
+    n_frames = max(gt) + 1
+    frames, ids, raw = [], [], {}
+    alive = []  # static false objects: (world point (3,), half width, half height, score)
+    for k in range(n_frames):
+        pos, cov, bbox, score, bins, gid = [], [], [], [], [], []
+        for o in _cars(gt.get(k, [])):
+            hit = cam.detect(o, rng)
+            if hit is None:
+                continue
+            err, sc, b = hit
+            du, dv = (err[0] + err[2]) / 2, (err[1] + err[3]) / 2
+            p, R = ranger.measure(o.centre_of_mass + off, du, dv)
+            pos.append(p - off)
+            cov.append(R)
+            bbox.append(np.array(o.bbox) + err)
+            score.append(sc)
+            bins.append(b)
+            gid.append(o.track_id)
+        R_k, t_k = poses[k] if poses is not None and k < len(poses) else (np.eye(3), np.zeros(3))
+        kept = []
+        for xw, hw, hh, sc in alive:  # found again with the measured probability
+            if (R_k.T @ (xw - t_k))[2] >= 3.0 and rng.random() < cam.fp_persist:
+                kept.append((xw, hw, hh, sc))
+        for u, v, z, hw, hh, sc in cam.new_false_objects(rng, len(kept), f, calib.cx, calib.cy):
+            kept.append((R_k @ ranger.geo.backproject(u, v, z) + t_k, hw, hh, sc))
+        alive = []
+        for xw, hw, hh, sc in kept:
+            pc = R_k.T @ (xw - t_k)  # left optical frame
+            u, v = f * pc[0] / pc[2] + calib.cx, calib.fy * pc[1] / pc[2] + calib.cy
+            du, dv = f * hw / pc[2], calib.fy * hh / pc[2]
+            if not (0 <= u < 1242 and 0 <= v < 375):
+                continue
+            alive.append((xw, hw, hh, sc))
+            p, R = ranger.measure(pc, 0.0, 0.0)
+            pos.append(p - off)
+            cov.append(R)
+            bbox.append(np.array([u - du, v - dv, u + du, v + dv]))
+            score.append(sc)
+            bins.append(int(rng.choice(4, p=cam.fp_bin)))
+            gid.append(-1)
+        batch = _batch(pos, cov, bbox, score, bins)
+        frames.append(batch)
+        ids.append(np.array(gid, dtype=int))
+        raw[k] = _to_objects(batch, k)
+    data = SequenceData(seq, gt, calib.P2, frames, ids, raw, ranger.errors)
+    return with_camera_motion(data)
 
 
 def pointrcnn_sequence(seq: str) -> SequenceData:
@@ -392,16 +636,22 @@ class MotionStats:
     lag_s: list  # [s] the same divided by the relative speed
     vel_err: list
     speed: list
-    mot: dict  # CLEAR-MOT totals (KITTI tracking rules, 2D IoU 0.5)
+    mot: dict  # CLEAR-MOT totals (KITTI tracking rules, 2D IoU 0.5) and HOTA (2D IoU)
+    ground_err: list = field(default_factory=list)  # [m/s] velocity over the ground, x-z error
+    ground_speed: list = field(default_factory=list)  # [m/s] the car's true speed over ground
+    frames: int = 0  # frames tracked
 
 
-def run_tracker(data: SequenceData, cfg: TrackerConfig, stats: MotionStats | None):
+def run_tracker(
+    data: SequenceData, cfg: TrackerConfig, stats: MotionStats | None, use_motion: bool = True
+):
     trk = Tracker(cfg, projection=data.P2)
     gt_vel = track_velocities(data.gt, dt=FRAME_PERIOD, axes="xyz")
     gt_pos = {(k, o.track_id): o.centre_of_mass for k, objs in data.gt.items() for o in _cars(objs)}
     out, ranked = {}, {}
+    motions = data.motions if use_motion and data.motions is not None else None
     for k, batch in enumerate(data.frames):
-        ts = trk.step(batch, k * FRAME_PERIOD)
+        ts = trk.step(batch, k * FRAME_PERIOD, None if motions is None else motions[k])
         # tracks keep the tracker's own score (PointRCNN's are logits) for the AP ranking, which
         # takes tentative tracks too (at their lowered score, as `evaluate` does); CLEAR-MOT
         # takes the output states (confirmed / coasting) only.
@@ -409,6 +659,7 @@ def run_tracker(data: SequenceData, cfg: TrackerConfig, stats: MotionStats | Non
         out[k] = result_rows(ts, k, np.zeros(3), OUTPUT_STATES, mean_hwl=MEAN_HWL)
         if stats is None:
             continue
+        stats.frames += 1
         for i in np.nonzero(ts.det_index >= 0)[0]:
             if ts.state[i] == 0:
                 continue
@@ -417,6 +668,11 @@ def run_tracker(data: SequenceData, cfg: TrackerConfig, stats: MotionStats | Non
                 continue
             e = ts.position[i] - gt_pos[(k, g)]
             stats.pos_err.append(float(np.linalg.norm(e)))
+            vw = None if data.ground_velocity is None else data.ground_velocity.get((k, g))
+            if vw is not None and np.isfinite(ts.velocity_over_ground[i]).all():
+                ew = (ts.velocity_over_ground[i] - vw)[[0, 2]]
+                stats.ground_err.append(float(np.linalg.norm(ew)))
+                stats.ground_speed.append(float(np.linalg.norm(vw[[0, 2]])))
             vg = gt_vel.get((k, g))
             if vg is None:
                 continue
@@ -447,8 +703,17 @@ def _ap_table(gt, preds: dict[str, dict]) -> dict[str, dict]:
     return res
 
 
-def evaluate_split(datas: list[SequenceData], cfg: TrackerConfig, filters, motion=True):
-    """AP of raw detections and of each filter's tracks over the sequences, plus motion stats."""
+def evaluate_split(
+    datas: list[SequenceData],
+    cfg: TrackerConfig,
+    filters,
+    motion=True,
+    use_camera_motion: bool = True,
+    hota: bool = False,
+):
+    """AP of raw detections and of each filter's tracks over the sequences, plus motion stats
+    (``use_camera_motion``: the sequences' camera motions given to the tracker; ``hota``: HOTA
+    too, 2D IoU similarity)."""
     gt, preds = {}, {"raw": {}}
     stats, times = {}, {}
     for data in datas:
@@ -463,13 +728,15 @@ def evaluate_split(datas: list[SequenceData], cfg: TrackerConfig, filters, motio
         per_seq = {}
         t0 = time.perf_counter()
         for data in datas:
-            ranked, out = run_tracker(data, replace(cfg, filter=flt), st)
+            ranked, out = run_tracker(data, replace(cfg, filter=flt), st, use_camera_motion)
             per_seq[data.name] = out
             for k, objs in ranked.items():
                 preds[flt][(data.name, k)] = objs
         times[flt] = time.perf_counter() - t0
         if st is not None:
-            st.mot = evaluate_tracking_sequences(gts, per_seq, hota=False)["total"]
+            st.mot = evaluate_tracking_sequences(
+                gts, per_seq, similarity="iou2d", hota_similarity="iou2d", hota=hota
+            )["total"]
         stats[flt] = st
     return _ap_table(gt, preds), stats, times
 
@@ -550,6 +817,42 @@ def print_motion(stats: dict[str, MotionStats], times: dict[str, float]) -> None
             + " | ".join(buckets)
             + f" | {100 * st.mot['mota']:5.1f} / {st.mot['idsw']} | {times[flt]:.1f}"
         )
+    sys.stdout.flush()
+
+
+def print_tracking_summary(stats: dict[str, MotionStats], bars: bool = False) -> None:
+    """Per filter: CLEAR-MOT (2D IoU 0.5, KITTI rules) on every output row (what a robot
+    receives; ``best``: at the devkit's best score threshold), HOTA (2D IoU similarity, all
+    rows), false tracks per frame (output rows matching no labelled car, Van / DontCare
+    ignored), velocity RMSE over the ground (x-z; tracks matched to a labelled car this frame);
+    with ``bars`` issue 23's bars checked."""
+    print(
+        "  | filter | MOTA (all rows) | MOTA (best thr.) | HOTA (2D IoU) | IDSW | "
+        "false tracks / frame | velocity RMSE over ground [m/s] (n) | parked < 1 m/s: RMSE |"
+    )
+    for flt, st in stats.items():
+        if st is None:
+            continue
+        m, a = st.mot, st.mot["all_rows"]
+        ge, gs = np.array(st.ground_err), np.array(st.ground_speed)
+        rmse = float(np.sqrt(np.mean(ge**2))) if len(ge) else math.nan
+        parked = gs < 1.0
+        prmse = float(np.sqrt(np.mean(ge[parked] ** 2))) if parked.any() else math.nan
+        fpf = a["fp"] / max(st.frames, 1)
+        hota = 100 * m.get("hota", math.nan)
+        print(
+            f"  | {flt} | {100 * a['mota']:.1f} | {100 * m['mota']:.1f} | {hota:.1f} | "
+            f"{a['idsw']} | {fpf:.2f} | {rmse:.2f} ({len(ge)}) | {prmse:.2f} |"
+        )
+        if bars:
+            checks = [
+                ("MOTA >= 60", 100 * a["mota"], 60.0, 1),
+                ("HOTA >= 50", hota, 50.0, 1),
+                ("velocity RMSE over ground <= 2.5 m/s", -rmse, -2.5, -1),
+            ]
+            for name, v, bar, sign in checks:
+                ok = v >= bar
+                print(f"    bar {name}: {'holds' if ok else 'FAILS'} ({sign * v:.2f})")
     sys.stdout.flush()
 
 

@@ -196,36 +196,37 @@ def test_particle_kernel_keeps_a_far_fast_start_up_on_the_exact_posterior():
 @pytest.mark.parametrize("flt", ["kalman", "particle"])
 def test_camera_motion_starts_the_first_tracks_at_the_static_scene_velocity(flt):
     """Before any track is established, the camera's motion (visual odometry) gives new tracks,
-    and tracks seen once, the apparent velocity of a parked car; without it they start at zero
-    and lag a car closing at 12 m/s (0005's start-up)."""
+    and tracks seen once, the apparent velocity of a parked car (zero over the ground); without
+    it they start at zero relative velocity and lag a car closing at 12 m/s (0005's start-up)."""
     from vehicle_common.camera_motion import CameraMotion
 
     motion = CameraMotion(np.eye(3), EGO * 0.1, dt=0.1)
     cars = np.array([[-4.0, 1.0, 45.0], [5.0, 1.0, 30.0]])
-    cfg = TrackerConfig(filter=flt, num_particles=300)
+    cfg = TrackerConfig(filter=flt, num_particles=300, min_hits=1)
     with_motion, without = Tracker(cfg), Tracker(cfg)
     # frame 0: no earlier frame, so no motion; frame 1: the motion is known
+    out = {}
     for trk, m in ((with_motion, motion), (without, None)):
         trk.step(DetectionBatch.create(cars), stamp=0.0)
-        trk.step(DetectionBatch.create(cars + EGO * 0.1), stamp=0.1, camera_motion=m)
-    np.testing.assert_allclose(with_motion.filter.velocity, [EGO, EGO], atol=1.0)
+        out[m is None] = trk.step(DetectionBatch.create(cars + EGO * 0.1), 0.1, m)
+    np.testing.assert_allclose(out[False].velocity, [EGO, EGO], atol=1.0)  # relative
+    np.testing.assert_allclose(out[False].velocity_over_ground, np.zeros((2, 3)), atol=1.0)
     # without it, one update from rest leaves the tracks well short of the closing speed
-    assert (np.abs(without.filter.velocity[:, 2] - EGO[2]) > 1.5).all()
+    assert (np.abs(out[True].velocity[:, 2] - EGO[2]) > 1.5).all()
+    assert np.isnan(out[True].velocity_over_ground).all()  # unknown without a camera motion
     # a track born while the motion is known starts there too
     trk = Tracker(cfg)
-    trk.step(DetectionBatch.create(cars), stamp=0.0, camera_motion=motion)
-    np.testing.assert_allclose(
-        trk.filter.velocity, [EGO, EGO], atol=0.5 if flt == "particle" else 1e-9
-    )
+    ts = trk.step(DetectionBatch.create(cars), stamp=0.0, camera_motion=motion)
+    np.testing.assert_allclose(ts.velocity, [EGO, EGO], atol=0.5 if flt == "particle" else 1e-9)
 
 
 def test_camera_motion_does_not_override_an_established_scene_motion():
     from vehicle_common.camera_motion import CameraMotion
 
-    trk = Tracker(TrackerConfig())
+    trk = Tracker(TrackerConfig(min_hits=1))
     a = np.array([[-4.0, 1.0, 30.0], [5.0, 1.0, 25.0]])
     for k in range(6):  # the scene motion is established from the tracks: -12 m/s
         trk.step(DetectionBatch.create(a + EGO * 0.1 * k), stamp=0.1 * k)
     wrong = CameraMotion(np.eye(3), np.zeros(3), dt=0.1)  # says the camera stands still
-    trk.step(DetectionBatch.create(np.vstack([a + EGO * 0.6, [[3.0, 1.0, 40.0]]])), 0.6, wrong)
-    np.testing.assert_allclose(trk.filter.velocity[2], EGO, atol=2.0)
+    ts = trk.step(DetectionBatch.create(np.vstack([a + EGO * 0.6, [[3.0, 1.0, 40.0]]])), 0.6, wrong)
+    np.testing.assert_allclose(ts.velocity[2], EGO, atol=2.0)

@@ -26,6 +26,8 @@ def _tracks(n: int):
         score=np.full(n, 0.9),
         class_id=["car"] * n,
         det_index=np.arange(n),
+        velocity_over_ground=np.full((n, 3), np.nan),
+        velocity_over_ground_cov=np.full((n, 3, 3), np.nan),
     )
 
 

@@ -20,6 +20,17 @@ def _write_dets(path, n_frames=6):
     path.write_text("\n".join(rows) + "\n")
 
 
+#: a KITTI calibration (object-benchmark names; values of a typical KITTI drive, rounded)
+CALIB = """P0: 721.5 0 609.6 0 0 721.5 172.9 0 0 0 1 0
+P1: 721.5 0 609.6 -387.6 0 721.5 172.9 0 0 0 1 0
+P2: 721.5 0 609.6 44.86 0 721.5 172.9 0.2164 0 0 1 0.002746
+P3: 721.5 0 609.6 -339.5 0 721.5 172.9 2.2 0 0 1 0.00273
+R0_rect: 1 0 0 0 1 0 0 0 1
+Tr_velo_to_cam: 0 -1 0 0 0 0 -1 -0.08 1 0 0 -0.27
+Tr_imu_to_velo: 1 0 0 -0.81 0 1 0 0.32 0 0 1 -0.8
+"""
+
+
 def test_offline_writes_expected_rows(tmp_path, capsys):
     dets, out = tmp_path / "dets", tmp_path / "out"
     dets.mkdir()
@@ -55,10 +66,10 @@ def test_offline_writes_expected_rows(tmp_path, capsys):
         assert o.bbox == pytest.approx((300, 180, 380, 220))
         assert o.score == pytest.approx(7.0)
     moving = {o.frame: o for objs in res.values() for o in objs if o.track_id == 1}
-    assert set(moving) == set(range(6))  # frame 3 coasts on the prediction
-    assert 11.7 < moving[3].location[2] < 12.6  # predicted beyond the last seen z = 11.6
-    assert moving[3].score < moving[2].score  # confidence decayed while coasting
-    assert moving[3].bbox == pytest.approx((600, 170, 700, 230))  # last box (no calib)
+    # frame 3 coasts: without a camera matrix there is no projection to give it a 2D box, and
+    # the last detection's box would be stale, so no row is written (a KITTI row needs a box)
+    assert set(moving) == {0, 1, 2, 4, 5}
+    assert moving[2].bbox == pytest.approx((600, 170, 700, 230))  # matched: the detection's box
 
 
 def test_offline_with_shared_calib_projects_boxes(tmp_path, shared_kitti):
@@ -72,6 +83,8 @@ def test_offline_with_shared_calib_projects_boxes(tmp_path, shared_kitti):
     assert len(coast) == 1
     x1, y1, x2, y2 = coast[0].bbox
     assert y2 - y1 > 25 and x2 > x1  # projection of the coasting 3D box
+    assert 11.7 < coast[0].location[2] < 12.6  # predicted beyond the last seen z = 11.6
+    assert coast[0].score < next(o for o in res[2] if o.track_id == 1).score  # decayed
 
 
 @pytest.mark.parametrize(
@@ -123,7 +136,10 @@ def test_offline_coasting_rows_after_a_track_ends(tmp_path, lookahead, expected_
     params.write_text(
         "vehicle_tracker:\n  ros__parameters:\n    min_hits: 1\n    max_staleness: 2\n"
     )
+    (tmp_path / "calib").mkdir()
+    (tmp_path / "calib" / "0001.txt").write_text(CALIB)  # coasting rows need a projection
     argv = ["--detections", str(dets), "--output", str(out), "--seqs", "1", "--params", str(params)]
+    argv += ["--calib", str(tmp_path / "calib")]
     assert main([*argv, "--lookahead", str(lookahead)]) == 0
     res = read_tracking_labels(out / "0001.txt")
     first = sorted(o.frame for objs in res.values() for o in objs if o.track_id == 1)
@@ -173,6 +189,9 @@ def test_pointrcnn_profile_beats_the_defaults_online_on_real_detections(tmp_path
         assert main(["--detections", str(dets), "--output", str(out), "--seqs", "5", *params]) == 0
         res[name] = evaluate_tracking_dirs(out, labels, seqs=["0005"], similarity="iou3d")["total"]
     d, p = res["default"], res["profile"]
-    assert p["mota"] > d["mota"] + 0.02 and p["idsw"] <= d["idsw"]  # best threshold
-    assert p["all_rows"]["mota"] > d["all_rows"]["mota"] + 0.05  # no threshold
-    assert p["hota"] > d["hota"] + 0.02
+    # (issue 23: coasting tracks whose projection leaves the image no longer keep a stale
+    # detection box, which lifted the defaults' MOTA here from 75.2 to 79.1 and their
+    # no-threshold MOTA from 68.9 to 73.1; the profile writes no coasting rows: unchanged)
+    assert p["mota"] > d["mota"] - 0.01 and p["idsw"] <= d["idsw"]  # best threshold
+    assert p["all_rows"]["mota"] > d["all_rows"]["mota"] + 0.03  # no threshold
+    assert p["hota"] > d["hota"] + 0.01

@@ -87,6 +87,9 @@ def _published_rows(rclpy_context, msgs, projection):
                     v.confidence,
                 )
                 for v in out.vehicles
+                # a coasting track projected outside the image has no 2D box (size 0): the node
+                # publishes it, a KITTI result row cannot hold it
+                if v.bbox.size_x > 0
             )
         )
     return frames

@@ -57,6 +57,9 @@ class RecordedFrame:
     tracks: list[KittiObject] = field(default_factory=list)
     tentative: list[KittiObject] = field(default_factory=list)  # state-0 tracks (AP only)
     track_velocities: list[np.ndarray] = field(default_factory=list)  # (3,) per track [m/s]
+    # (3,) per track: velocity over the ground [m/s] (TrackedVehicle.velocity_over_ground), NaN
+    # when unknown or recorded before the field existed
+    track_ground_velocities: list[np.ndarray] = field(default_factory=list)
     receive_ns: dict[str, int] = field(default_factory=dict)  # topic -> receive time [ns]
 
 
@@ -100,6 +103,16 @@ def _track_object(v, offset: np.ndarray, frame: int) -> KittiObject | None:
         track_id=int(v.track_id),
         score=float(v.confidence),
     )
+
+
+def _ground_velocity(v) -> np.ndarray:
+    """A TrackedVehicle's velocity over the ground (3,), NaN when unknown (covariance[0] < 0) or
+    absent (recorded before the field existed)."""
+    g = getattr(v, "velocity_over_ground", None)
+    cov = getattr(v, "velocity_over_ground_covariance", None)
+    if g is None or cov is None or not cov[0] >= 0:
+        return np.full(3, np.nan)
+    return np.array([g.x, g.y, g.z], dtype=float)
 
 
 def bag_namespace(topic_names) -> str:
@@ -223,6 +236,7 @@ def read_run(
                     f.track_velocities.append(
                         np.array([v.velocity.x, v.velocity.y, v.velocity.z], dtype=float)
                     )
+                    f.track_ground_velocities.append(_ground_velocity(v))
     ordered = sorted(frames.values(), key=lambda f: (f.frame, f.stamp_ns))
     return RecordedRun(
         path=Path(path),

@@ -49,8 +49,11 @@ class TrackerConfig:
     # gate of the iou2d cost: minimum IoU x shape similarity
     min_iou: float = param(0.1, low=0.0, high=1.0)
     min_giou: float = param(-0.2, low=-1.0, high=1.0)  # gate of the giou3d cost: minimum 3D GIoU
-    # [m^2/s^3] white-acceleration spectral density
+    # [m^2/s^3] white-acceleration spectral density (velocities relative to the camera)
     process_noise: float = param(8.0, low=0, low_open=True)
+    # [m^2/s^3] the same once tracking in the world frame (the input carries the camera's
+    # motion): a car's own acceleration only, without the camera's (docs/tracker.md)
+    world_process_noise: float = param(0.5, low=0, low_open=True)
     # [m] position std used when a detection has no covariance
     measurement_noise: float = param(0.3, low=0, low_open=True)
     init_position_var: float = param(1.0, low=0, low_open=True)  # [m^2] (paper)
@@ -105,6 +108,10 @@ class TrackerConfig:
     coast_min_hits: int = param(0, low=0)  # coasting tracks are reported only after this many
     # matches
     score_ramp_hits: int = param(1, low=1)  # reported score x min(1, hits / this)
+    # detections whose stereo plausibility (VehicleDetection3D, when the stereo node gives it)
+    # is below this start no track (second association stage only, as below birth_score);
+    # 0: off. Detections without the field are never held back by it.
+    birth_plausibility: float = param(0.0, low=0.0, high=1.0)
 
     def validate(self) -> TrackerConfig:
         """Check every field's type, range and choices (see ``param``); raises

@@ -20,6 +20,7 @@ from .tracker import DetectionBatch, TrackSet
 def detections_from_msg(msg) -> tuple[DetectionBatch, list[str]]:
     """A DetectionBatch from a VehicleDetection3DArray, and warnings for skipped detections."""
     pos, cov, bbox, bins, score, cls, problems = [], [], [], [], [], [], []
+    plaus = []
     for k, d in enumerate(msg.detections):
         p = (d.position.x, d.position.y, d.position.z)
         if not all(math.isfinite(v) for v in p):
@@ -39,6 +40,7 @@ def detections_from_msg(msg) -> tuple[DetectionBatch, list[str]]:
         bins.append(int(d.orientation_bin) if d.orientation_bin <= 3 else -1)
         score.append(float(d.score) if math.isfinite(d.score) else 0.0)
         cls.append(d.class_id or "car")
+        plaus.append(_plausibility(d))
     if not pos:
         return DetectionBatch.empty(), problems
     batch = DetectionBatch.create(
@@ -48,8 +50,20 @@ def detections_from_msg(msg) -> tuple[DetectionBatch, list[str]]:
         bbox=np.array(bbox),
         score=np.array(score),
         class_id=cls,
+        plausibility=np.array(plaus),
     )
     return batch, problems
+
+
+def _plausibility(d) -> float:
+    """A detection's stereo plausibility in [0, 1] when the message carries it (a float
+    ``plausibility`` score, else a bool ``plausible`` flag), NaN otherwise (older messages)."""
+    value = getattr(d, "plausibility", None)
+    if value is None:
+        flag = getattr(d, "plausible", None)
+        return math.nan if flag is None else float(bool(flag))
+    value = float(value)
+    return min(max(value, 0.0), 1.0) if math.isfinite(value) else math.nan
 
 
 def camera_motion_from_msg(msg) -> tuple[CameraMotion | None, list[str]]:
@@ -83,6 +97,15 @@ def tracks_to_msg(tracks: TrackSet, header):
         v.position_covariance = [float(a) for a in tracks.position_cov[i].ravel()]
         v.velocity.x, v.velocity.y, v.velocity.z = (float(a) for a in tracks.velocity[i])
         v.velocity_covariance = [float(a) for a in tracks.velocity_cov[i].ravel()]
+        g = tracks.velocity_over_ground[i]
+        v.velocity_over_ground.x, v.velocity_over_ground.y, v.velocity_over_ground.z = (
+            float(a) for a in g
+        )
+        if np.isfinite(g).all():
+            gc = tracks.velocity_over_ground_cov[i].ravel()
+            v.velocity_over_ground_covariance = [float(a) for a in gc]
+        else:  # unknown (no camera motion yet): sensor_msgs' convention
+            v.velocity_over_ground_covariance = [-1.0] + [0.0] * 8
         v.size.x, v.size.y, v.size.z = (float(a) for a in tracks.size[i])
         v.yaw = float(tracks.yaw[i])
         v.orientation_bin = int(tracks.orientation_bin[i])
@@ -105,7 +128,8 @@ def markers_for(
 ) -> object:
     """MarkerArray: a DELETEALL first (clears boxes left by an earlier run or a restarted
     tracker), then per track a LINE_LIST box, a TEXT_VIEW_FACING id label and an ARROW for the
-    velocity, each living ``lifetime_s``; DELETE markers for the tracks in ``ended_ids``."""
+    velocity (over the ground when known, else relative to the camera), each living
+    ``lifetime_s``; DELETE markers for the tracks in ``ended_ids``."""
     from builtin_interfaces.msg import Duration
     from geometry_msgs.msg import Point
     from visualization_msgs.msg import Marker, MarkerArray
@@ -146,7 +170,9 @@ def markers_for(
         text.color.r = text.color.g = text.color.b = text.color.a = 1.0
         text.text = f"{int(tracks.track_id[i])}"
         arrow = base("velocity", mid, Marker.ARROW)
-        v = tracks.velocity[i]
+        v = tracks.velocity_over_ground[i]  # the car's own motion when known
+        if not np.isfinite(v).all():
+            v = tracks.velocity[i]
         arrow.points = [
             Point(x=float(c[0]), y=float(c[1]), z=float(c[2])),
             Point(x=float(c[0] + v[0]), y=float(c[1] + v[1]), z=float(c[2] + v[2])),

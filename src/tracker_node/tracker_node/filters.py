@@ -2,8 +2,10 @@
 
 Every filter is batched over the tracks (row i = the tracker's i-th track) and offers:
 ``add(z, R, static_velocity=None)``, ``restart_velocity(rows, static_velocity)``,
-``keep(mask)``, ``predict(dt)``, ``update(rows, z, R)`` and the arrays ``position`` (N, 3),
-``velocity`` (N, 3), ``position_cov`` (N, 3, 3), ``velocity_cov`` (N, 3, 3).
+``keep(mask)``, ``predict(dt)``, ``move_frame(R, t)`` (the camera's own motion: every track
+expressed in the new camera frame, :mod:`.ego_motion`), ``shift_velocity(dv)`` (a change of
+velocity reference), ``set_process_noise(q)``, ``update(rows, z, R)`` and the arrays
+``position`` (N, 3), ``velocity`` (N, 3), ``position_cov`` (N, 3, 3), ``velocity_cov`` (N, 3, 3).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from typing import Protocol
 import numpy as np
 
 from .config import TrackerConfig
+from .ego_motion import rotate_covariances
 from .kalman import BatchedKalmanFilter
 from .particle import BatchedParticleFilter
 
@@ -27,6 +30,9 @@ class MotionFilter(Protocol):
     def keep(self, mask: np.ndarray) -> None: ...
     def restart_velocity(self, rows: np.ndarray, static_velocity: np.ndarray) -> None: ...
     def predict(self, dt: float) -> None: ...
+    def move_frame(self, R: np.ndarray, t: np.ndarray) -> None: ...
+    def set_process_noise(self, q: float) -> None: ...
+    def shift_velocity(self, dv: np.ndarray) -> None: ...
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None: ...
 
     @property
@@ -79,6 +85,22 @@ class PassThroughFilter:
 
     def predict(self, dt: float) -> None:
         self._elapsed = self._elapsed + dt
+
+    def move_frame(self, R: np.ndarray, t: np.ndarray) -> None:
+        """The held detection moves with the camera's motion into the new frame (a parked car's
+        stays where it is in the world), velocity and covariance rotated: the next finite
+        difference is over the ground."""
+        if not len(self._pos):
+            return
+        self._pos = self._pos @ R.T + t
+        self._vel = self._vel @ R.T
+        self._R = rotate_covariances(self._R, R)
+
+    def shift_velocity(self, dv: np.ndarray) -> None:
+        self._vel = self._vel - dv
+
+    def set_process_noise(self, q: float) -> None:
+        """No motion model: nothing to change."""
 
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         if not len(rows):

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .ego_motion import rotate_covariances
 from .scene_motion import reset_velocity_covariance, restarted_velocity_prior, velocity_prior
 
 _I3 = np.eye(3)
@@ -155,6 +156,26 @@ class BatchedKalmanFilter:
         np.matmul(P, FT, out=P)
         P += Q
         self.P = P
+
+    def set_process_noise(self, q: float) -> None:
+        """Use white-acceleration density ``q`` from the next prediction on."""
+        self.q = float(q)
+        self._model_dt = None
+
+    def move_frame(self, R: np.ndarray, t: np.ndarray) -> None:
+        """Express every track in a new camera frame, ``X_new = R X + t`` (the camera's own
+        motion, :mod:`.ego_motion`): positions moved, velocities (over the ground) rotated,
+        covariances ``A P A'`` with ``A = diag(R, R)``."""
+        if not len(self.x):
+            return
+        self.x[:, :3] = self.x[:, :3] @ R.T + t
+        self.x[:, 3:] = self.x[:, 3:] @ R.T
+        self.P = rotate_covariances(self.P, R)
+
+    def shift_velocity(self, dv: np.ndarray) -> None:
+        """Subtract ``dv`` (N, 3) from every track's velocity (a change of reference: relative
+        to the camera -> over the ground, :mod:`.ego_motion`); covariances unchanged."""
+        self.x[:, 3:] -= dv
 
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         """Correct tracks ``rows`` (M,) with measured positions ``z`` (M, 3), covariances

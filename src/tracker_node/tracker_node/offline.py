@@ -9,7 +9,8 @@ Parameters come from the ``vehicle_tracker: ros__parameters:`` section of a ROS 
 the same names and defaults as the node (:class:`.config.TrackerConfig`). With calibration
 (``--calib DIR`` with ``DIR/SSSS.txt``; by default ``DETECTIONS/../calib`` or the shared layout's
 ``tracking/training/calib``), tracking runs in the left optical frame and coasting rows carry the
-projection of their 3D box with P2; otherwise in camera 0 with the last detection's 2D box.
+projection of their 3D box with P2; otherwise in camera 0, and coasting rows have no 2D box (a
+stale detection box would misplace them) and are not written.
 
 Online by default: the rows of frame f depend only on frames 0..f and are exactly the tracks the
 ``vehicle_tracker`` node publishes for that frame (tentative tracks and tracks without a 2D box

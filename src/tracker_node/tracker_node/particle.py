@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .ego_motion import rotate_covariances
 from .kalman import inv3_sym, process_noise
 from .scene_motion import reset_velocity_covariance, restarted_velocity_prior, velocity_prior
 
@@ -199,6 +200,28 @@ class BatchedParticleFilter:
             Pn[:, :3, :] += dt * Pn[:, 3:, :]  # F Pn
             Pn[:, :, :3] += dt * Pn[:, :, 3:]  # (F Pn) F'
             Pn += self._noise_Q
+        self._mean = self._cov = None
+
+    def set_process_noise(self, q: float) -> None:
+        """Use white-acceleration density ``q`` from the next prediction on."""
+        self.q = float(q)
+        self._noise_dt = None
+
+    def move_frame(self, R: np.ndarray, t: np.ndarray) -> None:
+        """As :meth:`.kalman.BatchedKalmanFilter.move_frame`: every particle's position moved
+        and velocity rotated into the new camera frame; the pending offset's covariance
+        rotated."""
+        if not len(self.particles):
+            return
+        p = self.particles
+        p[:, :, :3] = p[:, :, :3] @ R.T + t
+        p[:, :, 3:] = p[:, :, 3:] @ R.T
+        self.pending = rotate_covariances(self.pending, R)
+        self._mean = self._cov = None
+
+    def shift_velocity(self, dv: np.ndarray) -> None:
+        """Subtract ``dv`` (N, 3) from every particle's velocity (a change of reference)."""
+        self.particles[:, :, 3:] -= dv[:, None, :]
         self._mean = self._cov = None
 
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:

@@ -2,7 +2,10 @@
 
 Positions are vehicle centres (centre of mass) in one camera frame (x right, y down, z forward;
 the node uses the left optical frame). Each :meth:`Tracker.step` takes one frame's detections and
-its stamp (seconds; dt comes from successive stamps) and returns the reported tracks.
+its stamp (seconds; dt comes from successive stamps) and, when known, the camera's motion since
+the previous frame, and returns the reported tracks. With the camera's motion every track is
+predicted in a world frame (:mod:`.ego_motion`: velocity over the ground, the camera's motion
+compensated); without it ever, velocities are relative to the camera.
 
 The parts, as in Autoware's multi_object_tracker: motion model (:mod:`.filters`), association
 (:mod:`.association`), track lifecycle (:mod:`.lifecycle`) over the track table
@@ -26,6 +29,7 @@ from .association import (
     solve_two_stage,
 )
 from .config import TrackerConfig
+from .ego_motion import extrapolate, static_velocity_before
 from .filters import make_filter
 from .lifecycle import COASTING, CONFIRMED, TENTATIVE, TrackLifecycle
 from .orientation import align_to, resolve_heading, wrap, yaw_from_bin
@@ -45,7 +49,9 @@ class DetectionBatch:
 
     position: (M, 3) vehicle centres [m]; covariance: (M, 3, 3) [m^2] (NaN -> the configured
     measurement noise); size: (M, 3) length, width, height [m]; yaw: (M,) rotation_y [rad];
-    orientation_bin: (M,) 0..3 or -1; bbox: (M, 4) x1, y1, x2, y2 [px]; score: (M,).
+    orientation_bin: (M,) 0..3 or -1; bbox: (M, 4) x1, y1, x2, y2 [px]; score: (M,);
+    plausibility: (M,) the stereo plausibility of the box as a vehicle in [0, 1] (0: cannot be
+    a vehicle), NaN when the input does not give it.
     """
 
     position: np.ndarray
@@ -56,6 +62,11 @@ class DetectionBatch:
     bbox: np.ndarray
     score: np.ndarray
     class_id: list[str] = field(default_factory=list)
+    plausibility: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.plausibility is None:
+            self.plausibility = _nan(len(self.position))
 
     def __len__(self) -> int:
         return len(self.position)
@@ -71,6 +82,7 @@ class DetectionBatch:
         bbox=None,
         score=None,
         class_id=None,
+        plausibility=None,
     ) -> DetectionBatch:
         """Build a batch; omitted fields are unknown. Raises ValueError for a non-finite or
         mis-shaped position (the caller names the input)."""
@@ -90,6 +102,7 @@ class DetectionBatch:
             bbox=_nan((m, 4)) if bbox is None else np.asarray(bbox, float).reshape(m, 4),
             score=np.ones(m) if score is None else np.asarray(score, float).reshape(m),
             class_id=["car"] * m if class_id is None else list(class_id),
+            plausibility=None if plausibility is None else np.asarray(plausibility, float),
         )
 
     @classmethod
@@ -103,6 +116,9 @@ class TrackSet:
 
     ``det_index``: column of the detection matched this frame, -1 when coasting.
     ``score``: last matched detection's score times the track confidence.
+    ``velocity`` / ``velocity_cov``: relative to the camera (the apparent motion in the current
+    frame); ``velocity_over_ground`` / ``velocity_over_ground_cov``: relative to the static
+    world, expressed in the current camera axes; NaN while the camera's motion is unknown.
     """
 
     track_id: np.ndarray
@@ -121,6 +137,8 @@ class TrackSet:
     score: np.ndarray
     class_id: list[str]
     det_index: np.ndarray
+    velocity_over_ground: np.ndarray
+    velocity_over_ground_cov: np.ndarray
 
     def __len__(self) -> int:
         return len(self.track_id)
@@ -153,7 +171,11 @@ class Tracker:
         self.next_id = 1
         self.last_stamp: float | None = None
         self._R0 = np.eye(3) * self.cfg.measurement_noise**2
-        self._camera_motion: CameraMotion | None = None  # this frame's (step argument)
+        # this frame's camera motion (given, or the last one extrapolated in the world frame)
+        self._camera_motion: CameraMotion | None = None
+        self._last_motion: CameraMotion | None = None  # the last one given
+        # whether the filter's velocities are over the ground (a camera motion has arrived)
+        self.world_frame = False
 
     def __len__(self) -> int:
         return len(self.tracks)
@@ -174,19 +196,20 @@ class Tracker:
     ) -> TrackSet:
         """Process one frame. ``stamp`` in seconds; None or non-increasing -> ``default_dt``.
         ``camera_motion``: the camera's motion since the previous frame when known (visual
-        odometry); it gives new tracks the velocity of the static scene while no track is
-        established (:func:`.scene_motion.velocity_prior`)."""
+        odometry). From the first one on, every track is predicted with it (:mod:`.ego_motion`:
+        velocities over the ground; a frame without one takes the last one extrapolated), and
+        new tracks start at the static scene's velocity while no track is established
+        (:func:`.scene_motion.velocity_prior`). Never given: as before, velocities relative to
+        the camera."""
         if camera_motion is not None and not camera_motion.dt > 0:
             camera_motion = None  # no time span: no velocity to derive
-        self._camera_motion = camera_motion
         R, shared_R = self._det_covariances(dets)
         det_yaw = self._det_yaw(dets)
         dt = self._dt(stamp)
-        if camera_motion is not None:
-            self._restart_young_velocities(camera_motion)
+        self._camera_motion = self._frame_motion(camera_motion, dt)
         self._predict(dt)
         cost = self._cost(dets, R, det_yaw, shared_R)
-        rows, cols = self._assign(cost, dets.score >= self.cfg.birth_score)
+        rows, cols = self._assign(cost, self._may_start(dets))
         self._update(dets, rows, cols, R, det_yaw)
         self._prune(rows)
         self._spawn(dets, cols, R, det_yaw)
@@ -200,19 +223,40 @@ class Tracker:
             self.last_stamp = float(stamp)
         return dt
 
-    def _restart_young_velocities(self, motion: CameraMotion) -> None:
-        """Tracks seen once (velocity still the birth prior) take the prior given the static
-        scene's apparent velocity at where they are now (their last position moved by the
-        camera's motion)."""
-        rows = np.nonzero(self.tracks.hits == 1)[0]
-        if not len(rows):
+    def _frame_motion(self, given: CameraMotion | None, dt: float) -> CameraMotion | None:
+        """This frame's camera motion: the one given; in the world frame without one, the last
+        one extrapolated to ``dt`` (the camera keeps moving); else None. The first one given
+        switches the tracker to the world frame (:meth:`_enter_world_frame`)."""
+        if given is not None:
+            if not self.world_frame:
+                self._enter_world_frame(given)
+            self._last_motion = given
+            return given
+        if self.world_frame:
+            return extrapolate(self._last_motion, dt)
+        return None
+
+    def _enter_world_frame(self, motion: CameraMotion) -> None:
+        """Velocities relative to the camera -> over the ground: minus the apparent velocity
+        of a static point at each track's position; the process noise becomes
+        ``world_process_noise`` (a car's own acceleration only). Tracks seen once (velocity
+        still the birth prior) take the prior again, now that the static scene's velocity is
+        known (zero over the ground)."""
+        self.world_frame = True
+        self.filter.set_process_noise(self.cfg.world_process_noise)
+        if not len(self.tracks):
             return
-        earlier = self.filter.position[rows]
-        now = earlier @ motion.rotation.T + motion.translation
-        self.filter.restart_velocity(rows, motion.static_point_velocity(now))
+        self.filter.shift_velocity(static_velocity_before(motion, self.filter.position, motion.dt))
+        rows = np.nonzero(self.tracks.hits == 1)[0]
+        if len(rows):
+            self.filter.restart_velocity(rows, np.zeros((len(rows), 3)))
 
     def _predict(self, dt: float) -> None:
+        """Constant velocity over ``dt``, then (world frame) into this frame's camera axes."""
         self.filter.predict(dt)
+        motion = self._camera_motion
+        if motion is not None:
+            self.filter.move_frame(motion.rotation, motion.translation)
         self.tracks.age += 1
         self.tracks.det_index[:] = -1
 
@@ -253,15 +297,15 @@ class Tracker:
             self.tracks.keep(~dead)
 
     def _spawn(self, dets: DetectionBatch, matched_cols, R: np.ndarray, det_yaw) -> None:
-        """New tracks from the detections no track took that score >= ``birth_score``."""
-        new = dets.score >= self.cfg.birth_score
+        """New tracks from the detections no track took that may start one."""
+        new = self._may_start(dets)
         new[matched_cols] = False
         idx = np.nonzero(new)[0]
         k = len(idx)
         if not k:
             return
-        motion = self._camera_motion
-        static_v = None if motion is None else motion.static_point_velocity(dets.position[idx])
+        # the static scene's velocity: zero over the ground (world frame), else unknown
+        static_v = np.zeros((k, 3)) if self.world_frame else None
         self.filter.add(dets.position[idx], R[idx], static_v)
         size = dets.size[idx]
         yaw = det_yaw[idx]
@@ -283,6 +327,13 @@ class Tracker:
             det_index=idx,
         )
         self.next_id += k
+
+    def _may_start(self, dets: DetectionBatch) -> np.ndarray:
+        """Detections that may start a track and take part in the first association stage:
+        score >= ``birth_score`` and, when the input gives it, plausibility >=
+        ``birth_plausibility``. The others only keep existing tracks alive (second stage)."""
+        implausible = dets.plausibility < self.cfg.birth_plausibility  # NaN: unknown, passes
+        return (dets.score >= self.cfg.birth_score) & ~implausible
 
     def _det_covariances(self, dets: DetectionBatch) -> tuple[np.ndarray, bool]:
         """Per-detection covariances (M, 3, 3) and whether they all are the configured one."""
@@ -356,34 +407,56 @@ class Tracker:
     def _report(self) -> TrackSet:
         t = self.tracks
         amb = t.yaw_amb
-        if amb.any():  # bin or default yaws: the velocity resolves the 180-degree ambiguity
+        # bin or default yaws: the velocity (over the ground in the world frame: a parked car's
+        # is ~0 and leaves its bin yaw alone) resolves the 180-degree ambiguity
+        if amb.any():
             t.yaw[amb] = resolve_heading(
                 t.yaw[amb], self.filter.velocity[amb], self.cfg.min_heading_speed
             )
         state = self.lifecycle.states(t)
         idx = np.nonzero(self.lifecycle.reported(t, state))[0]
-        bbox = t.bbox[idx].copy()
-        need = idx[(t.misses[idx] > 0) | ~np.isfinite(t.bbox[idx]).all(axis=1)]
-        if self.projection is not None:
-            for i in need:
-                b = self._project(self.filter.position[i], t.size[i], t.yaw[i])
-                if b is not None:
-                    bbox[np.searchsorted(idx, i)] = b
+        position = self.filter.position[idx].copy()
+        velocity = self.filter.velocity[idx].copy()
+        velocity_cov = self.filter.velocity_cov[idx]
+        if self.world_frame:  # the filter's velocity is over the ground
+            ground, ground_cov = velocity, velocity_cov
+            velocity = ground + self._camera_motion.static_point_velocity(position)
+        else:
+            ground, ground_cov = _nan(velocity.shape), _nan(velocity_cov.shape)
         return TrackSet(
             track_id=t.ids[idx],
             state=state[idx],
             confidence=t.conf[idx],
-            position=self.filter.position[idx].copy(),
+            position=position,
             position_cov=self.filter.position_cov[idx],
-            velocity=self.filter.velocity[idx].copy(),
-            velocity_cov=self.filter.velocity_cov[idx],
+            velocity=velocity,
+            velocity_cov=velocity_cov,
             size=t.size[idx].copy(),
             yaw=t.yaw[idx].copy(),
             orientation_bin=t.bin[idx].copy(),
-            bbox=bbox,
+            bbox=self._report_boxes(idx),
             age=t.age[idx].copy(),
             frames_since_update=t.misses[idx].copy(),
             score=self.lifecycle.row_score(t, idx),
             class_id=[str(c) for c in t.cls[idx]],
             det_index=t.det_index[idx].copy(),
+            velocity_over_ground=ground,
+            velocity_over_ground_cov=ground_cov,
         )
+
+    def _report_boxes(self, idx: np.ndarray) -> np.ndarray:
+        """2D boxes of the reported tracks ``idx``: the matched detection's box when matched
+        this frame, else the projection of the filtered 3D box (coasting, or a detection
+        without a box); NaN (no box) when there is no camera matrix to project with, never a
+        stale detection box."""
+        t = self.tracks
+        bbox = t.bbox[idx].copy()
+        need = (t.misses[idx] > 0) | ~np.isfinite(bbox).all(axis=1)
+        bbox[need] = np.nan
+        if self.projection is not None:
+            for j in np.nonzero(need)[0]:
+                i = idx[j]
+                b = self._project(self.filter.position[i], t.size[i], t.yaw[i])
+                if b is not None:
+                    bbox[j] = b
+        return bbox
