@@ -1,8 +1,11 @@
-"""``bag_player``: replay an MCAP bag (rosbag2 layout or a bare ``.mcap``) into the ROS graph.
+"""``bag_player``: replay a bag (rosbag2 MCAP or sqlite3, bare ``.mcap``, ROS 1 ``.bag``) into
+the ROS graph.
 
-The stored CDR bytes are published as they are (no deserialisation), with the original timing
-scaled by ``--rate`` (0 = as fast as possible), optional topic selection, remapping and looping.
-Reading and pacing live in :mod:`.bag_replay`.
+The stored CDR bytes of a ROS 2 bag are published as they are (no deserialisation); the messages
+of a ROS 1 bag (e.g. from ``kitti2bag``) are converted to CDR first, and a type that cannot be
+converted is refused with one line. Original timing scaled by ``--rate`` (0 = as fast as
+possible), optional topic selection, remapping (kitti2bag's topics onto the graph's: docs/bags.md)
+and looping. Reading, conversion and pacing live in :mod:`.bag_replay`.
 
 By default the replay starts once every topic's subscribers are matched (at most
 ``--discovery-time`` seconds for topics nobody subscribes to), so that a subscriber already
@@ -88,7 +91,9 @@ class BagPlayerNode(Node):
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="bag_player", description=__doc__.splitlines()[0])
-    ap.add_argument("bag", help="rosbag2 directory (metadata.yaml + .mcap) or a .mcap file")
+    ap.add_argument(
+        "bag", help="rosbag2 directory (metadata.yaml + .mcap/.db3), a .mcap or a ROS 1 .bag file"
+    )
     ap.add_argument("--rate", type=float, default=1.0, help="speed factor, 0 = fast as possible")
     ap.add_argument("--topics", action="append", default=[], help="topics to play, a,b,...")
     ap.add_argument("--remap", action="append", default=[], help="/old:=/new (repeatable)")

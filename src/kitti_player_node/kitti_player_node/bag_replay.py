@@ -1,6 +1,10 @@
-"""Replay core (no rclpy): open an MCAP bag (rosbag2 layout or a bare ``.mcap``), read it as a
-stream of (topic, type name, timestamp, raw CDR bytes) with topic selection and remapping, and
-pace it.
+"""Replay core (no rclpy): open a bag (rosbag2 layout with MCAP or sqlite3 storage, a bare
+``.mcap``, or a ROS 1 ``.bag`` such as ``kitti2bag`` writes), read it as a stream of (topic, ROS 2
+type name, timestamp, CDR bytes) with topic selection and remapping, and pace it.
+
+ROS 1 messages are converted to the CDR of their ROS 2 type as they are read
+(:func:`vehicle_common.message_definitions.ros1_to_cdr_converter`); a type without a ROS 2
+definition here is refused with one line before anything is published.
 
 Used by the ``bag_player`` node (:mod:`.bag_player`), which publishes the bytes as they are, and
 by the evaluator; both open bags with :func:`vehicle_common.bag_files.open_reader`.
@@ -15,12 +19,19 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vehicle_common.bag_files import BagError, open_reader
+from vehicle_common.message_definitions import (
+    MessageDefinitions,
+    UnknownMessageType,
+    ros1_to_cdr_converter,
+    ros2_type_name,
+)
 
 
 @dataclass(frozen=True)
 class BagMessage:
-    """One stored message: output topic (after remapping), type name such as
-    ``std_msgs/msg/String``, receive timestamp in ns and the serialized CDR bytes."""
+    """One stored message: output topic (after remapping), ROS 2 type name such as
+    ``std_msgs/msg/String``, receive timestamp in ns and the serialized CDR bytes (converted
+    from ROS 1 for a ``.bag``)."""
 
     topic: str
     type_name: str
@@ -53,13 +64,21 @@ def _check_topics(available: Iterable[str], topics: Iterable[str] | None, path) 
             raise BagError(f"--topics: {', '.join(missing)} not in bag {path}")
 
 
-def bag_topics(path: str | Path) -> dict[str, str]:
-    """``{topic: type name}`` of the bag's connections."""
-    reader = open_reader(path)
-    try:
-        return {c.topic: c.msgtype for c in reader.connections}
-    finally:
-        reader.close()
+def _cdr_converters(reader, conns, path) -> dict[int, Callable[[bytes], bytes]]:
+    """Per connection id of a ROS 1 bag, the ROS 1 -> CDR converter (empty for a ROS 2 bag,
+    whose messages are CDR already); BagError naming the topic for a type that has none."""
+    if reader.is2:
+        return {}
+    defs = MessageDefinitions()
+    out = {}
+    for c in conns:
+        try:
+            out[c.id] = ros1_to_cdr_converter(reader.typestore, c.msgtype, defs)
+        except UnknownMessageType as exc:
+            raise BagError(
+                f"{path}: {c.topic}: ROS 1 messages cannot be converted to ROS 2 ({exc})"
+            ) from None
+    return out
 
 
 def iter_bag(
@@ -79,10 +98,15 @@ def iter_bag(
             conns = list(reader.connections)
         if not conns:
             return
+        convert = _cdr_converters(reader, conns, path)
         try:
             for conn, timestamp, data in reader.messages(connections=conns):
+                raw = convert[conn.id](data) if convert else bytes(data)
                 yield BagMessage(
-                    remap.get(conn.topic, conn.topic), conn.msgtype, int(timestamp), bytes(data)
+                    remap.get(conn.topic, conn.topic),
+                    ros2_type_name(conn.msgtype),
+                    int(timestamp),
+                    raw,
                 )
         except BagError:
             raise
@@ -141,9 +165,16 @@ def message_class(type_name: str):
 
 
 def output_types(path: str | Path, topics: list[str] | None, remap: dict[str, str]):
-    """``{output topic: type name}`` of the selected topics after remapping."""
-    types = bag_topics(path)
-    _check_topics(types, topics, path)
+    """``{output topic: ROS 2 type name}`` of the selected topics after remapping; for a ROS 1
+    bag, BagError when one of them cannot be converted (before anything is published)."""
+    reader = open_reader(path)
+    try:
+        types = {c.topic: ros2_type_name(c.msgtype) for c in reader.connections}
+        _check_topics(types, topics, path)
+        selected = [c for c in reader.connections if c.topic in (topics or types)]
+        _cdr_converters(reader, selected, path)
+    finally:
+        reader.close()
     if topics is not None:
         types = {t: types[t] for t in topics}
     out: dict[str, str] = {}
