@@ -17,13 +17,14 @@ import cv2
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, PointCloud2
 from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
 from vehicle_common.camera_motion import CameraMotion
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
+from vehicle_common.image_transport import subscribe_image
 from vehicle_common.node_parameters import (
     declare_config,
     param,
@@ -182,8 +183,9 @@ class StereoDepthNode(Node):
         # first frame was skipped for "no CameraInfo yet" in some runs)
         self.create_subscription(CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, 5)
         self.create_subscription(CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, 5)
-        self.create_subscription(Image, TOPIC_LEFT, lambda m: self._on_image("left", m), 5)
-        self.create_subscription(Image, TOPIC_RIGHT, lambda m: self._on_image("right", m), 5)
+        # raw or compressed (parameter image_transport)
+        subscribe_image(self, TOPIC_LEFT, lambda m: self._on_image("left", m), 5)
+        subscribe_image(self, TOPIC_RIGHT, lambda m: self._on_image("right", m), 5)
         self.create_subscription(
             VehicleDetection2DArray,
             TOPIC_DETECTIONS_2D,
