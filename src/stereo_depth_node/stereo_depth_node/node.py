@@ -30,6 +30,7 @@ from vehicle_common.node_parameters import (
     param,
 )
 from vehicle_common.node_runtime import NodeHealth, run_node
+from vehicle_common.stereo_camera import check_stereo_images, check_stereo_infos
 
 from vehicle_common import topics
 
@@ -230,6 +231,7 @@ class StereoDepthNode(Node):
             return
         self._calibration_key = key
         try:
+            check_stereo_infos(self.left_info, self.right_info)  # one line naming the field
             self.geometry = StereoGeometry.from_camera_infos(self.left_info, self.right_info)
         except ValueError as exc:
             self.geometry = None
@@ -296,11 +298,8 @@ class StereoDepthNode(Node):
             frame.geometry = self.geometry
             left = image_to_rgb(left_msg)
             right = image_to_rgb(right_msg)
-            if left.shape != right.shape:
-                raise ImageConversionError(
-                    f"left {left.shape[1]}x{left.shape[0]} and right "
-                    f"{right.shape[1]}x{right.shape[0]} sizes differ"
-                )
+            # sizes and frame ids of the images and their camera_infos
+            check_stereo_images(left_msg, right_msg, left, right, self.left_info, self.right_info)
             params = self._disparity_params_for(left.shape[0])
             frame.disparity = compute_disparity(left, right, params)
             if self.ranging_params.refine != "none":
