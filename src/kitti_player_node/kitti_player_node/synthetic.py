@@ -251,17 +251,10 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:  # --help (0) or a usage error (2, already reported)
         return int(exc.code or 0)
     out = Path(args.output)
+    names = ("sequence", "frames", "seed", "vehicles", "width", "height", "focal", "baseline")
+    settings = {k: getattr(args, k) for k in names}
     try:
-        _check_settings(
-            args.sequence,
-            args.frames,
-            args.seed,
-            args.vehicles,
-            args.width,
-            args.height,
-            args.focal,
-            args.baseline,
-        )
+        _check_settings(**settings)
         if out.exists() and not out.is_dir():
             raise KittiFormatError(f"{out}: output exists and is not a directory")
         try:
@@ -282,19 +275,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"kitti_synth: {args.sequence}: frame {k + 1}/{args.frames}", flush=True)
 
     try:
-        generate_sequence(
-            out,
-            args.sequence,
-            args.frames,
-            args.seed,
-            args.vehicles,
-            args.width,
-            args.height,
-            force=args.force,
-            progress=progress,
-            focal=args.focal,
-            baseline=args.baseline,
-        )
+        generate_sequence(out, force=args.force, progress=progress, **settings)
     except (KittiFormatError, ValueError) as exc:
         sys.stderr.write(f"error: {exc}\n")
         return 2
