@@ -2,10 +2,11 @@
 
 Two things in the graph are not read from CameraInfo at run time and must fit the camera:
 - the CNN's input size (``vehicle_detector.input_width`` / ``input_height``; 0 = the
-  checkpoint's, 640x192 for the shipped one, trained on KITTI's 1242x375 at fx 721.5 px): the
+  checkpoint's, 832x256 for the shipped one, trained on KITTI's 1242x375 at fx 721.5 px): the
   image is resized to it, so another aspect ratio is squeezed and another focal length shows the
   cars at another size than in training. :func:`detector_input_size` keeps the training's pixels
-  per metre in both directions;
+  per metre in both directions (the detector then keeps its anchors at that scale:
+  detector_node.inference.CnnDetector.from_checkpoint);
 - the stereo matcher's disparity range (``stereo_depth.num_disparities``): the nearest depth it
   measures is fx * baseline / num_disparities. :func:`camera_overrides` keeps KITTI's 4.05 m.
 Everything else (fx, fy, cx, cy, baseline of ranging, reprojection, odometry, the tracker's
@@ -16,8 +17,7 @@ from __future__ import annotations
 
 from vehicle_common.stereo_camera import num_disparities_for
 
-#: the shipped checkpoint's network input and the camera it was trained on (KITTI)
-NETWORK_INPUT = (640, 192)
+#: the camera the checkpoints were trained on (KITTI)
 TRAINING_IMAGE = (1242, 375)
 TRAINING_FX = 721.5377
 #: the nearest depth of the default num_disparities (96 px) on KITTI [m]
@@ -28,8 +28,16 @@ def _round32(v: float) -> int:
     return max(32, int(round(v / 32.0)) * 32)
 
 
+def checkpoint_input_size(checkpoint: str = "") -> tuple[int, int]:
+    """The network input (width, height) of a detector checkpoint ("" = the shipped one)."""
+    from detector_node.checkpoint import SHIPPED_CHECKPOINT, load_checkpoint
+
+    model, _ = load_checkpoint(checkpoint or SHIPPED_CHECKPOINT, "cpu")
+    return model.config.input_width, model.config.input_height
+
+
 def detector_input_size(
-    width: int, height: int, fx: float, network_input: tuple[int, int] = NETWORK_INPUT
+    width: int, height: int, fx: float, network_input: tuple[int, int]
 ) -> tuple[int, int]:
     """(input_width, input_height), multiples of 32, that show a ``width`` x ``height`` camera
     with focal length ``fx`` [px] to the network at the scale of its training images."""
@@ -39,11 +47,17 @@ def detector_input_size(
 
 
 def camera_overrides(
-    width: int, height: int, fx: float, baseline: float, min_depth: float = MIN_DEPTH
+    width: int,
+    height: int,
+    fx: float,
+    baseline: float,
+    network_input: tuple[int, int],
+    min_depth: float = MIN_DEPTH,
 ) -> list[str]:
     """``node.param:=value`` overrides for a rectified camera of that size, focal length [px]
-    and baseline [m]: the detector's input size and the matcher's disparity range."""
-    w, h = detector_input_size(width, height, fx)
+    and baseline [m]: the detector's input size (``network_input``: the checkpoint's) and the
+    matcher's disparity range."""
+    w, h = detector_input_size(width, height, fx, network_input)
     return [
         f"vehicle_detector.input_width:={w}",
         f"vehicle_detector.input_height:={h}",

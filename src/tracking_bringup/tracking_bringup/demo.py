@@ -76,16 +76,17 @@ class TrackProgress:
         self._ctx.try_shutdown()
 
 
-def _camera_settings(root: Path, sequence: str, keep: bool) -> list[str]:
-    """The overrides a camera other than KITTI's needs (tracking_bringup.camera), printed; none
-    with ``keep``."""
+def _camera_settings(root: Path, sequence: str, keep: bool, checkpoint: str) -> list[str]:
+    """The overrides a camera other than KITTI's needs (tracking_bringup.camera) with the
+    detector's ``checkpoint`` ("" = shipped), printed; none with ``keep``."""
     from vehicle_common.kitti import TrackingSequence
 
-    from tracking_bringup.camera import camera_overrides
+    from tracking_bringup.camera import camera_overrides, checkpoint_input_size
 
     seq = TrackingSequence.open(root, sequence)
     h, w = seq.read_stereo(seq.frame_ids[0])[0].shape[:2]
-    overrides = camera_overrides(w, h, seq.calib.fx, seq.calib.baseline)
+    network = checkpoint_input_size(checkpoint)
+    overrides = camera_overrides(w, h, seq.calib.fx, seq.calib.baseline, network)
     print(
         f"[demo] camera {w}x{h}, fx {seq.calib.fx:.1f} px, baseline {seq.calib.baseline:.3f} m: "
         + ("keeping the parameter file's settings" if keep else " ".join(overrides)),
@@ -166,7 +167,14 @@ def main(argv: list[str] | None = None) -> int:
         return _error(str(exc))
     camera = []
     if not args.kitti_root and (args.focal > 0 or (args.width, args.height) != (1242, 375)):
-        camera = _camera_settings(root, sequence, args.no_camera_settings)
+        checkpoint = graph.parameter_value(
+            args.params,
+            [ov.split(".", 1)[1] for ov in args.param if ov.startswith("vehicle_detector.")],
+            "vehicle_detector",
+            "checkpoint",
+            "",
+        )
+        camera = _camera_settings(root, sequence, args.no_camera_settings, str(checkpoint))
 
     bag = out / "bag"
     overrides = [
