@@ -313,7 +313,8 @@ def bench_transport(frames: int, kitti_root: str | None, sequence: str, backend:
         )
         print(
             f"{'images':10s} {'frames':>6s} {'latency med':>11s} {'max':>6s} {'MB/frame':>8s} "
-            f"{'Mbit/s@10Hz':>11s} {'CPU s':>6s} {'MOTA':>6s} {'HOTA':>6s} {'3D AP@1.5m mod':>14s}"
+            f"{'Mbit/s@10Hz':>11s} {'CPU s':>6s} {'MOTA':>6s} {'HOTA':>6s} "
+            f"{'tracks AP@1.5m mod':>18s}"
         )
         labels = root / "label_02"
         with NetnsPair(tag=f"t{os.getpid() % 10000}") as pair:
@@ -345,7 +346,7 @@ def bench_transport(frames: int, kitti_root: str | None, sequence: str, backend:
                     f"{name:10s} {len(lat):6d} {statistics.median(lat):11.3f} {lat[-1]:6.3f} "
                     f"{per_frame / 1e6:8.2f} {per_frame * 8 * 10 / 1e6:11.1f} {cpu:6.1f} "
                     f"{100 * res['tracking']['mota']:6.1f} {100 * res['tracking']['hota']:6.1f} "
-                    f"{100 * res['tracks_3d']['1.5']['moderate']:14.1f}",
+                    f"{100 * res['tracks_3d']['1.5']['moderate']:18.1f}",
                     flush=True,
                 )
         print(f"load average at the end {os.getloadavg()[0]:.2f}")
