@@ -34,9 +34,10 @@ def _pixels(frame: int, side: int) -> np.ndarray:
     return rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
 
 
-def _frames(ts, ros1: bool):
+def _frames(ts, ros1: bool, right_offset_ns: int = 0):
     """(topic, type, timestamp, message) of 3 stereo frames as kitti2bag writes them (bgr8
-    images, CameraInfo with D/K/R/P), built with typestore ``ts``."""
+    images, CameraInfo with D/K/R/P), built with typestore ``ts``; the right camera's stamps
+    ``right_offset_ns`` later (two clocks)."""
     Header = ts.types["std_msgs/msg/Header"]
     Time = ts.types["builtin_interfaces/msg/Time"]
     Image = ts.types[IMAGE]
@@ -44,8 +45,8 @@ def _frames(ts, ros1: bool):
     Roi = ts.types["sensor_msgs/msg/RegionOfInterest"]
     out = []
     for k in range(3):
-        t = T0 + k * 100_000_000
         for side, name in ((0, "left"), (1, "right")):
+            t = T0 + k * 100_000_000 + side * right_offset_ns
             frame_id = f"camera_color_{name}"
             stamp = Time(sec=t // 10**9, nanosec=t % 10**9)
             header = Header(seq=k, stamp=stamp, frame_id=frame_id) if ros1 else None
@@ -63,7 +64,7 @@ def _frames(ts, ros1: bool):
     return out
 
 
-def write_bag(path: Path, fmt: str) -> Path:
+def write_bag(path: Path, fmt: str, right_offset_ns: int = 0) -> Path:
     """The frames of :func:`_frames` in ``fmt``: "ros1" (.bag), "sqlite3" or "mcap" (rosbag2)."""
     from rosbags.typesys import Stores, get_typestore
 
@@ -81,7 +82,7 @@ def write_bag(path: Path, fmt: str) -> Path:
         writer, serialize = Writer(path, version=9, storage_plugin=plugin), ts.serialize_cdr
     with writer:
         conns = {}
-        for topic, type_name, t, msg in _frames(ts, fmt == "ros1"):
+        for topic, type_name, t, msg in _frames(ts, fmt == "ros1", right_offset_ns):
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, type_name, typestore=ts)
             writer.write(conns[topic], t, serialize(msg, type_name))
@@ -146,6 +147,47 @@ def test_kitti2bag_style_bag_replays_with_same_field_values(rclpy_context, tmp_p
             np.testing.assert_array_equal(info.p, P_LEFT if side == 0 else P_RIGHT)
             np.testing.assert_array_equal(info.d, [-0.37, 0.2, 0.0, 0.0, 0.0])
             assert info.k[0] == P_LEFT[0] and list(info.r) == list(np.eye(3).reshape(-1))
+
+
+def test_sync_stamps_pairs_a_stereo_pair_stamped_by_two_clocks(rclpy_context, tmp_path, capsys):
+    """kitti2bag stamps each camera from its own timestamps.txt: with --sync-stamps the right
+    camera's images and infos take the left image's stamp (stereo depth pairs exact stamps);
+    a topic without a header is refused in one line."""
+    from kitti_player_node.bag_player import main
+
+    bag = write_bag(tmp_path / "kitti", "ros1", right_offset_ns=400_000)  # 0.4 ms later
+    argv = [str(bag), "--rate", "0", *_remap_args()]
+    _, got = _run_player(rclpy_context, argv)
+    stamps = {t: [(m.header.stamp.sec, m.header.stamp.nanosec) for m in v] for t, v in got.items()}
+    assert stamps["/stereo/left/image_rect"] != stamps["/stereo/right/image_rect"]
+    sync = "/kitti/camera_color_left/image_raw,/kitti/camera_color_right/image_raw,"
+    sync += "/kitti/camera_color_left/camera_info,/kitti/camera_color_right/camera_info"
+    rc, got = _run_player(rclpy_context, [*argv, "--sync-stamps", sync])
+    assert rc == 0
+    stamps = {t: [(m.header.stamp.sec, m.header.stamp.nanosec) for m in v] for t, v in got.items()}
+    left = [divmod(T0 + k * 100_000_000, 10**9) for k in range(3)]
+    assert all(s == left for s in stamps.values()), stamps
+    right = got["/stereo/right/image_rect"][2]  # the rest of the message is untouched
+    np.testing.assert_array_equal(np.asarray(right.data), _pixels(2, 1).reshape(-1))
+    # too far apart for the tolerance: left as they are, and counted
+    rc, got = _run_player(rclpy_context, [*argv, "--sync-stamps", sync, "--sync-tolerance", "1e-4"])
+    assert (
+        rc == 0 and got["/stereo/right/image_rect"][0].header.stamp.nanosec == 400_000 + T0 % 10**9
+    )
+    capsys.readouterr()
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    plain = tmp_path / "plain.bag"
+    with Writer(plain) as w:
+        c = w.add_connection("/count", "std_msgs/msg/Int32", typestore=ts)
+        w.write(c, T0, ts.serialize_ros1(ts.types["std_msgs/msg/Int32"](3), "std_msgs/msg/Int32"))
+        c2 = w.add_connection("/count2", "std_msgs/msg/Int32", typestore=ts)
+        w.write(c2, T0, ts.serialize_ros1(ts.types["std_msgs/msg/Int32"](4), "std_msgs/msg/Int32"))
+    assert main([str(plain), "--sync-stamps", "/count,/count2", "--immediate"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: --sync-stamps: /count (std_msgs/msg/Int32) has no header"]
 
 
 def test_ros1_type_without_ros2_definition_is_refused(tmp_path, capsys):

@@ -12,7 +12,10 @@ by the evaluator; both open bags with :func:`vehicle_common.bag_files.open_reade
 
 from __future__ import annotations
 
+import bisect
+import dataclasses
 import importlib
+import struct
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -116,6 +119,73 @@ def iter_bag(
         reader.close()
 
 
+def header_stamp(data: bytes) -> int:
+    """The header stamp [ns] of a serialized message whose first field is a std_msgs/Header
+    (little-endian CDR: 4 bytes of encapsulation, then int32 sec, uint32 nanosec)."""
+    if len(data) < 12 or data[:2] != b"\x00\x01":
+        raise BagError("--sync-stamps: a message is not little-endian CDR")
+    sec, nanosec = struct.unpack_from("<iI", data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+def with_header_stamp(data: bytes, stamp_ns: int) -> bytes:
+    """``data`` with its header stamp set to ``stamp_ns`` (see :func:`header_stamp`)."""
+    out = bytearray(data)
+    struct.pack_into("<iI", out, 4, *divmod(int(stamp_ns), 1_000_000_000))
+    return bytes(out)
+
+
+def check_stamped(types: dict[str, str], topics: Iterable[str]) -> None:
+    """BagError unless every topic's type (``types``: bag topic -> ROS 2 type) starts with a
+    std_msgs/Header, as --sync-stamps needs."""
+    defs = MessageDefinitions(BagError)
+    for topic in topics:
+        if topic not in types:
+            raise BagError(f"--sync-stamps: {topic} not in the bag")
+        defs.get(types[topic])
+        first = defs.typestore.fielddefs[types[topic]][1][0]
+        if first[0] != "header" or first[1][1] != "std_msgs/msg/Header":
+            raise BagError(f"--sync-stamps: {topic} ({types[topic]}) has no header")
+
+
+@dataclasses.dataclass
+class StampSync:
+    """Gives the messages of ``topics`` (output names) the header stamp of the nearest message
+    of the reference topic (``reference``: its sorted header stamps [ns]) when it is within
+    ``tolerance_ns``: a stereo pair stamped by two clocks (kitti2bag stamps each camera from its
+    own timestamps.txt) becomes the exact-stamp pair stereo depth matches."""
+
+    reference: list[int]
+    topics: set[str]
+    tolerance_ns: int
+    restamped: int = 0
+    unmatched: int = 0
+
+    def __call__(self, messages: Iterable[BagMessage]) -> Iterator[BagMessage]:
+        for msg in messages:
+            if msg.topic in self.topics and self.reference:
+                stamp = header_stamp(msg.data)
+                i = bisect.bisect_left(self.reference, stamp)
+                near = min(self.reference[max(i - 1, 0) : i + 1], key=lambda r: abs(r - stamp))
+                if abs(near - stamp) > self.tolerance_ns:
+                    self.unmatched += 1
+                elif near != stamp:
+                    self.restamped += 1
+                    msg = dataclasses.replace(msg, data=with_header_stamp(msg.data, near))
+            yield msg
+
+
+def stamp_sync(path, topics: list[str], remap: dict[str, str], tolerance_s: float) -> StampSync:
+    """The :class:`StampSync` of ``topics`` (bag names, the first the reference) in the bag."""
+    if len(topics) < 2:
+        raise BagError("--sync-stamps: give the reference topic and at least one other")
+    if not tolerance_s > 0:
+        raise BagError(f"--sync-tolerance: {tolerance_s} must be > 0")
+    reference = sorted(header_stamp(m.data) for m in iter_bag(path, topics[:1]))
+    followers = {remap.get(t, t) for t in topics[1:]}
+    return StampSync(reference, followers, round(tolerance_s * 1e9))
+
+
 def paced(
     messages: Iterable[BagMessage],
     rate: float = 1.0,
@@ -162,6 +232,15 @@ def message_class(type_name: str):
         return getattr(importlib.import_module(parts[0] + ".msg"), parts[-1])
     except (ImportError, AttributeError):
         raise BagError(f"{type_name}: message type not available in this installation") from None
+
+
+def bag_types(path: str | Path) -> dict[str, str]:
+    """``{bag topic: ROS 2 type name}``."""
+    reader = open_reader(path)
+    try:
+        return {c.topic: ros2_type_name(c.msgtype) for c in reader.connections}
+    finally:
+        reader.close()
 
 
 def output_types(path: str | Path, topics: list[str] | None, remap: dict[str, str]):
