@@ -62,6 +62,7 @@ def test_bad_input_gives_one_clear_error():
     msg.data = msg.data[: len(msg.data) // 3]  # truncated in transit
     with pytest.raises(ImageConversionError, match="cannot be decoded"):
         image_to_rgb(msg)
+    assert image_size(msg) is None  # the oracle detector then does not clip its boxes
     msg.format = "rgb8; theora compressed"
     with pytest.raises(ImageConversionError, match="unsupported compressed image format"):
         image_to_rgb(msg)

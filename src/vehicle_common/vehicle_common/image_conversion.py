@@ -149,10 +149,14 @@ def is_compressed(msg) -> bool:
     return hasattr(msg, "format") and not hasattr(msg, "encoding")
 
 
-def image_size(msg) -> tuple[int, int]:
-    """(width, height) of an Image, or of a CompressedImage (decoded)."""
+def image_size(msg) -> tuple[int, int] | None:
+    """(width, height) of an Image, or of a CompressedImage (decoded; None when it cannot be:
+    the caller then does without, as the oracle detector's box clipping)."""
     if is_compressed(msg):
-        h, w = compressed_to_rgb(msg).shape[:2]
+        try:
+            h, w = compressed_to_rgb(msg).shape[:2]
+        except ImageConversionError:
+            return None
         return int(w), int(h)
     return int(msg.width), int(msg.height)
 
