@@ -1,7 +1,7 @@
 """What the graph costs on the wire between two hosts, measured on two network namespaces joined
 by a veth pair (tracking_bringup.netns_link; needs root and iproute2).
 
-Usage: sudo .venv/bin/python bench/bench_multihost.py [link|graph|all] [--frames N]
+Usage: sudo .venv/bin/python bench/bench_multihost.py [link|graph|transport|all] [--frames N]
        [--kitti-root DIR --sequence 0005 --detector oracle] [--outage S] [--profile NAME=XML]
 
 ``link``: 10 Hz stereo (two 1242x375 rgb8 images per frame, as the player publishes them) from
@@ -14,6 +14,11 @@ bytes/s on the link, bytes sent per payload byte, datagrams dropped by a full re
 tracker, recorder on a; detector and stereo depth on b), and once more with the link down for
 ``--outage`` seconds after frame 9: frames tracked, per-frame latency (ground truth -> tracks at
 the recorder), bytes per frame on the link.
+``transport`` (not in ``all``): the graph split over the two hosts once per image transport of
+the player (raw, png, jpeg q=90, jpeg q=75; the consumers follow, graph.plan): frames tracked,
+per-frame latency, bytes per frame on the link and the link's rate at 10 Hz, CPU seconds of
+both hosts' processes (with the load average), and the tracks' CLEAR-MOT/HOTA and 3D AP from
+the recorded bag (evaluate bag) beside raw's.
 """
 
 from __future__ import annotations
@@ -196,6 +201,30 @@ def bench_link(frames: int) -> None:
                 )
 
 
+def _graph_data(tmp: str, frames: int, kitti_root: str | None, sequence: str, backend: str):
+    """(dataset root, sequence, launcher arguments) of a lockstep run of ``frames`` frames: the
+    KITTI root's sequence, or a synthetic one written into ``tmp``."""
+    from tracking_bringup.environment import PARAMS_FILE
+
+    if kitti_root:
+        root = Path(kitti_root)
+    else:
+        from kitti_player_node.synthetic import generate_sequence
+
+        root, sequence = Path(tmp) / "data", "0000"
+        generate_sequence(root, sequence=sequence, frames=frames, seed=3)
+    args = ["--params", str(PARAMS_FILE)]
+    for p in (
+        f"kitti_player.dataset_root:={root}",
+        f"kitti_player.sequence:='{sequence}'",
+        f"kitti_player.last_frame:={frames - 1}",
+        "kitti_player.lockstep:=true",
+        f"vehicle_detector.backend:={backend}",
+    ):
+        args += ["-p", p]
+    return root, sequence, args
+
+
 def bench_graph(
     frames: int,
     kitti_root: str | None,
@@ -204,7 +233,6 @@ def bench_graph(
     outage: float,
     transport_profile: str | None = None,
 ) -> None:
-    from tracking_bringup.environment import PARAMS_FILE
     from tracking_bringup.netns_link import (
         cut_link_after,
         frame_latencies,
@@ -213,22 +241,7 @@ def bench_graph(
     )
 
     with tempfile.TemporaryDirectory() as tmp:
-        if kitti_root:
-            root, last = Path(kitti_root), frames - 1
-        else:
-            from kitti_player_node.synthetic import generate_sequence
-
-            root, sequence, last = Path(tmp) / "data", "0000", frames - 1
-            generate_sequence(root, sequence=sequence, frames=frames, seed=3)
-        args = ["--params", str(PARAMS_FILE)]
-        for p in (
-            f"kitti_player.dataset_root:={root}",
-            f"kitti_player.sequence:='{sequence}'",
-            f"kitti_player.last_frame:={last}",
-            "kitti_player.lockstep:=true",
-            f"vehicle_detector.backend:={backend}",
-        ):
-            args += ["-p", p]
+        root, sequence, args = _graph_data(tmp, frames, kitti_root, sequence, backend)
         two = ["--transport-profile", transport_profile] if transport_profile else []
         print(f"\nlockstep graph, {sequence} ({frames} frames, {backend} detector)")
         print(f"{'run':28s} {'frames':>6s} {'frame latency med':>18s} {'max':>7s} {'MB/frame':>9s}")
@@ -277,10 +290,75 @@ def bench_graph(
                 )
 
 
+TRANSPORTS = {
+    "raw": ["kitti_player.image_transport:=raw"],
+    "png": ["kitti_player.image_transport:=png"],
+    "jpeg q=90": ["kitti_player.image_transport:=jpeg", "kitti_player.jpeg_quality:=90"],
+    "jpeg q=75": ["kitti_player.image_transport:=jpeg", "kitti_player.jpeg_quality:=75"],
+}
+
+
+def bench_transport(frames: int, kitti_root: str | None, sequence: str, backend: str) -> None:
+    """The split graph once per image transport (see the module docstring)."""
+    import resource
+
+    from eval_node.bag_evaluation import evaluate_bag
+    from tracking_bringup.netns_link import frame_latencies, run_two_host_graph
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root, sequence, args = _graph_data(tmp, frames, kitti_root, sequence, backend)
+        print(
+            f"\nlockstep graph over two hosts, {sequence} ({frames} frames, {backend} detector), "
+            f"load average {os.getloadavg()[0]:.2f}"
+        )
+        print(
+            f"{'images':10s} {'frames':>6s} {'latency med':>11s} {'max':>6s} {'MB/frame':>8s} "
+            f"{'Mbit/s@10Hz':>11s} {'CPU s':>6s} {'MOTA':>6s} {'HOTA':>6s} "
+            f"{'tracks AP@1.5m mod':>18s}"
+        )
+        labels = root / "label_02"
+        with NetnsPair(tag=f"t{os.getpid() % 10000}") as pair:
+            for name, extra in TRANSPORTS.items():
+                bag = Path(tmp) / f"bag_{name.replace(' ', '_')}"
+                cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                wire = run_two_host_graph(
+                    pair,
+                    [
+                        *args,
+                        *[a for e in extra for a in ("-p", e)],
+                        "-p",
+                        f"bag_recorder.output:={bag}",
+                    ],
+                    Path(tmp) / f"logs_{name.replace(' ', '_')}",
+                    timeout=900,
+                )
+                cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
+                lat = sorted(frame_latencies(bag))
+                res = evaluate_bag(
+                    bag,
+                    labels_dir=labels if labels.is_dir() else None,
+                    sequence=sequence,
+                    run_filters=False,
+                )
+                per_frame = (wire["tx_bytes"] + wire["rx_bytes"]) / frames
+                print(
+                    f"{name:10s} {len(lat):6d} {statistics.median(lat):11.3f} {lat[-1]:6.3f} "
+                    f"{per_frame / 1e6:8.2f} {per_frame * 8 * 10 / 1e6:11.1f} {cpu:6.1f} "
+                    f"{100 * res['tracking']['mota']:6.1f} {100 * res['tracking']['hota']:6.1f} "
+                    f"{100 * res['tracks_3d']['1.5']['moderate']:18.1f}",
+                    flush=True,
+                )
+        print(f"load average at the end {os.getloadavg()[0]:.2f}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
-        "what", nargs="?", default="all", choices=("link", "graph", "all", "_pub", "_sub")
+        "what",
+        nargs="?",
+        default="all",
+        choices=("link", "graph", "transport", "all", "_pub", "_sub"),
     )
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--hz", type=float, default=10.0)
@@ -315,11 +393,13 @@ def main(argv: list[str] | None = None) -> int:
         PROFILES[name] = (path, "SUBNET")
     if args.what in ("link", "all"):
         bench_link(args.frames)
+    frames = args.frames
+    if args.kitti_root:
+        seq = Path(args.kitti_root) / "image_02" / args.sequence
+        frames = min(frames, len(list(seq.glob("*.png"))))
+    if args.what == "transport":
+        bench_transport(frames, args.kitti_root, args.sequence, args.detector)
     if args.what in ("graph", "all"):
-        frames = args.frames
-        if args.kitti_root:
-            seq = Path(args.kitti_root) / "image_02" / args.sequence
-            frames = min(frames, len(list(seq.glob("*.png"))))
         bench_graph(
             frames,
             args.kitti_root,

@@ -53,9 +53,12 @@ def test_host_profiles_of_the_shipped_parameter_file():
     assert plan.nodes == ["kitti_player", "vehicle_tracker", "bag_recorder"]
     assert plan.graph_nodes == [n.name for n in graph.PIPELINE]  # union of the profiles
     assert plan.discovery == DiscoverySettings("peers", ("10.0.0.2",))
-    assert plan.overrides == ["kitti_player.match_settle_time:=3.0"]
+    # the profiles' image_transport is the player's on both hosts
+    transport = "kitti_player.image_transport:=raw"
+    assert plan.overrides == ["kitti_player.match_settle_time:=3.0", transport]
     compute = _plan("--host", "compute", "--peers", "10.0.0.1")
-    assert compute.nodes == ["vehicle_detector", "stereo_depth"] and compute.overrides == []
+    assert compute.nodes == ["vehicle_detector", "stereo_depth"]
+    assert compute.overrides == [transport]
 
 
 def test_one_host_default_is_unchanged():

@@ -61,7 +61,9 @@ def synthetic_root(tmp_path_factory) -> Path:
     return generate_sequence(root, sequence="0000", frames=SYNTH_FRAMES, seed=3)
 
 
-def _overrides(root: Path, sequence: str, bag: Path, backend: str) -> list[str]:
+def _overrides(
+    root: Path, sequence: str, bag: Path, backend: str, params: Path = PARAMS_FILE
+) -> list[str]:
     pairs = [
         f"kitti_player.dataset_root:={root}",
         f"kitti_player.sequence:='{sequence}'",
@@ -70,7 +72,7 @@ def _overrides(root: Path, sequence: str, bag: Path, backend: str) -> list[str]:
         f"vehicle_detector.backend:={backend}",
         f"bag_recorder.output:={bag}",
     ]
-    return ["--params", str(PARAMS_FILE), *[a for p in pairs for a in ("-p", p)]]
+    return ["--params", str(params), *[a for p in pairs for a in ("-p", p)]]
 
 
 def _messages(bag: Path) -> dict[str, list[bytes]]:
@@ -129,6 +131,49 @@ def test_synthetic_sequence_split_over_two_hosts(netns_pair, synthetic_root, tmp
 def test_kitti_0005_split_over_two_hosts(netns_pair, kitti_tracking_root, tmp_path):
     frames = len(list((kitti_tracking_root / "image_02" / "0005").glob("*.png")))
     _check_split_run(netns_pair, tmp_path, kitti_tracking_root, "0005", frames, "oracle")
+
+
+def _compressed_payload(root: Path, sequence: str, transport: str, quality: int = 90) -> int:
+    """Bytes of the compressed images that cross the link for the whole sequence (the left
+    image once per subscribing process on the other host, the right one once)."""
+    from vehicle_common.image_conversion import numpy_to_compressed
+    from vehicle_common.kitti import TrackingSequence
+
+    seq = TrackingSequence.open(root, sequence)
+    total = 0
+    for f in seq.frame_ids:
+        left, right = seq.read_stereo(f)
+        sizes = [len(numpy_to_compressed(img, transport, quality).data) for img in (left, right)]
+        total += (IMAGES_ON_LINK - 1) * sizes[0] + sizes[1]
+    return total
+
+
+@pytest.mark.parametrize("transport", ["png", "jpeg"])
+def test_compressed_images_over_two_hosts(netns_pair, synthetic_root, tmp_path, transport):
+    """The multi-host profile's image_transport (here png or jpeg, in the parameter file's
+    launcher section) reaches both hosts: the compressed images cross the link, each copy once,
+    every frame is tracked; PNG is lossless, so the recorded outputs equal the one-host run
+    with raw images."""
+    params = tmp_path / "params.yaml"
+    text = PARAMS_FILE.read_text()
+    shipped = 'image_transport: "raw"  # multi-host'
+    assert shipped in text
+    params.write_text(text.replace(shipped, f'image_transport: "{transport}"  # multi-host'))
+    bag = tmp_path / "bag_two_hosts"
+    args = _overrides(synthetic_root, "0000", bag, "cnn", params)
+    result = run_two_host_graph(netns_pair, args, tmp_path / "logs")
+    assert result["camera_exit"] == 0, (tmp_path / "logs" / "launch_a.out").read_text()
+    assert result["compute_exit"] == 0, (tmp_path / "logs" / "launch_b.out").read_text()
+    assert _player_summary(tmp_path / "logs") == (SYNTH_FRAMES, 0, 0)
+    payload = _compressed_payload(synthetic_root, "0000", transport)
+    assert payload < 0.8 * SYNTH_FRAMES * IMAGES_ON_LINK * IMAGE_BYTES  # smaller than raw
+    assert payload <= result["tx_bytes"] < 1.3 * payload, result
+    two = _messages(bag)
+    assert len(two[graph.TRACKS]) == SYNTH_FRAMES
+    if transport == "png":
+        one = _messages(_one_host(tmp_path, synthetic_root, "0000", "cnn"))
+        for topic in DETERMINISTIC:
+            assert two[topic] == one[topic], f"{topic}: PNG two-host messages differ from raw"
 
 
 def test_link_down_for_one_second_recovers(netns_pair, synthetic_root, tmp_path):

@@ -12,6 +12,10 @@ from .checkpoint import SHIPPED_CHECKPOINT, load_checkpoint
 from .dataset import resize_image
 from .model import DetectorConfig, YoloV2Passthrough, split_output
 
+#: the image size the checkpoints were trained at (KITTI): an overridden input size keeps the
+#: anchors at the training's input px per image px (CnnDetector.from_checkpoint)
+TRAINING_IMAGE_SIZE = (1242, 375)
+
 
 @dataclass
 class Detection:
@@ -100,6 +104,10 @@ class CnnDetector:
         self.config = model.config
         self.score_threshold = score_threshold
         self.nms_iou = nms_iou
+        #: with an overridden input size: (anchors of the checkpoint, its input px per image
+        #: px in training); the anchors then follow each image's scale (see from_checkpoint)
+        self._anchor_reference: tuple[tuple, tuple[float, float]] | None = None
+        self._scaled_configs: dict[tuple[float, float], DetectorConfig] = {}
 
     @classmethod
     def from_checkpoint(
@@ -112,13 +120,22 @@ class CnnDetector:
         input_height: int = 0,
     ) -> CnnDetector:
         """Load ``path`` ('' = the shipped checkpoint); a non-zero input size overrides the
-        checkpoint's (multiples of 32; the network is fully convolutional)."""
+        checkpoint's (multiples of 32; the network is fully convolutional). With an overridden
+        size the anchors follow the input px per image px of each image relative to training
+        (checkpoint input / TRAINING_IMAGE_SIZE): for a KITTI-sized image that is the input
+        size ratio, as before; for another camera (1280x720 at 896x512) the anchors stay at the
+        cars' pixel size instead of being stretched with the input's other aspect ratio."""
         dev = choose_device(device)
         model, _ = load_checkpoint(path or SHIPPED_CHECKPOINT, dev)
+        reference = None
         if input_width or input_height:
             c = model.config
             w, h = input_width or c.input_width, input_height or c.input_height
             sx, sy = w / c.input_width, h / c.input_height
+            reference = (
+                c.anchors,
+                (c.input_width / TRAINING_IMAGE_SIZE[0], c.input_height / TRAINING_IMAGE_SIZE[1]),
+            )
             cfg = DetectorConfig.from_dict(
                 {
                     **c.to_dict(),
@@ -128,11 +145,27 @@ class CnnDetector:
                 }
             )
             model.config = cfg
-        return cls(model, dev, score_threshold, nms_iou)
+        detector = cls(model, dev, score_threshold, nms_iou)
+        detector._anchor_reference = reference
+        return detector
+
+    def config_for(self, scale: tuple[float, float]) -> DetectorConfig:
+        """The decoding config for an image resized by ``scale`` (input px per image px)."""
+        if self._anchor_reference is None:
+            return self.config
+        key = (round(scale[0], 6), round(scale[1], 6))
+        if key not in self._scaled_configs:
+            anchors, (rx, ry) = self._anchor_reference
+            fx, fy = scale[0] / rx, scale[1] / ry
+            self._scaled_configs[key] = DetectorConfig.from_dict(
+                {**self.config.to_dict(), "anchors": [[aw * fx, ah * fy] for aw, ah in anchors]}
+            )
+        return self._scaled_configs[key]
 
     @torch.no_grad()
     def detect(self, rgb: np.ndarray) -> list[Detection]:
         """Detections in an RGB uint8 image (H, W, 3), boxes in its pixels."""
         img, scale = resize_image(rgb, self.config.input_width, self.config.input_height)
         raw = self.model(to_tensor([img], self.device))
-        return decode_output(raw, self.config, self.score_threshold, self.nms_iou, scale)[0]
+        config = self.config_for(scale)
+        return decode_output(raw, config, self.score_threshold, self.nms_iou, scale)[0]

@@ -17,7 +17,8 @@ from sensor_msgs.msg import Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2DArray
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import kitti_objects_from_message, stamp_ns
-from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
+from vehicle_common.image_conversion import ImageConversionError, image_size, image_to_rgb
+from vehicle_common.image_transport import subscribe_image
 from vehicle_common.node_parameters import (
     declare_config,
     param,
@@ -114,7 +115,7 @@ class VehicleDetectorNode(Node):
             self.get_logger().warning(
                 "ORACLE backend: publishing ground-truth boxes as detections (ablation only)"
             )
-        self.create_subscription(Image, IMAGE_TOPIC, self._on_image, 5)
+        subscribe_image(self, IMAGE_TOPIC, self._on_image, 5)  # raw or compressed
         self.health = NodeHealth(
             self, self.frames, busy=lambda: bool(self.worker and self.worker.busy)
         )
@@ -161,9 +162,7 @@ class VehicleDetectorNode(Node):
             )
             dets = []
         else:
-            dets = self.oracle.detect(
-                kitti_objects_from_message(labels), (int(image.width), int(image.height))
-            )
+            dets = self.oracle.detect(kitti_objects_from_message(labels), image_size(image))
         self._publish(detections_message(image.header, dets))
 
 

@@ -26,7 +26,6 @@ from pathlib import Path
 import zstandard
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from vehicle_common.bag_recovery import (
     ROS_DISTRO,
     FileInfo,
@@ -35,6 +34,7 @@ from vehicle_common.bag_recovery import (
     rosbag2_metadata,
     write_metadata_yaml,
 )
+from vehicle_common.message_definitions import MessageDefinitions
 
 COMPRESSION_MODES = ("storage", "message", "file")
 #: Bytes of messages per MCAP chunk before it is closed (rosbag2's and rosbags' 1 MiB).
@@ -44,59 +44,6 @@ LIBRARY = "stereo_vehicle_tracking bag_writer (mcap python)"
 
 class BagWriterError(RuntimeError):
     """A bag cannot be written (existing output, unknown message type...)."""
-
-
-def _share_dirs() -> list[Path]:
-    """Install prefixes' share folders (AMENT_PREFIX_PATH, then the interpreter's prefix)."""
-    import os
-    import sys
-
-    dirs = []
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        if prefix:
-            dirs.append(Path(prefix) / "share")
-    dirs.append(Path(sys.prefix) / "share")
-    return [d for d in dirs if d.is_dir()]
-
-
-class MessageDefinitions:
-    """Message definitions (msgdef text) and RIHS01 hashes of ROS 2 types.
-
-    Starts from rosbags' Jazzy typestore and registers, on demand, a package's ``.msg`` files
-    found under ``share/<pkg>/msg`` (for the project's ``stereo_vehicle_msgs``).
-    """
-
-    def __init__(self) -> None:
-        self.typestore = get_typestore(Stores.ROS2_JAZZY)
-        self._loaded_pkgs: set[str] = set()
-
-    def _load_package(self, pkg: str) -> None:
-        if pkg in self._loaded_pkgs:
-            return
-        self._loaded_pkgs.add(pkg)
-        for share in _share_dirs():
-            msg_dir = share / pkg / "msg"
-            if not msg_dir.is_dir():
-                continue
-            types = {}
-            for f in sorted(msg_dir.glob("*.msg")):
-                types.update(get_types_from_msg(f.read_text(), f"{pkg}/msg/{f.stem}"))
-            self.typestore.register(types)
-            return
-
-    def get(self, msgtype: str) -> tuple[str, str]:
-        """(msgdef, rihs01) of ``msgtype`` (``pkg/msg/Type``); raises BagWriterError if unknown."""
-        if msgtype not in self.typestore.types:
-            self._load_package(msgtype.split("/")[0])
-        if msgtype not in self.typestore.types:
-            raise BagWriterError(f"{msgtype}: unknown message type (no .msg definition found)")
-        # Dependencies of a custom type may live in another package.
-        try:
-            msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
-        except KeyError as exc:
-            self._load_package(str(exc.args[0]).split("/")[0])
-            msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
-        return msgdef, self.typestore.hash_rihs01(msgtype)
 
 
 class BagWriter:
@@ -140,7 +87,7 @@ class BagWriter:
         self.compression_mode = compression_mode if compression == "zstd" else ""
         self.max_bag_size = int(max_bag_size)
         self.chunk_size = int(chunk_size)
-        self.defs = definitions or MessageDefinitions()
+        self.defs = definitions or MessageDefinitions(BagWriterError)
         self.counts: Counter[str] = Counter()
         self.types: dict[str, str] = {}
         self._lock = threading.Lock()

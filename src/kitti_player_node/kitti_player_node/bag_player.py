@@ -1,8 +1,11 @@
-"""``bag_player``: replay an MCAP bag (rosbag2 layout or a bare ``.mcap``) into the ROS graph.
+"""``bag_player``: replay a bag (rosbag2 MCAP or sqlite3, bare ``.mcap``, ROS 1 ``.bag``) into
+the ROS graph.
 
-The stored CDR bytes are published as they are (no deserialisation), with the original timing
-scaled by ``--rate`` (0 = as fast as possible), optional topic selection, remapping and looping.
-Reading and pacing live in :mod:`.bag_replay`.
+The stored CDR bytes of a ROS 2 bag are published as they are (no deserialisation); the messages
+of a ROS 1 bag (e.g. from ``kitti2bag``) are converted to CDR first, and a type that cannot be
+converted is refused with one line. Original timing scaled by ``--rate`` (0 = as fast as
+possible), optional topic selection, remapping (kitti2bag's topics onto the graph's: docs/bags.md)
+and looping. Reading, conversion and pacing live in :mod:`.bag_replay`.
 
 By default the replay starts once every topic's subscribers are matched (at most
 ``--discovery-time`` seconds for topics nobody subscribes to), so that a subscriber already
@@ -23,6 +26,8 @@ from vehicle_common.bag_files import BagError
 
 from .bag_replay import (
     BagMessage,
+    bag_types,
+    check_stamped,
     iter_bag,
     message_class,
     output_types,
@@ -30,6 +35,7 @@ from .bag_replay import (
     parse_remaps,
     parse_topics,
     ready_to_play,
+    stamp_sync,
 )
 
 QOS = QoSProfile(
@@ -88,7 +94,9 @@ class BagPlayerNode(Node):
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="bag_player", description=__doc__.splitlines()[0])
-    ap.add_argument("bag", help="rosbag2 directory (metadata.yaml + .mcap) or a .mcap file")
+    ap.add_argument(
+        "bag", help="rosbag2 directory (metadata.yaml + .mcap/.db3), a .mcap or a ROS 1 .bag file"
+    )
     ap.add_argument("--rate", type=float, default=1.0, help="speed factor, 0 = fast as possible")
     ap.add_argument("--topics", action="append", default=[], help="topics to play, a,b,...")
     ap.add_argument("--remap", action="append", default=[], help="/old:=/new (repeatable)")
@@ -113,6 +121,16 @@ def _parser() -> argparse.ArgumentParser:
         help="start playing at once, without waiting for subscribers (as `ros2 bag play`)",
     )
     ap.add_argument("--ack-timeout", type=float, default=5.0, help="wait for acks at end [s]")
+    ap.add_argument(
+        "--sync-stamps",
+        action="append",
+        default=[],
+        help="REF,TOPIC,...: give the TOPICs' messages the header stamp of REF's nearest message "
+        "(a stereo pair stamped by two clocks, e.g. kitti2bag's cameras; bag topic names)",
+    )
+    ap.add_argument(
+        "--sync-tolerance", type=float, default=0.01, help="largest stamp difference synced [s]"
+    )
     return ap
 
 
@@ -142,6 +160,11 @@ def main(argv: list[str] | None = None) -> int:
         types = output_types(args.bag, topics, remap)
         for type_name in types.values():
             message_class(type_name)
+        sync = None
+        if args.sync_stamps:
+            sync_topics = parse_topics(args.sync_stamps)
+            check_stamped(bag_types(args.bag), sync_topics)
+            sync = stamp_sync(args.bag, sync_topics, remap, args.sync_tolerance)
     except BagError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -166,7 +189,8 @@ def main(argv: list[str] | None = None) -> int:
                 log.info(f"no subscriber on {', '.join(sorted(unmatched))}; playing anyway")
         log.info(f"playing {args.bag}: {len(types)} topics at rate {args.rate}")
         while True:
-            for msg in paced(iter_bag(args.bag, topics, remap), args.rate):
+            messages = iter_bag(args.bag, topics, remap)
+            for msg in paced(sync(messages) if sync else messages, args.rate):
                 if not rclpy.ok():
                     break
                 node.publish(msg)
@@ -174,6 +198,11 @@ def main(argv: list[str] | None = None) -> int:
                 break
         if not node.wait_for_acks(args.ack_timeout):
             log.warning(f"not all messages acknowledged within {args.ack_timeout} s")
+        if sync is not None:
+            log.info(
+                f"--sync-stamps: {sync.restamped} messages restamped, {sync.unmatched} without a "
+                f"reference stamp within {args.sync_tolerance} s"
+            )
         log.info(f"done: {node.published} messages published")
         return 0
     except BagError as exc:

@@ -1,6 +1,10 @@
-"""Replay core (no rclpy): open an MCAP bag (rosbag2 layout or a bare ``.mcap``), read it as a
-stream of (topic, type name, timestamp, raw CDR bytes) with topic selection and remapping, and
-pace it.
+"""Replay core (no rclpy): open a bag (rosbag2 layout with MCAP or sqlite3 storage, a bare
+``.mcap``, or a ROS 1 ``.bag`` such as ``kitti2bag`` writes), read it as a stream of (topic, ROS 2
+type name, timestamp, CDR bytes) with topic selection and remapping, and pace it.
+
+ROS 1 messages are converted to the CDR of their ROS 2 type as they are read
+(:func:`vehicle_common.message_definitions.ros1_to_cdr_converter`); a type without a ROS 2
+definition here is refused with one line before anything is published.
 
 Used by the ``bag_player`` node (:mod:`.bag_player`), which publishes the bytes as they are, and
 by the evaluator; both open bags with :func:`vehicle_common.bag_files.open_reader`.
@@ -8,19 +12,29 @@ by the evaluator; both open bags with :func:`vehicle_common.bag_files.open_reade
 
 from __future__ import annotations
 
+import bisect
+import dataclasses
 import importlib
+import struct
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 from vehicle_common.bag_files import BagError, open_reader
+from vehicle_common.message_definitions import (
+    MessageDefinitions,
+    UnknownMessageType,
+    ros1_to_cdr_converter,
+    ros2_type_name,
+)
 
 
 @dataclass(frozen=True)
 class BagMessage:
-    """One stored message: output topic (after remapping), type name such as
-    ``std_msgs/msg/String``, receive timestamp in ns and the serialized CDR bytes."""
+    """One stored message: output topic (after remapping), ROS 2 type name such as
+    ``std_msgs/msg/String``, receive timestamp in ns and the serialized CDR bytes (converted
+    from ROS 1 for a ``.bag``)."""
 
     topic: str
     type_name: str
@@ -53,13 +67,21 @@ def _check_topics(available: Iterable[str], topics: Iterable[str] | None, path) 
             raise BagError(f"--topics: {', '.join(missing)} not in bag {path}")
 
 
-def bag_topics(path: str | Path) -> dict[str, str]:
-    """``{topic: type name}`` of the bag's connections."""
-    reader = open_reader(path)
-    try:
-        return {c.topic: c.msgtype for c in reader.connections}
-    finally:
-        reader.close()
+def _cdr_converters(reader, conns, path) -> dict[int, Callable[[bytes], bytes]]:
+    """Per connection id of a ROS 1 bag, the ROS 1 -> CDR converter (empty for a ROS 2 bag,
+    whose messages are CDR already); BagError naming the topic for a type that has none."""
+    if reader.is2:
+        return {}
+    defs = MessageDefinitions()
+    out = {}
+    for c in conns:
+        try:
+            out[c.id] = ros1_to_cdr_converter(reader.typestore, c.msgtype, defs)
+        except UnknownMessageType as exc:
+            raise BagError(
+                f"{path}: {c.topic}: ROS 1 messages cannot be converted to ROS 2 ({exc})"
+            ) from None
+    return out
 
 
 def iter_bag(
@@ -79,10 +101,15 @@ def iter_bag(
             conns = list(reader.connections)
         if not conns:
             return
+        convert = _cdr_converters(reader, conns, path)
         try:
             for conn, timestamp, data in reader.messages(connections=conns):
+                raw = convert[conn.id](data) if convert else bytes(data)
                 yield BagMessage(
-                    remap.get(conn.topic, conn.topic), conn.msgtype, int(timestamp), bytes(data)
+                    remap.get(conn.topic, conn.topic),
+                    ros2_type_name(conn.msgtype),
+                    int(timestamp),
+                    raw,
                 )
         except BagError:
             raise
@@ -90,6 +117,73 @@ def iter_bag(
             raise BagError(f"{path}: cannot read bag ({exc})") from None
     finally:
         reader.close()
+
+
+def header_stamp(data: bytes) -> int:
+    """The header stamp [ns] of a serialized message whose first field is a std_msgs/Header
+    (little-endian CDR: 4 bytes of encapsulation, then int32 sec, uint32 nanosec)."""
+    if len(data) < 12 or data[:2] != b"\x00\x01":
+        raise BagError("--sync-stamps: a message is not little-endian CDR")
+    sec, nanosec = struct.unpack_from("<iI", data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+def with_header_stamp(data: bytes, stamp_ns: int) -> bytes:
+    """``data`` with its header stamp set to ``stamp_ns`` (see :func:`header_stamp`)."""
+    out = bytearray(data)
+    struct.pack_into("<iI", out, 4, *divmod(int(stamp_ns), 1_000_000_000))
+    return bytes(out)
+
+
+def check_stamped(types: dict[str, str], topics: Iterable[str]) -> None:
+    """BagError unless every topic's type (``types``: bag topic -> ROS 2 type) starts with a
+    std_msgs/Header, as --sync-stamps needs."""
+    defs = MessageDefinitions(BagError)
+    for topic in topics:
+        if topic not in types:
+            raise BagError(f"--sync-stamps: {topic} not in the bag")
+        defs.get(types[topic])
+        first = defs.typestore.fielddefs[types[topic]][1][0]
+        if first[0] != "header" or first[1][1] != "std_msgs/msg/Header":
+            raise BagError(f"--sync-stamps: {topic} ({types[topic]}) has no header")
+
+
+@dataclasses.dataclass
+class StampSync:
+    """Gives the messages of ``topics`` (output names) the header stamp of the nearest message
+    of the reference topic (``reference``: its sorted header stamps [ns]) when it is within
+    ``tolerance_ns``: a stereo pair stamped by two clocks (kitti2bag stamps each camera from its
+    own timestamps.txt) becomes the exact-stamp pair stereo depth matches."""
+
+    reference: list[int]
+    topics: set[str]
+    tolerance_ns: int
+    restamped: int = 0
+    unmatched: int = 0
+
+    def __call__(self, messages: Iterable[BagMessage]) -> Iterator[BagMessage]:
+        for msg in messages:
+            if msg.topic in self.topics and self.reference:
+                stamp = header_stamp(msg.data)
+                i = bisect.bisect_left(self.reference, stamp)
+                near = min(self.reference[max(i - 1, 0) : i + 1], key=lambda r: abs(r - stamp))
+                if abs(near - stamp) > self.tolerance_ns:
+                    self.unmatched += 1
+                elif near != stamp:
+                    self.restamped += 1
+                    msg = dataclasses.replace(msg, data=with_header_stamp(msg.data, near))
+            yield msg
+
+
+def stamp_sync(path, topics: list[str], remap: dict[str, str], tolerance_s: float) -> StampSync:
+    """The :class:`StampSync` of ``topics`` (bag names, the first the reference) in the bag."""
+    if len(topics) < 2:
+        raise BagError("--sync-stamps: give the reference topic and at least one other")
+    if not tolerance_s > 0:
+        raise BagError(f"--sync-tolerance: {tolerance_s} must be > 0")
+    reference = sorted(header_stamp(m.data) for m in iter_bag(path, topics[:1]))
+    followers = {remap.get(t, t) for t in topics[1:]}
+    return StampSync(reference, followers, round(tolerance_s * 1e9))
 
 
 def paced(
@@ -140,10 +234,26 @@ def message_class(type_name: str):
         raise BagError(f"{type_name}: message type not available in this installation") from None
 
 
+def bag_types(path: str | Path) -> dict[str, str]:
+    """``{bag topic: ROS 2 type name}``."""
+    reader = open_reader(path)
+    try:
+        return {c.topic: ros2_type_name(c.msgtype) for c in reader.connections}
+    finally:
+        reader.close()
+
+
 def output_types(path: str | Path, topics: list[str] | None, remap: dict[str, str]):
-    """``{output topic: type name}`` of the selected topics after remapping."""
-    types = bag_topics(path)
-    _check_topics(types, topics, path)
+    """``{output topic: ROS 2 type name}`` of the selected topics after remapping; for a ROS 1
+    bag, BagError when one of them cannot be converted (before anything is published)."""
+    reader = open_reader(path)
+    try:
+        types = {c.topic: ros2_type_name(c.msgtype) for c in reader.connections}
+        _check_topics(types, topics, path)
+        selected = [c for c in reader.connections if c.topic in (topics or types)]
+        _cdr_converters(reader, selected, path)
+    finally:
+        reader.close()
     if topics is not None:
         types = {t: types[t] for t in topics}
     out: dict[str, str] = {}

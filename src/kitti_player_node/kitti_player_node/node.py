@@ -19,7 +19,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, TrackedVehicleArray
 from vehicle_common.frame_accounting import FrameCounter
 from vehicle_common.frame_messages import (
@@ -31,7 +31,8 @@ from vehicle_common.frame_messages import (
     stereo_camera_infos,
 )
 from vehicle_common.graph_readiness import NodeReport, unready_topics
-from vehicle_common.image_conversion import numpy_to_image
+from vehicle_common.image_conversion import numpy_to_compressed, numpy_to_image
+from vehicle_common.image_transport import PLAYER_TRANSPORTS
 from vehicle_common.kitti import KittiFormatError, TrackingSequence
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
@@ -94,6 +95,11 @@ class PlayerParameters:
     # volatile reader drops what arrived before (README, "Across machines"); 0 on one host
     match_settle_time: float = param(0.0, low=0.0)
     exit_when_done: bool = True
+    # images on the wire: "raw" (sensor_msgs/Image, rgb8) or sensor_msgs/CompressedImage on
+    # <image topic>/compressed, "png" (lossless) or "jpeg" (jpeg_quality); the launchers set the
+    # detector's and stereo depth's image_transport to match (docs/bags_and_cameras.md)
+    image_transport: str = param("raw", choices=PLAYER_TRANSPORTS)
+    jpeg_quality: int = param(90, low=1, high=100)
 
 
 def parse_topic_counts(spec: str) -> dict[str, int]:
@@ -137,8 +143,14 @@ class KittiPlayerNode(Node):
         except ValueError as exc:
             raise PlayerError(f"drop_probability/lockstep_window: {exc}") from None
 
-        self.pub_left = self.create_publisher(Image, topics.LEFT_IMAGE, 5)
-        self.pub_right = self.create_publisher(Image, topics.RIGHT_IMAGE, 5)
+        transport = p["image_transport"]
+        image_type = Image if transport == "raw" else CompressedImage
+        self.pub_left = self.create_publisher(
+            image_type, topics.image_topic(topics.LEFT_IMAGE, transport), 5
+        )
+        self.pub_right = self.create_publisher(
+            image_type, topics.image_topic(topics.RIGHT_IMAGE, transport), 5
+        )
         self.pub_left_info = self.create_publisher(CameraInfo, topics.LEFT_INFO, 5)
         self.pub_right_info = self.create_publisher(CameraInfo, topics.RIGHT_INFO, 5)
         self.pub_gt = self.create_publisher(KittiFrameLabels, topics.GROUND_TRUTH, 10)
@@ -281,8 +293,15 @@ class KittiPlayerNode(Node):
         left_info, right_info = stereo_camera_infos(calib, w, h, stamp)
         self.pub_left_info.publish(left_info)
         self.pub_right_info.publish(right_info)
-        self.pub_left.publish(numpy_to_image(left, "rgb8", header(stamp, LEFT_FRAME)))
-        self.pub_right.publish(numpy_to_image(right, "rgb8", header(stamp, RIGHT_FRAME)))
+        self.pub_left.publish(self._image_message(left, header(stamp, LEFT_FRAME)))
+        self.pub_right.publish(self._image_message(right, header(stamp, RIGHT_FRAME)))
+
+    def _image_message(self, rgb, hdr):
+        """The image as the ``image_transport`` parameter says: raw rgb8, PNG or JPEG."""
+        transport = self.params["image_transport"]
+        if transport == "raw":
+            return numpy_to_image(rgb, "rgb8", hdr)
+        return numpy_to_compressed(rgb, transport, self.params["jpeg_quality"], hdr)
 
     def _log_summary(self) -> None:
         if self._summary_logged:

@@ -10,9 +10,12 @@ the KITTI tracking layout under ``root``::
 plus ``synthetic_SSSS.json`` (the generator settings; an unchanged sequence is not rendered
 again). The calibration is KITTI sequence 0005's (fx = fy = 721.5377, cx = 609.5593,
 cy = 172.854, baseline 0.5327 m, camera 2 0.06 m left of camera 0), scaled with the image size
-when it differs from 1242x375. Output is byte-identical for the same settings and seed.
+when it differs from 1242x375; or another rectified stereo camera: ``focal`` (fx = fy, principal
+point at the image centre) and ``baseline``, e.g. 1280x720, f = 700 px, 0.12 m (a ZED-like
+camera; docs/bags_and_cameras.md). Output is byte-identical for the same settings and seed.
 
-Console script: ``kitti_synth --output DIR --sequence 0000 --frames 100 --seed 0``.
+Console script: ``kitti_synth --output DIR --sequence 0000 --frames 100 --seed 0``
+[``--width 1280 --height 720 --focal 700 --baseline 0.12``].
 """
 
 from __future__ import annotations
@@ -44,15 +47,26 @@ KITTI_LEFT_OFFSET = 0.06
 IMAGE_NOISE_STD = 1.5  # grey levels, seeded
 
 
-def synthetic_calibration(width: int = KITTI_WIDTH, height: int = KITTI_HEIGHT) -> Calibration:
-    """KITTI 0005's rectified stereo calibration, intrinsics scaled to ``width`` x ``height``."""
+def synthetic_calibration(
+    width: int = KITTI_WIDTH,
+    height: int = KITTI_HEIGHT,
+    focal: float = 0.0,
+    baseline: float = KITTI_BASELINE,
+) -> Calibration:
+    """KITTI 0005's rectified stereo calibration, intrinsics scaled to ``width`` x ``height``
+    (``focal`` 0), or a camera with fx = fy = ``focal`` [px] and the principal point at the
+    image centre; ``baseline`` [m] either way."""
+    if focal > 0:
+        return stereo_calibration(
+            focal, focal, width / 2.0, height / 2.0, baseline, KITTI_LEFT_OFFSET
+        )
     sx, sy = width / KITTI_WIDTH, height / KITTI_HEIGHT
     return stereo_calibration(
         KITTI_FX * sx,
         KITTI_FY * sy,
         KITTI_CX * sx,
         KITTI_CY * sy,
-        KITTI_BASELINE,
+        baseline,
         KITTI_LEFT_OFFSET,
     )
 
@@ -68,10 +82,13 @@ def build_renderer(
     vehicles: int = 12,
     width: int = KITTI_WIDTH,
     height: int = KITTI_HEIGHT,
+    focal: float = 0.0,
+    baseline: float = KITTI_BASELINE,
 ) -> StereoRenderer:
     """The renderer of a random scene with the synthetic calibration."""
     scene = random_scene(seed, frames, vehicles, _sequence_index(sequence))
-    return StereoRenderer(scene, synthetic_calibration(width, height), width, height)
+    calib = synthetic_calibration(width, height, focal, baseline)
+    return StereoRenderer(scene, calib, width, height)
 
 
 def to_uint8(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -115,13 +132,16 @@ def generate_sequence(
     height: int = KITTI_HEIGHT,
     force: bool = False,
     progress=None,
+    focal: float = 0.0,
+    baseline: float = KITTI_BASELINE,
 ) -> Path:
-    """Render a sequence into the KITTI tracking root ``root``; returns ``root``.
+    """Render a sequence into the KITTI tracking root ``root``; returns ``root``. ``focal`` and
+    ``baseline``: the camera (:func:`synthetic_calibration`).
 
     Skips the work when ``root/synthetic_SSSS.json`` records the same settings and all files
     exist (unless ``force``). ``progress(frame)`` is called after each frame when given.
     """
-    sequence = _check_settings(sequence, frames, seed, vehicles, width, height)
+    sequence = _check_settings(sequence, frames, seed, vehicles, width, height, focal, baseline)
     root = Path(root)
     settings = {
         "generator": "kitti_player_node.synthetic",
@@ -133,10 +153,12 @@ def generate_sequence(
         "width": width,
         "height": height,
     }
+    if focal > 0 or baseline != KITTI_BASELINE:  # (KITTI's camera: manifests as before)
+        settings.update(focal=focal, baseline=baseline)
     manifest = root / f"synthetic_{sequence}.json"
     if not force and _up_to_date(root, manifest, settings):
         return root
-    renderer = build_renderer(sequence, frames, seed, vehicles, width, height)
+    renderer = build_renderer(sequence, frames, seed, vehicles, width, height, focal, baseline)
     try:
         manifest.unlink(missing_ok=True)
         write_calib(root / "calib" / f"{sequence}.txt", renderer.calib)
@@ -161,7 +183,9 @@ def generate_sequence(
     return root
 
 
-def _check_settings(sequence, frames, seed, vehicles, width, height) -> str:
+def _check_settings(
+    sequence, frames, seed, vehicles, width, height, focal=0.0, baseline=KITTI_BASELINE
+) -> str:
     sequence = str(sequence)
     if sequence.isdigit():
         sequence = f"{int(sequence):04d}"
@@ -175,6 +199,10 @@ def _check_settings(sequence, frames, seed, vehicles, width, height) -> str:
         raise ValueError(f"seed: must be >= 0, got {seed}")
     if not (32 <= width <= 8192 and 32 <= height <= 8192):
         raise ValueError(f"width/height: must be 32..8192 pixels, got {width}x{height}")
+    if not (focal == 0 or 10 <= focal <= 100_000):
+        raise ValueError(f"focal: must be 0 (KITTI's, scaled) or 10..100000 px, got {focal}")
+    if not 0.01 <= baseline <= 5.0:
+        raise ValueError(f"baseline: must be 0.01..5 m, got {baseline}")
     return sequence
 
 
@@ -206,6 +234,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--vehicles", type=int, default=12, help="vehicles in the scene (default 12)")
     p.add_argument("--width", type=int, default=KITTI_WIDTH, help="image width (default 1242)")
     p.add_argument("--height", type=int, default=KITTI_HEIGHT, help="image height (default 375)")
+    p.add_argument(
+        "--focal",
+        type=float,
+        default=0.0,
+        help="fx = fy [px], principal point at the centre "
+        "(default 0: KITTI 0005's intrinsics scaled to the image size)",
+    )
+    p.add_argument(
+        "--baseline", type=float, default=KITTI_BASELINE, help="stereo baseline [m] (0.5327)"
+    )
     p.add_argument("--force", action="store_true", help="render even if up to date")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     try:
@@ -213,10 +251,10 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exc:  # --help (0) or a usage error (2, already reported)
         return int(exc.code or 0)
     out = Path(args.output)
+    names = ("sequence", "frames", "seed", "vehicles", "width", "height", "focal", "baseline")
+    settings = {k: getattr(args, k) for k in names}
     try:
-        _check_settings(
-            args.sequence, args.frames, args.seed, args.vehicles, args.width, args.height
-        )
+        _check_settings(**settings)
         if out.exists() and not out.is_dir():
             raise KittiFormatError(f"{out}: output exists and is not a directory")
         try:
@@ -237,17 +275,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"kitti_synth: {args.sequence}: frame {k + 1}/{args.frames}", flush=True)
 
     try:
-        generate_sequence(
-            out,
-            args.sequence,
-            args.frames,
-            args.seed,
-            args.vehicles,
-            args.width,
-            args.height,
-            force=args.force,
-            progress=progress,
-        )
+        generate_sequence(out, force=args.force, progress=progress, **settings)
     except (KittiFormatError, ValueError) as exc:
         sys.stderr.write(f"error: {exc}\n")
         return 2

@@ -362,7 +362,8 @@ class StereoRenderer:
                 bt[hit] = tn[hit]
                 best_axis[sl][hit] = axis[hit]
                 best_part[sl][hit] = min(k, 2)
-        local = (ox + best_t * ldx, oy + best_t * ldy, oz + best_t * ldz)
+        with np.errstate(invalid="ignore"):  # inf * 0 where no box is hit (a ray along an axis)
+            local = (ox + best_t * ldx, oy + best_t * ldy, oz + best_t * ldz)
         sign = np.where(
             best_axis == 0, -np.sign(ldx), np.where(best_axis == 1, -np.sign(ldy), -np.sign(ldz))
         )

@@ -18,18 +18,20 @@ import cv2
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, PointCloud2
 from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
 from vehicle_common.camera_motion import CameraMotion
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
+from vehicle_common.image_transport import subscribe_image
 from vehicle_common.node_parameters import (
     declare_config,
     param,
 )
 from vehicle_common.node_runtime import NodeHealth, run_node
+from vehicle_common.stereo_camera import check_stereo_images, check_stereo_infos
 
 from vehicle_common import topics
 
@@ -207,8 +209,9 @@ class StereoDepthNode(Node):
         # first frame was skipped for "no CameraInfo yet" in some runs)
         self.create_subscription(CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, 5)
         self.create_subscription(CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, 5)
-        self.create_subscription(Image, TOPIC_LEFT, lambda m: self._on_image("left", m), 5)
-        self.create_subscription(Image, TOPIC_RIGHT, lambda m: self._on_image("right", m), 5)
+        # raw or compressed (parameter image_transport)
+        subscribe_image(self, TOPIC_LEFT, lambda m: self._on_image("left", m), 5)
+        subscribe_image(self, TOPIC_RIGHT, lambda m: self._on_image("right", m), 5)
         self.create_subscription(
             VehicleDetection2DArray,
             TOPIC_DETECTIONS_2D,
@@ -255,6 +258,7 @@ class StereoDepthNode(Node):
             return
         self._calibration_key = key
         try:
+            check_stereo_infos(self.left_info, self.right_info)  # one line naming the field
             self.geometry = StereoGeometry.from_camera_infos(self.left_info, self.right_info)
         except ValueError as exc:
             self.geometry = None
@@ -322,11 +326,8 @@ class StereoDepthNode(Node):
             frame.geometry = self.geometry
             left = image_to_rgb(left_msg)
             right = image_to_rgb(right_msg)
-            if left.shape != right.shape:
-                raise ImageConversionError(
-                    f"left {left.shape[1]}x{left.shape[0]} and right "
-                    f"{right.shape[1]}x{right.shape[0]} sizes differ"
-                )
+            # sizes and frame ids of the images and their camera_infos
+            check_stereo_images(left_msg, right_msg, left, right, self.left_info, self.right_info)
             gray = to_gray(left)
             odometry = self._start_odometry(frame, gray)
             params = self._disparity_params_for(left.shape[0])

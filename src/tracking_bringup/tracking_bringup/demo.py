@@ -76,6 +76,25 @@ class TrackProgress:
         self._ctx.try_shutdown()
 
 
+def _camera_settings(root: Path, sequence: str, keep: bool, checkpoint: str) -> list[str]:
+    """The overrides a camera other than KITTI's needs (tracking_bringup.camera) with the
+    detector's ``checkpoint`` ("" = shipped), printed; none with ``keep``."""
+    from vehicle_common.kitti import TrackingSequence
+
+    from tracking_bringup.camera import camera_overrides, checkpoint_input_size
+
+    seq = TrackingSequence.open(root, sequence)
+    h, w = seq.read_stereo(seq.frame_ids[0])[0].shape[:2]
+    network = checkpoint_input_size(checkpoint)
+    overrides = camera_overrides(w, h, seq.calib.fx, seq.calib.baseline, network)
+    print(
+        f"[demo] camera {w}x{h}, fx {seq.calib.fx:.1f} px, baseline {seq.calib.baseline:.3f} m: "
+        + ("keeping the parameter file's settings" if keep else " ".join(overrides)),
+        flush=True,
+    )
+    return [] if keep else overrides
+
+
 def _prepare_data(args) -> tuple[Path, str, int]:
     """(KITTI tracking root, sequence, number of frames to play)."""
     from vehicle_common.kitti import TrackingSequence
@@ -88,7 +107,16 @@ def _prepare_data(args) -> tuple[Path, str, int]:
         root, sequence = Path(args.data_dir).resolve(), args.sequence or "0000"
         print(f"[demo] synthetic KITTI-format sequence {sequence} in {root}", flush=True)
         t0 = time.monotonic()
-        generate_sequence(root, sequence=sequence, frames=args.frames or 100, seed=args.seed)
+        generate_sequence(
+            root,
+            sequence=sequence,
+            frames=args.frames or 100,
+            seed=args.seed,
+            width=args.width,
+            height=args.height,
+            focal=args.focal,
+            baseline=args.baseline,
+        )
         print(f"[demo] data ready ({time.monotonic() - t0:.1f} s)", flush=True)
     seq = TrackingSequence.open(root, sequence)
     n = len(seq.frame_ids) if not args.frames else min(args.frames, len(seq.frame_ids))
@@ -106,6 +134,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--detector", choices=("cnn", "oracle"), default="cnn")
     parser.add_argument("--data-dir", default="data/synthetic", help="synthetic data folder")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic sequence")
+    parser.add_argument("--width", type=int, default=1242, help="synthetic: image width")
+    parser.add_argument("--height", type=int, default=375, help="synthetic: image height")
+    parser.add_argument(
+        "--focal", type=float, default=0.0, help="synthetic: fx = fy [px] (0: KITTI's, scaled)"
+    )
+    parser.add_argument("--baseline", type=float, default=0.5327, help="synthetic: baseline [m]")
+    parser.add_argument(
+        "--no-camera-settings",
+        action="store_true",
+        help="keep the detector input size and num_disparities of the parameter file for a "
+        "camera that is not KITTI's (default: derived from it, tracking_bringup.camera)",
+    )
     parser.add_argument("--output", help="output folder (default output/demo_<time>)")
     parser.add_argument("--params", default=str(PARAMS_FILE), help="ROS parameter YAML")
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NODE.PARAM:=VALUE")
@@ -123,8 +163,18 @@ def main(argv: list[str] | None = None) -> int:
     print(f"[demo] output folder: {out}", flush=True)
     try:
         root, sequence, frames = _prepare_data(args)
-    except (KittiFormatError, OSError) as exc:
+    except (KittiFormatError, OSError, ValueError) as exc:
         return _error(str(exc))
+    camera = []
+    if not args.kitti_root and (args.focal > 0 or (args.width, args.height) != (1242, 375)):
+        checkpoint = graph.parameter_value(
+            args.params,
+            [ov.split(".", 1)[1] for ov in args.param if ov.startswith("vehicle_detector.")],
+            "vehicle_detector",
+            "checkpoint",
+            "",
+        )
+        camera = _camera_settings(root, sequence, args.no_camera_settings, str(checkpoint))
 
     bag = out / "bag"
     overrides = [
@@ -137,6 +187,7 @@ def main(argv: list[str] | None = None) -> int:
         f"bag_recorder.output:={bag}",
         # the stereo bias model describes KITTI's cameras; the synthetic renderer's are exact
         *([] if args.kitti_root else SYNTHETIC_CAMERA_OVERRIDES),
+        *camera,
         *args.param,
     ]
     apply_graph_environment()

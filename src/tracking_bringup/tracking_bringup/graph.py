@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from vehicle_common.graph_readiness import format_topic_counts
+from vehicle_common.image_transport import subscriber_transport
 
 from vehicle_common import topics
 
@@ -59,6 +60,7 @@ TRACKS = topics.TRACKS
 TRACK_MARKERS = topics.TRACK_MARKERS
 DISPARITY = topics.DISPARITY
 CLOCK = topics.CLOCK
+IMAGES = (LEFT_IMAGE, RIGHT_IMAGE)
 
 PLAYER = NodeSpec(
     name="kitti_player",
@@ -131,6 +133,19 @@ def with_lockstep(nodes: list[NodeSpec], lockstep: bool) -> list[NodeSpec]:
     return [spec if n.name == PLAYER.name else n for n in nodes]
 
 
+def with_image_transport(nodes: list[NodeSpec], transport: str) -> list[NodeSpec]:
+    """``nodes`` with the image topics of the player's ``image_transport``: the raw topics for
+    "raw", ``.../compressed`` (sensor_msgs/CompressedImage) for "png" and "jpeg"."""
+    swap = {t: topics.image_topic(t, transport) for t in IMAGES}
+
+    def swapped(names: tuple[str, ...]) -> tuple[str, ...]:
+        return tuple(swap.get(t, t) for t in names)
+
+    return [
+        replace(n, subscribes=swapped(n.subscribes), publishes=swapped(n.publishes)) for n in nodes
+    ]
+
+
 def as_bool(value) -> bool:
     """A boolean parameter value from a YAML file or a ``-p`` override string."""
     return value if isinstance(value, bool) else str(value).strip().lower() == "true"
@@ -197,7 +212,10 @@ def plan(
       plus ``extra_subscriptions`` per topic from outside the graph (a progress display);
     - in lockstep with ``lockstep_window`` K frames in flight, ``frame_queue: K`` on the
       latest-frame nodes, so that none of the K frames waiting there is skipped (unless the
-      node's ``frame_queue`` is overridden)."""
+      node's ``frame_queue`` is overridden);
+    - on the nodes that subscribe to the images, ``image_transport`` "raw" or "compressed" as
+      the player's ``image_transport`` ("raw" | "png" | "jpeg") says (unless overridden), and
+      the image edges on the matching topics."""
     overrides = overrides or {}
 
     def value(node: NodeSpec, name: str, default):
@@ -205,9 +223,11 @@ def plan(
 
     backend = str(value(DETECTOR, "backend", "cnn"))
     lockstep = as_bool(value(PLAYER, "lockstep", False))
+    transport = str(value(PLAYER, "image_transport", "raw"))
 
     def shaped(specs: list[NodeSpec]) -> list[NodeSpec]:
-        return with_lockstep(with_detector_backend(list(specs), backend), lockstep)
+        specs = with_lockstep(with_detector_backend(list(specs), backend), lockstep)
+        return with_image_transport(specs, transport)
 
     nodes = shaped(nodes)
     whole = nodes if graph_nodes is None else shaped(graph_nodes)
@@ -218,6 +238,9 @@ def plan(
         overridden = {ov.partition(":=")[0] for ov in overrides.get(n.name, [])}
         if window is not None and n.latest_frame and "frame_queue" not in overridden:
             extra["frame_queue"] = window
+        images_in = any(topics.image_topic(t, transport) in n.subscribes for t in IMAGES)
+        if images_in and "image_transport" not in overridden:
+            extra["image_transport"] = subscriber_transport(transport)
         if n.source and n.wait_parameter:
             extra[n.wait_parameter] = wait_for_topics_value(whole, extra_subscriptions)
         out.append((n, extra))

@@ -15,15 +15,21 @@ uses, so every node ignores it)::
             nodes: ["vehicle_detector", "stereo_depth"]
             discovery: "peers"
             peers: ["10.0.0.1"]
+        image_transport: "jpeg"        # the images on the link: raw | png | jpeg
 
 The whole graph is the union of the profiles' nodes: the player waits for the subscriptions of
-every node in it, wherever it runs, before its first frame.
+every node in it, wherever it runs, before its first frame. ``image_transport`` (optional)
+becomes the player's parameter on every host started with ``--host``, so that the launchers on
+both sides agree on the image topics (the consumers' ``image_transport`` follows the player's:
+graph.plan).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+
+from vehicle_common.image_transport import PLAYER_TRANSPORTS
 
 from tracking_bringup import graph
 from tracking_bringup.dds import DISCOVERY_MODES, MULTIHOST_SETTLE_TIME, DiscoverySettings
@@ -45,15 +51,31 @@ class HostProfile:
     peers: tuple[str, ...] = ()
 
 
-def read_host_profiles(params_file: str | Path) -> dict[str, HostProfile]:
-    """Every host profile of ``params_file`` (empty when it defines none)."""
+def _launch_section(params_file: str | Path) -> dict:
+    """The launcher's section (``stereo_tracking_launch.ros__parameters``) of the file."""
     import yaml
 
     try:
         data = yaml.safe_load(Path(params_file).read_text()) or {}
     except (OSError, yaml.YAMLError) as exc:
         raise HostProfileError(f"{params_file}: {exc}") from None
-    section = (data.get(LAUNCH_SECTION) or {}).get("ros__parameters") or {}
+    return (data.get(LAUNCH_SECTION) or {}).get("ros__parameters") or {}
+
+
+def read_image_transport(params_file: str | Path) -> str | None:
+    """The host profiles' ``image_transport`` (None when not given)."""
+    value = _launch_section(params_file).get("image_transport")
+    if value is not None and value not in PLAYER_TRANSPORTS:
+        raise HostProfileError(
+            f"{params_file}: {LAUNCH_SECTION}.ros__parameters.image_transport: {value!r} is not "
+            f"one of {', '.join(PLAYER_TRANSPORTS)}"
+        )
+    return value
+
+
+def read_host_profiles(params_file: str | Path) -> dict[str, HostProfile]:
+    """Every host profile of ``params_file`` (empty when it defines none)."""
+    section = _launch_section(params_file)
     hosts = section.get("hosts") or {}
     where = f"{params_file}: {LAUNCH_SECTION}.ros__parameters.hosts"
     if not isinstance(hosts, dict):
@@ -104,15 +126,21 @@ class LaunchPlan:
     nodes: list[str] | None
     graph_nodes: list[str] | None
     discovery: DiscoverySettings
+    image_transport: str | None = None  # of the host profiles: the player's, on every host
 
     @property
     def overrides(self) -> list[str]:
         """Parameter overrides the plan implies (before the user's ``-p``, which win): across
-        hosts the player lets discovery settle before its first frame."""
+        hosts the player lets discovery settle before its first frame; the host profiles'
+        ``image_transport`` is the player's (also where it runs elsewhere: the consumers'
+        follows it)."""
         player = graph.PLAYER.name
+        out = []
         if self.discovery.multihost and (self.nodes is None or player in self.nodes):
-            return [f"{player}.match_settle_time:={MULTIHOST_SETTLE_TIME}"]
-        return []
+            out.append(f"{player}.match_settle_time:={MULTIHOST_SETTLE_TIME}")
+        if self.image_transport is not None:
+            out.append(f"{player}.image_transport:={self.image_transport}")
+        return out
 
 
 def add_arguments(parser) -> None:
@@ -147,7 +175,9 @@ def launch_plan(args) -> LaunchPlan:
     line naming the option or field at fault."""
     nodes, graph_nodes = _names(args.nodes), _names(args.graph)
     discovery, peers = args.discovery, _names(args.peers)
+    transport = None
     if args.host:
+        transport = read_image_transport(args.params)
         if nodes:
             raise HostProfileError("--nodes and --host: give one of them")
         profile, union = host_profile(args.params, args.host)
@@ -167,4 +197,6 @@ def launch_plan(args) -> LaunchPlan:
         peers=tuple(peers or ()),
         profile=args.transport_profile,
     )
-    return LaunchPlan(nodes=nodes, graph_nodes=graph_nodes, discovery=settings)
+    return LaunchPlan(
+        nodes=nodes, graph_nodes=graph_nodes, discovery=settings, image_transport=transport
+    )

@@ -20,6 +20,10 @@ TRACKS = "vehicles/tracks"
 TRACK_MARKERS = "vehicles/track_markers"
 DISPARITY = "stereo/disparity"
 POINTS = "stereo/points"
+#: image_transport's convention: sensor_msgs/CompressedImage on ``<image topic>/compressed``
+COMPRESSED_SUFFIX = "/compressed"
+LEFT_IMAGE_COMPRESSED = LEFT_IMAGE + COMPRESSED_SUFFIX
+RIGHT_IMAGE_COMPRESSED = RIGHT_IMAGE + COMPRESSED_SUFFIX
 
 #: every topic of the graph
 ALL = (
@@ -35,6 +39,8 @@ ALL = (
     TRACK_MARKERS,
     DISPARITY,
     POINTS,
+    LEFT_IMAGE_COMPRESSED,
+    RIGHT_IMAGE_COMPRESSED,
 )
 
 #: the message type of every topic (``package/msg/Type``)
@@ -51,6 +57,8 @@ TYPES = {
     TRACK_MARKERS: "visualization_msgs/msg/MarkerArray",
     DISPARITY: "stereo_msgs/msg/DisparityImage",
     POINTS: "sensor_msgs/msg/PointCloud2",
+    LEFT_IMAGE_COMPRESSED: "sensor_msgs/msg/CompressedImage",
+    RIGHT_IMAGE_COMPRESSED: "sensor_msgs/msg/CompressedImage",
 }
 #: what the bag recorder records by default (the graph's recorder node subscribes to these)
 RECORDED = (
@@ -65,6 +73,11 @@ RECORDED = (
 )
 #: large image-like topics, recorded only on request (the recorder's ``include_images``)
 RECORDED_IMAGES = (LEFT_IMAGE, RIGHT_IMAGE, DISPARITY, POINTS)
+
+
+def image_topic(topic: str, transport: str) -> str:
+    """The topic an image travels on: ``topic`` for "raw", ``topic/compressed`` otherwise."""
+    return topic if transport == "raw" else topic + COMPRESSED_SUFFIX
 
 
 def normalise_namespace(namespace: str | None) -> str:

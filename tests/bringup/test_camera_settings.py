@@ -1,0 +1,33 @@
+"""Settings that follow from a camera that is not KITTI's: the CNN sees it at its training
+scale (not squeezed), the disparity range reaches KITTI's nearest depth; KITTI itself keeps the
+shipped defaults."""
+
+from __future__ import annotations
+
+from tracking_bringup.camera import camera_overrides, checkpoint_input_size, detector_input_size
+
+SHIPPED = (832, 256)
+
+
+def test_shipped_checkpoint_input():
+    assert checkpoint_input_size("") == SHIPPED
+
+
+def test_kitti_keeps_the_shipped_settings():
+    assert detector_input_size(1242, 375, 721.5377, SHIPPED) == SHIPPED
+    assert camera_overrides(1242, 375, 721.5377, 0.5327, SHIPPED) == [
+        "vehicle_detector.input_width:=832",
+        "vehicle_detector.input_height:=256",
+        "stereo_depth.num_disparities:=96",
+    ]
+
+
+def test_720p_short_baseline_camera():
+    # 1280x720, f 700 px: same pixels per metre as in training, aspect kept (832x256 would
+    # squeeze the height 2.2x more than the width)
+    w, h = detector_input_size(1280, 720, 700.0, SHIPPED)
+    assert (w, h) == (896, 512)
+    assert abs((w / 1280) / (h / 720) - 1.0) < 0.05
+    assert (
+        camera_overrides(1280, 720, 700.0, 0.12, SHIPPED)[2] == "stereo_depth.num_disparities:=32"
+    )

@@ -1,0 +1,75 @@
+"""The launchers keep the image consumers in step with the player's ``image_transport``: the
+detector and stereo depth get ``image_transport: compressed`` and the image edges the player
+waits for are the ``.../compressed`` topics; the multi-host profile's setting reaches both hosts."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+from tracking_bringup.environment import PARAMS_FILE
+from tracking_bringup.hosts import HostProfileError, add_arguments, launch_plan
+
+from tracking_bringup import graph
+
+
+def _plan(overrides: dict[str, list[str]], nodes=None):
+    whole = graph.by_name(None)
+    return {n.name: (n, extra) for n, extra in graph.plan(nodes or whole, PARAMS_FILE, overrides)}
+
+
+@pytest.mark.parametrize("transport", ["png", "jpeg"])
+def test_compressed_player_sets_consumers_and_edges(transport):
+    planned = _plan({"kitti_player": [f"image_transport:={transport}"]})
+    for name in ("vehicle_detector", "stereo_depth"):
+        spec, extra = planned[name]
+        assert extra["image_transport"] == "compressed"
+        assert "stereo/left/image_rect/compressed" in spec.subscribes
+        assert "stereo/left/image_rect" not in spec.subscribes
+    player, extra = planned["kitti_player"]
+    waits = dict(e.split(":") for e in extra["wait_for_topics"].split(","))
+    assert waits["stereo/left/image_rect/compressed"] == "2"  # detector + stereo depth
+    assert waits["stereo/right/image_rect/compressed"] == "1"
+    assert "stereo/left/image_rect" not in waits
+    assert "image_transport" not in planned["vehicle_tracker"][1]
+
+
+def test_raw_is_the_default_and_an_override_wins():
+    planned = _plan({})
+    assert planned["stereo_depth"][1]["image_transport"] == "raw"
+    assert "stereo/left/image_rect" in planned["vehicle_detector"][0].subscribes
+    mine = _plan(
+        {"kitti_player": ["image_transport:=png"], "stereo_depth": ["image_transport:=raw"]}
+    )
+    assert "image_transport" not in mine["stereo_depth"][1]  # the user's -p is kept
+
+
+def _launch_plan(params, *argv):
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--params", default=str(params))
+    parser.add_argument("--nodes")
+    add_arguments(parser)
+    return launch_plan(parser.parse_args(list(argv)))
+
+
+def test_host_profile_image_transport_reaches_both_hosts(tmp_path):
+    text = PARAMS_FILE.read_text()
+    params = tmp_path / "p.yaml"
+    assert 'image_transport: "raw"' in text.split("stereo_tracking_launch:")[1]
+    params.write_text(
+        text.replace(
+            'image_transport: "raw"  # multi-host', 'image_transport: "jpeg"  # multi-host'
+        )
+    )
+    for host in ("camera", "compute"):
+        plan = _launch_plan(params, "--host", host, "--peers", "10.0.0.9")
+        assert "kitti_player.image_transport:=jpeg" in plan.overrides
+    params.write_text(
+        text.replace('image_transport: "raw"  # multi-host', 'image_transport: "gif"  # multi-host')
+    )
+    with pytest.raises(
+        HostProfileError, match="image_transport: 'gif' is not one of raw, png, jpeg"
+    ):
+        _launch_plan(params, "--host", "camera", "--peers", "10.0.0.9")
+    # one host (no profile): nothing implied
+    assert not any("image_transport" in o for o in _launch_plan(PARAMS_FILE).overrides)
