@@ -211,3 +211,15 @@ def test_tracking_equals_official_tools(
     total = json.loads(out.read_text())["total"]
     assert 100 * total["hota"] == pytest.approx(hota, abs=5e-4)
     assert 100 * total["mota"] == pytest.approx(mota, abs=5e-4)
+
+
+def test_results_table_says_where_the_devkit_caps_ap():
+    from eval_node.report import cap_note
+
+    few = {"detections_2d": {"0.5": {"easy_num_gt": 5, "moderate_num_gt": 38, "hard_num_gt": 41}}}
+    note = cap_note(few)
+    assert "easy 5, moderate 38)" in note and "num_gt / 40" in note
+    many = {
+        "detections_2d": {"0.5": {"easy_num_gt": 90, "moderate_num_gt": 200, "hard_num_gt": 241}}
+    }
+    assert cap_note(many) is None

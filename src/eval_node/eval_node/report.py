@@ -51,7 +51,27 @@ def table_rows(res: dict) -> tuple[list[str], list[list[str]]]:
     voc = res["detections_2d"].get("voc11_0.5")
     if voc:
         rows.append(["2D det VOC11 @ 0.5"] + [_pct(voc[lv]) for lv in LEVELS])
+    counted = next(iter(res["detections_2d"].values()), {})
+    if all(f"{lv}_num_gt" in counted for lv in LEVELS):
+        rows.append(["counted ground truth"] + [str(counted[f"{lv}_num_gt"]) for lv in LEVELS])
     return ["metric (AP|R40 %)", *LEVELS], rows
+
+
+def cap_note(res: dict) -> str | None:
+    """A line saying where the devkit's interpolation caps AP|R40 (fewer than 40 counted
+    ground-truth boxes: about num_gt / 40 at most), or None."""
+    counted = next(iter(res["detections_2d"].values()), {})
+    few = [
+        f"{lv} {counted[f'{lv}_num_gt']}"
+        for lv in LEVELS
+        if 0 < counted.get(f"{lv}_num_gt", 40) < 40
+    ]
+    if not few:
+        return None
+    return (
+        "note: fewer than 40 counted ground-truth boxes (" + ", ".join(few) + "): the KITTI "
+        "devkit's AP|R40 is then at most about num_gt / 40 (here a perfect detector scores that)"
+    )
 
 
 def filter_rows(res: dict) -> tuple[list[str], list[list[str]]]:
@@ -112,6 +132,9 @@ def results_table(res: dict) -> str:
         _text_table(*table_rows(res)),
         _text_table(["tracking / motion", "value"], _summary_rows(res)),
     ]
+    note = cap_note(res)
+    if note:
+        parts.insert(2, note)
     if res.get("filter_comparison"):
         parts.append(_text_table(*filter_rows(res)))
     return "\n\n".join(parts)
