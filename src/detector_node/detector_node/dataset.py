@@ -3,7 +3,9 @@ layouts, read through the player's KITTI label reader (left images and labels on
 selection, labels -> :class:`Sample`, resizing (augmentation: :mod:`detector_node.augmentation`).
 
 A data source is written ``ROOT`` (every sequence of a tracking layout, or every frame of an
-object layout), ``ROOT:SEQ,SEQ`` (selected tracking sequences) or ``ROOT:IDS`` (object frames by
+object layout), ``ROOT:SEQ,SEQ`` (selected tracking sequences; also for a ``tracking_keyframes``
+layout: ``image_2/SSSS_NNNNNN.png`` + ``frames.csv``, labelled by the rows of frame NNNNNN in
+``../tracking/training/label_02/SSSS.txt``) or ``ROOT:IDS`` (object frames by
 id and inclusive id range, e.g. ``ROOT:0-59,80-100``); training sources may add ``@WEIGHT`` (the
 sampling weight, :func:`parse_weighted_source`). Objects whose type is in
 ``positive_types`` (default Car and Van) are positives; DontCare regions are kept apart so the
@@ -111,6 +113,8 @@ def frames_from_source(spec: str) -> list[FrameRef]:
     """Every labelled frame of one data source (see module docstring). For an object layout,
     ``ROOT:IDS`` selects frames by id (ids and inclusive ranges, e.g. ``ROOT:0-79,100``)."""
     root, seqs = parse_source(spec)
+    if (root / "frames.csv").is_file() and (root / "image_2").is_dir():
+        return _keyframes(root, seqs)
     if (root / "image_2").is_dir():
         wanted = _expand_ids(seqs) if seqs is not None else None
         return [
@@ -136,6 +140,25 @@ def frames_from_source(spec: str) -> list[FrameRef]:
         for png in sorted(left.glob("*.png")):
             fid = int(png.stem)
             refs.append(FrameRef(png, list(labels.get(fid, [])), f"{seq}/{fid:06d}"))
+    return refs
+
+
+def _keyframes(root: Path, seqs: list[str] | None) -> list[FrameRef]:
+    """Frames of a ``tracking_keyframes`` layout (see module docstring), optionally of some
+    sequences only; labels from the tracking layout beside it."""
+    label_dir = root.parent / "tracking" / "training" / "label_02"
+    wanted = None if seqs is None else {f"{int(s):04d}" if s.isdigit() else s for s in seqs}
+    refs, labels = [], {}
+    for png in sorted((root / "image_2").glob("*_*.png")):
+        seq, _, frame = png.stem.partition("_")
+        if (wanted is not None and seq not in wanted) or not frame.isdigit():
+            continue
+        if seq not in labels:
+            path = label_dir / f"{seq}.txt"
+            if not path.is_file():
+                raise KittiFormatError(f"{path}: labels of keyframe sequence {seq} not found")
+            labels[seq] = read_tracking_labels(path)
+        refs.append(FrameRef(png, list(labels[seq].get(int(frame), [])), f"kf{seq}/{frame}"))
     return refs
 
 
