@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -42,6 +43,8 @@ def save_checkpoint(
         "config": model.config.to_dict(),
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
     }
+    if getattr(model, "topology", None) is not None:  # CenterNet: the graph travels along
+        state["graph"] = json.dumps(model.topology)
     if extra:
         state.update(extra)
     path = Path(path)
@@ -51,14 +54,25 @@ def save_checkpoint(
     os.replace(tmp, path)
 
 
+def resolve_checkpoint(name: str | os.PathLike) -> Path:
+    """A checkpoint file, or a shipped model by name (``tiny_kitti`` / ``tiny_kitti.pt``,
+    ``centernet_kitti``: a bare name that is not an existing file is looked up in the shipped
+    models folder)."""
+    path = Path(name)
+    if path.is_file() or path.parent != Path("."):
+        return path
+    shipped = SHIPPED_CHECKPOINT.parent / (path.name if path.suffix == ".pt" else f"{path}.pt")
+    return shipped if shipped.is_file() else path
+
+
 def load_checkpoint(
     path: str | os.PathLike, device: str | torch.device = "cpu"
-) -> tuple[YoloV2Passthrough, dict]:
+) -> tuple[torch.nn.Module, dict]:
     """Load a checkpoint safely (``weights_only=True``); returns (model in eval mode, raw dict).
 
     Raises ValueError naming the file when it is missing or not a detector checkpoint.
     """
-    path = Path(path)
+    path = resolve_checkpoint(path)
     if not path.is_file():
         raise ValueError(f"{path}: checkpoint not found")
     try:
@@ -67,7 +81,15 @@ def load_checkpoint(
         raise ValueError(f"{path}: not a loadable weights-only checkpoint ({exc})") from None
     if not isinstance(state, dict) or "config" not in state or "state_dict" not in state:
         raise ValueError(f"{path}: not a detector checkpoint (config/state_dict missing)")
-    model = YoloV2Passthrough(DetectorConfig.from_dict(state["config"]))
+    config = DetectorConfig.from_dict(state["config"])
+    if config.size == "centernet":
+        from .centernet import CenterNetDetector
+
+        if "graph" not in state:
+            raise ValueError(f"{path}: CenterNet checkpoint without its graph")
+        model = CenterNetDetector(config, json.loads(state["graph"]), None)
+    else:
+        model = YoloV2Passthrough(config)
     model.load_state_dict(state["state_dict"])
     model.to(device).eval()
     return model, state

@@ -61,6 +61,15 @@ class Sample:
     truncation: np.ndarray | None = None
     #: (N,) KITTI occlusion flag of each box (None = unknown)
     occluded: np.ndarray | None = None
+    #: (N,) observation angle alpha [rad] of each box, NaN = unknown (None = all unknown)
+    alphas: np.ndarray | None = None
+
+
+def sample_alphas(sample: Sample) -> np.ndarray:
+    """(N,) alphas of a sample's boxes, NaN where unknown."""
+    if sample.alphas is None:
+        return np.full(len(sample.boxes), np.nan, np.float32)
+    return sample.alphas
 
 
 def select_boxes(sample: Sample, keep: np.ndarray) -> Sample:
@@ -72,6 +81,7 @@ def select_boxes(sample: Sample, keep: np.ndarray) -> Sample:
         bins=sample.bins[keep],
         truncation=None if sample.truncation is None else sample.truncation[keep],
         occluded=None if sample.occluded is None else sample.occluded[keep],
+        alphas=None if sample.alphas is None else sample.alphas[keep],
     )
 
 
@@ -191,6 +201,14 @@ def split_objects(
     return boxes, bins, dcb
 
 
+def label_alphas(objects: list[KittiObject], positive_types) -> np.ndarray:
+    """(N,) alphas of the positives, NaN for KITTI's 'unknown' placeholder -10."""
+    pos = [o for o in objects if o.type in positive_types]
+    return np.array(
+        [np.nan if o.alpha < -math.pi - 1e-6 else o.alpha for o in pos], dtype=np.float32
+    )
+
+
 def _positive_flags(objects: list[KittiObject], positive_types) -> tuple[np.ndarray, np.ndarray]:
     """(truncation, occlusion) of the positives; the -1 placeholders of 2D-only labels -> 0."""
     pos = [o for o in objects if o.type in positive_types]
@@ -216,7 +234,10 @@ def load_full_sample(ref: FrameRef, positive_types: tuple[str, ...]) -> Sample:
     """Read a frame and its labels at its own resolution (any size; scale (1, 1))."""
     boxes, bins, dc = split_objects(ref.objects, positive_types)
     trunc, occl = _positive_flags(ref.objects, positive_types)
-    return Sample(read_png(ref.image_path), boxes, bins, dc, (1.0, 1.0), ref.name, trunc, occl)
+    alphas = label_alphas(ref.objects, positive_types)
+    return Sample(
+        read_png(ref.image_path), boxes, bins, dc, (1.0, 1.0), ref.name, trunc, occl, alphas
+    )
 
 
 def load_sample(ref: FrameRef, width: int, height: int, positive_types: tuple[str, ...]) -> Sample:
@@ -227,7 +248,9 @@ def load_sample(ref: FrameRef, width: int, height: int, positive_types: tuple[st
     s = np.array([sx, sy, sx, sy], dtype=np.float32)
     boxes, dc = boxes * s, dc * s
     keep = ((boxes[:, 2] - boxes[:, 0]) >= 2) & ((boxes[:, 3] - boxes[:, 1]) >= 2)
-    return select_boxes(Sample(img, boxes, bins, dc, (sx, sy), ref.name, trunc, occl), keep)
+    alphas = label_alphas(ref.objects, positive_types)
+    sample = Sample(img, boxes, bins, dc, (sx, sy), ref.name, trunc, occl, alphas)
+    return select_boxes(sample, keep)
 
 
 def collect_box_sizes(refs: list[FrameRef], width: int, height: int, positive_types=("Car", "Van")):
