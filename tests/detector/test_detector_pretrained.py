@@ -372,3 +372,35 @@ def test_detector_offline_writes_kitti_object_rows(tmp_path, capsys):
         assert main(bad) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("error: ") and expect in err[0], err
+
+
+def test_train_cli_centernet_orientation_head_from_the_package(tmp_path, capsys):
+    """detector_train --size centernet starts from the package, trains the orientation head on a
+    feature bank, and its checkpoint reloads (graph included) with the same output."""
+    from detector_node.checkpoint import load_checkpoint
+    from detector_node.train import main as train_main
+    from kitti_player_node.synthetic import generate_sequence
+
+    pkg = _package_json()
+    root = tmp_path / "data"
+    generate_sequence(root, "0001", 2, seed=1)
+    out = tmp_path / "run"
+    args = ["--size", "centernet", "--pretrained", str(pkg), "--train", f"{root}:0001"]
+    args += ["--output", str(out), "--input-width", "256", "--input-height", "96"]
+    args += ["--epochs", "2", "--epoch-samples", "2", "--batch-size", "2", "--no-progress"]
+    args += ["--warmup-epochs", "0", "--final-epochs", "0", "--lr", "0.01"]
+    assert train_main(args + ["--orientation-only", "--feature-bank", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "feature bank: 2 samples" in printed
+    losses = [json.loads(line) for line in (out / "train_log.jsonl").read_text().splitlines()]
+    assert losses[-1]["bin"] < losses[0]["bin"]  # the orientation head learns
+    model, state = load_checkpoint(out / "final.pt")
+    assert model.config.size == "centernet" and "graph" in state
+    fresh_heat = model.heat.pointwise.weight.clone()
+    from detector_node.pretrained import pretrained_centernet
+
+    start = pretrained_centernet(model.config, pkg)
+    torch.testing.assert_close(fresh_heat, start.heat.pointwise.weight)  # fixed parts unchanged
+    assert not torch.equal(model.orientation[-1].weight, start.orientation[-1].weight)
+    assert train_main(args + ["--feature-bank", "2"]) == 2  # a bank needs a frozen graph
+    assert "--freeze-backbone" in capsys.readouterr().err
