@@ -17,7 +17,8 @@ Prints, for the shipped (or a given) checkpoint:
   warm-up runs, the ratio to tiny_kitti and the load average before and after.
 
 Usage: python bench/bench_detector.py [--checkpoint PT|NAME] [--synthetic ROOT:SEQ] [--threads 2]
-       [--skip-synthetic] [--skip-timing] [--parts] [--runs 20] [--with-full] [--json FILE]
+       [--skip-synthetic] [--skip-timing] [--skip-real] [--parts] [--runs 20] [--with-full]
+       [--input-width W --input-height H] [--json FILE]
 """
 
 from __future__ import annotations
@@ -173,20 +174,31 @@ def main() -> None:
     p.add_argument("--skip-synthetic", action="store_true", help="real validation frames only")
     p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
     p.add_argument("--parts", action="store_true", help="also each part of the validation split")
+    p.add_argument("--skip-real", action="store_true", help="no real-data evaluation")
+    p.add_argument("--input-width", type=int, default=0, help="override (0 = checkpoint's)")
+    p.add_argument("--input-height", type=int, default=0, help="override (0 = checkpoint's)")
     p.add_argument("--runs", type=int, default=20, help="timed runs per model")
     p.add_argument(
         "--with-full", action="store_true", help="also time the paper's full configuration"
     )
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    det = CnnDetector.from_checkpoint(args.checkpoint, "cpu", score_threshold=args.score_threshold)
+    det = CnnDetector.from_checkpoint(
+        args.checkpoint,
+        "cpu",
+        score_threshold=args.score_threshold,
+        input_width=args.input_width,
+        input_height=args.input_height,
+    )
     c = det.config
     print(
         f"checkpoint: {args.checkpoint or 'shipped'}: {c.size} (width {c.width}, depth "
         f"{c.depth}), input {c.input_width}x{c.input_height}, torch threads {args.threads}"
     )
     results = {}
-    if (SHARED_KITTI / "README.md").is_file():
+    if args.skip_real:
+        pass
+    elif (SHARED_KITTI / "README.md").is_file():
         val = val_sources(SHARED_KITTI)
         results["real_val"] = evaluate(
             det,

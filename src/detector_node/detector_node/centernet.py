@@ -141,14 +141,16 @@ class CenterNetDetector(nn.Module):
         # grid_sample with align_corners=False: pixel centre j -> (2j + 1) / size - 1
         gx = (2 * (px / STRIDE) + 1) / gw - 1
         gy = (2 * (py / STRIDE) + 1) / gh - 1
+        n = ORIENTATION_POINTS
         grid = torch.stack(
-            [
-                gx[:, None, :].expand(-1, ORIENTATION_POINTS, -1),
-                gy[:, :, None].expand(-1, -1, ORIENTATION_POINTS),
-            ],
-            dim=-1,
-        )  # (N, P, P, 2)
-        sampled = F.grid_sample(f[batch], grid, align_corners=False)  # (N, C, P, P)
+            [gx[:, None, :].expand(-1, n, -1), gy[:, :, None].expand(-1, -1, n)], dim=-1
+        ).reshape(-1, n * n, 2)  # (N, P*P, 2), row-major over (y, x) as (P, P)
+        # sample each image's boxes from its own feature map (no per-box copy of the map)
+        sampled = f.new_empty((len(boxes), c, n * n))
+        for i in torch.unique(batch).tolist():
+            sel = (batch == i).nonzero()[:, 0]
+            out = F.grid_sample(f[i : i + 1], grid[sel][None], align_corners=False)
+            sampled[sel] = out[0].permute(1, 0, 2)  # (1, C, Nb, P*P) -> (Nb, C, P*P)
         w, h = (x2 - x1).clamp(min=1), (y2 - y1).clamp(min=1)
         geo = torch.stack(
             [

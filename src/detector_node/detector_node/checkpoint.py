@@ -14,7 +14,7 @@ from .model import DetectorConfig, YoloV2Passthrough
 def _shipped_checkpoint() -> Path:
     """The shipped checkpoint: ``src/detector_node/models/`` in the source tree (editable
     install), else ``share/detector_node/models/`` of a colcon/ament install."""
-    source = Path(__file__).resolve().parent.parent / "models" / "tiny_kitti.pt"
+    source = Path(__file__).resolve().parent.parent / "models" / "centernet_kitti.pt"
     if source.is_file():
         return source
     try:
@@ -25,8 +25,10 @@ def _shipped_checkpoint() -> Path:
         return source
 
 
-#: The checkpoint shipped in the repository: the tiny model pre-trained on synthetic sequences and
-#: fine-tuned on real KITTI frames (model card: docs/detector.md).
+#: The default checkpoint shipped in the repository: the pretrained CenterNet (@vladmandic/human
+#: 3.3.6, COCO) with its orientation head trained on real KITTI frames; the previous default
+#: ``tiny_kitti.pt`` (YOLOv2 tiny) stays beside it, loadable by name (model cards:
+#: docs/detector.md).
 SHIPPED_CHECKPOINT = _shipped_checkpoint()
 FORMAT_VERSION = 1
 
