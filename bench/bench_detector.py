@@ -2,18 +2,23 @@
 
 Prints, for the shipped (or a given) checkpoint:
 - on the detector's fixed real validation split (detector_node.real_split: ../shared/kitti
-  tracking 0005, 16 frames, and object frames 000060-000079; never trained on), on each of its two
-  parts, and on a held-out synthetic sequence (generated here with a seed not used for training,
+  tracking 0001 and 0005, the tracking keyframes of 0001/0005/0008/0010 and object frames
+  000060-000079, 99 frames; never trained on), with --parts on each of its three parts, and on a
+  held-out synthetic sequence (generated here with a seed not used for training,
   or given with --synthetic ROOT:SEQ): 2D AP at IoU 0.5 and 0.7 (eval_node.detection_metrics:
   KITTI devkit AP_R40 per difficulty, and the detector's own all-boxes VOC AP), orientation
   accuracy over matched detections (IoU >= 0.5) and its 4x4 confusion matrix (rows: true bin,
   columns: predicted bin; bins 0/45/90/135 deg), with the majority-bin baseline and the
-  balanced accuracy beside it;
-- the median inference time (preprocessing + network + decoding) on a 1242x375 frame for the
-  tiny and the full configuration, torch threads = 2, 20 runs after 3 warm-up runs, and the ratio.
+  balanced accuracy beside it, and the median error of the continuous observation angle (folded
+  modulo 180 deg; the bin centre for checkpoints without the angle head) over the same pairs;
+- the median inference time (preprocessing + network + decoding) on a 1242x375 frame of the
+  checkpoint and of the previous model ``tiny_kitti.pt`` (and with --with-full the paper's full
+  configuration), runs interleaved in one process, torch threads = 2 (the node's default), 3
+  warm-up runs, the ratio to tiny_kitti and the load average before and after.
 
-Usage: python bench/bench_detector.py [--checkpoint PT] [--synthetic ROOT:SEQ] [--threads 2]
-       [--skip-synthetic] [--skip-timing] [--json FILE]
+Usage: python bench/bench_detector.py [--checkpoint PT|NAME] [--synthetic ROOT:SEQ] [--threads 2]
+       [--skip-synthetic] [--skip-timing] [--skip-real] [--parts] [--runs 20] [--with-full]
+       [--input-width W --input-height H] [--json FILE]
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import statistics
 import tempfile
 import time
@@ -28,17 +34,20 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from detector_node.checkpoint import SHIPPED_CHECKPOINT, load_checkpoint
 from detector_node.dataset import frames_from_source, label_bin
 from detector_node.inference import CnnDetector
 from detector_node.model import YoloV2Passthrough, preset
 from detector_node.real_split import val_sources
 from detector_node.validation import FrameResult, evaluate_frames
 from vehicle_common.kitti import KittiObject, read_png
-from vehicle_common.orientation_bins import BIN_CENTRES_DEG
+from vehicle_common.orientation_bins import fold_alpha_signed
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED_KITTI = REPO.parent / "shared" / "kitti"
 HELDOUT_SEED = 1000
+#: the previous shipped model, the timing baseline (loaded by name)
+BASELINE = SHIPPED_CHECKPOINT.parent / "tiny_kitti.pt"
 
 
 def evaluate(detector: CnnDetector, specs: list[str], label: str) -> dict:
@@ -55,7 +64,7 @@ def evaluate(detector: CnnDetector, specs: list[str], label: str) -> dict:
         pred[i] = [
             KittiObject(
                 "Car",
-                alpha=math.radians(BIN_CENTRES_DEG[d.orientation_bin]),
+                alpha=d.observation_angle,
                 bbox=d.box,
                 score=d.score,
             )
@@ -74,6 +83,7 @@ def evaluate(detector: CnnDetector, specs: list[str], label: str) -> dict:
         )
     kitti = detection_ap_2d(gt, pred)
     ori = orientation_accuracy(gt, pred, iou=0.5)
+    angle_err = angle_errors(gt, pred)
     own = {t: evaluate_frames(simple, t) for t in (0.5, 0.7)}
     n_car = sum(1 for objs in gt.values() for o in objs if o.type == "Car")
     print(f"\n== {label}: {len(refs)} frames, {n_car} Car labels ({spec})")
@@ -99,6 +109,11 @@ def evaluate(detector: CnnDetector, specs: list[str], label: str) -> dict:
         f"  baseline 'always the most frequent true bin': {100 * majority:5.1f} %;  "
         f"balanced accuracy (mean per-bin recall): {100 * balanced:5.1f} %"
     )
+    med = float(np.degrees(np.median(angle_err))) if len(angle_err) else math.nan
+    print(
+        f"  continuous angle (folded mod 180 deg): median error {med:5.1f} deg over "
+        f"{len(angle_err)} pairs (bin-only checkpoints: the bin centre)"
+    )
     print("  confusion (rows true 0/45/90/135, cols predicted):")
     for r in ori.confusion:
         print("    " + " ".join(f"{v:5d}" for v in r))
@@ -111,21 +126,39 @@ def evaluate(detector: CnnDetector, specs: list[str], label: str) -> dict:
         "confusion": ori.confusion.tolist(),
         "orientation_majority_baseline": float(majority),
         "orientation_balanced_accuracy": balanced,
+        "median_angle_error_deg": med,
     }
 
 
-def time_model(model: YoloV2Passthrough, runs: int = 20, warmup: int = 3) -> float:
-    """Median seconds per 1242x375 frame, preprocessing + network + decoding."""
-    det = CnnDetector(model, "cpu", score_threshold=0.3)
+def angle_errors(gt: dict, pred: dict) -> np.ndarray:
+    """|folded alpha error| [rad] (modulo pi, in [0, pi/2]) of the Car labels with a known alpha
+    matched to a detection (2D IoU >= 0.5, Hungarian per frame, as the orientation accuracy)."""
+    from eval_node.detection_metrics import match_2d
+
+    errs = []
+    for k, objs in gt.items():
+        g = [o for o in objs if o.type == "Car"]
+        for gi, pi, _ in match_2d(g, pred.get(k, []), 0.5):
+            if g[gi].alpha >= -math.pi:
+                errs.append(abs(fold_alpha_signed(pred[k][pi].alpha - g[gi].alpha)))
+    return np.array(errs)
+
+
+def time_models(models: dict, runs: int = 20, warmup: int = 3) -> dict[str, float]:
+    """Median seconds per 1242x375 frame (preprocessing + network + decoding) of each model,
+    the runs interleaved (model A, model B, A, B, ...) so that they share the machine's load."""
+    dets = {k: CnnDetector(m, "cpu", score_threshold=0.3) for k, m in models.items()}
     rgb = np.random.default_rng(0).integers(0, 255, (375, 1242, 3), dtype=np.uint8)
     for _ in range(warmup):
-        det.detect(rgb)
-    times = []
+        for det in dets.values():
+            det.detect(rgb)
+    times: dict[str, list[float]] = {k: [] for k in dets}
     for _ in range(runs):
-        t0 = time.perf_counter()
-        det.detect(rgb)
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+        for k, det in dets.items():
+            t0 = time.perf_counter()
+            det.detect(rgb)
+            times[k].append(time.perf_counter() - t0)
+    return {k: statistics.median(v) for k, v in times.items()}
 
 
 def main() -> None:
@@ -140,20 +173,41 @@ def main() -> None:
     p.add_argument("--skip-timing", action="store_true")
     p.add_argument("--skip-synthetic", action="store_true", help="real validation frames only")
     p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
+    p.add_argument("--parts", action="store_true", help="also each part of the validation split")
+    p.add_argument("--skip-real", action="store_true", help="no real-data evaluation")
+    p.add_argument("--input-width", type=int, default=0, help="override (0 = checkpoint's)")
+    p.add_argument("--input-height", type=int, default=0, help="override (0 = checkpoint's)")
+    p.add_argument("--runs", type=int, default=20, help="timed runs per model")
+    p.add_argument(
+        "--with-full", action="store_true", help="also time the paper's full configuration"
+    )
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    det = CnnDetector.from_checkpoint(args.checkpoint, "cpu", score_threshold=args.score_threshold)
+    det = CnnDetector.from_checkpoint(
+        args.checkpoint,
+        "cpu",
+        score_threshold=args.score_threshold,
+        input_width=args.input_width,
+        input_height=args.input_height,
+    )
     c = det.config
     print(
         f"checkpoint: {args.checkpoint or 'shipped'}: {c.size} (width {c.width}, depth "
         f"{c.depth}), input {c.input_width}x{c.input_height}, torch threads {args.threads}"
     )
     results = {}
-    if (SHARED_KITTI / "README.md").is_file():
+    if args.skip_real:
+        pass
+    elif (SHARED_KITTI / "README.md").is_file():
         val = val_sources(SHARED_KITTI)
-        results["real_val"] = evaluate(det, val, "real validation split (0005 + object 60-79)")
-        results["real_val_0005"] = evaluate(det, val[:1], "real validation part: tracking 0005")
-        results["real_val_object"] = evaluate(det, val[1:], "real validation part: object 60-79")
+        results["real_val"] = evaluate(
+            det,
+            val,
+            "real validation split (0001, 0005, keyframes of 0001/0005/0008/0010, object 60-79)",
+        )
+        if args.parts:
+            for key, spec in zip(("tracking", "keyframes", "object"), val, strict=True):
+                results[f"real_val_{key}"] = evaluate(det, [spec], f"validation part: {key}")
     else:
         print(f"\n(real KITTI frames not found at {SHARED_KITTI}; skipped)")
     if not args.skip_synthetic:
@@ -167,16 +221,24 @@ def main() -> None:
             label = f"held-out synthetic (seed {HELDOUT_SEED})"
             results["synthetic"] = evaluate(det, [spec], label)
     if not args.skip_timing:
-        print("\n== inference time per 1242x375 frame (median of 20 after warm-up)")
-        tiny = time_model(det.model)
-        full = time_model(YoloV2Passthrough(preset("full")).eval())
         print(
-            f"  tiny ({c.input_width}x{c.input_height}): {1000 * tiny:7.1f} ms  "
-            f"{1 / tiny:5.1f} fps (target >= 10 fps)"
+            f"\n== inference time per 1242x375 frame (median of {args.runs}, runs interleaved, "
+            f"torch threads {args.threads}); load average before: "
+            f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}"
         )
-        print(f"  full (1152x352):  {1000 * full:7.1f} ms  {1 / full:5.1f} fps")
-        print(f"  full / tiny time ratio: {full / tiny:.1f}")
-        results["timing_s"] = {"tiny": tiny, "full": full}
+        models = {"checkpoint": det.model}
+        base, _ = load_checkpoint(BASELINE, "cpu")
+        models["baseline tiny_kitti"] = base
+        if args.with_full:
+            models["full (1152x352, random weights)"] = YoloV2Passthrough(preset("full")).eval()
+        t = time_models(models, runs=args.runs)
+        for k, v in t.items():
+            print(f"  {k:34s} {1000 * v:7.1f} ms  {1 / v:5.1f} fps")
+        ratio = t["checkpoint"] / t["baseline tiny_kitti"]
+        print(f"  checkpoint / tiny_kitti time ratio: {ratio:.2f} (same run)")
+        print(f"  load average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+        results["timing_s"] = t
+        results["timing_ratio_to_tiny_kitti"] = ratio
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
 

@@ -4,7 +4,10 @@
 #      disk), OpenCV contrib and the other libraries (requirements.txt + constraints.txt);
 #   2. the interface package msg_defs/ built with CMake/rosidl into the venv prefix, so that
 #      `import stereo_vehicle_msgs.msg` works with no sourcing;
-#   3. the node packages under src/ installed in editable mode, so their console scripts run.
+#   3. the node packages under src/ installed in editable mode, so their console scripts run;
+#   4. the detector's pretrained weights (npm package @vladmandic/human 3.3.6, pinned by version
+#      and sha512, scripts/fetch_pretrained.sh) into .venv/pretrained; only re-training the
+#      detector and its conversion test need them (skip with SETUP_PRETRAINED=0).
 # Every step records a hash of its inputs and is skipped when nothing changed: a second run
 # takes a few seconds. Usage: scripts/setup.sh [--force]
 set -euo pipefail
@@ -101,5 +104,9 @@ if ! step_done nodes "$h"; then
   for p in "${pkgs[@]}"; do args+=(-e "$ROOT/$(dirname "$p")"); done
   pip_install --no-deps --no-build-isolation "${args[@]}"
   mark_done nodes "$h"
+fi
+# 4. pretrained detector weights (a registry package pinned by version and hash)
+if [ "${SETUP_PRETRAINED:-1}" != 0 ]; then
+  bash "$ROOT/scripts/fetch_pretrained.sh" "$VENV/pretrained"
 fi
 log "ready: $VENV (activate with: source .venv/bin/activate)"

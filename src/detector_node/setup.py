@@ -26,6 +26,7 @@ setup(
             "vehicle_detector = detector_node.node:main",
             "detector_train = detector_node.train:main",
             "detector_anchors = detector_node.anchors:main",
+            "detector_offline = detector_node.offline:main",
         ],
     },
 )

@@ -134,7 +134,10 @@ def test_oracle_backend_republishes_ground_truth(rclpy_context):
     assert len(second.detections) == 1
 
 
-def test_cnn_backend_shipped_checkpoint_finds_synthetic_car(rclpy_context, tmp_path):
+def test_cnn_backend_named_checkpoint_finds_synthetic_car(rclpy_context, tmp_path):
+    """The CNN backend with the previous shipped model by name (``tiny_kitti``, trained on the
+    renderer's cars; the default model is for real cameras, checked on a real frame in
+    test_detector_pretrained)."""
     from detector_node.boxes import iou_matrix
     from kitti_player_node.synthetic import generate_sequence
     from vehicle_common.frame_messages import header
@@ -160,7 +163,9 @@ def test_cnn_backend_shipped_checkpoint_finds_synthetic_car(rclpy_context, tmp_p
         )
         return 2
 
-    got = _run_node(rclpy_context, {"backend": "cnn", "num_threads": 2}, publish)
+    got = _run_node(
+        rclpy_context, {"backend": "cnn", "num_threads": 2, "checkpoint": "tiny_kitti"}, publish
+    )
     assert len(got) == 2
     by_stamp = {_stamp_ns(m.header): m for m in got}
     assert by_stamp[stamp - 1].detections == []

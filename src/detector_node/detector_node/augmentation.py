@@ -16,9 +16,9 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 from vehicle_common.box2d import overlap_over_first
-from vehicle_common.orientation_bins import flip_bin
+from vehicle_common.orientation_bins import flip_alpha, flip_bin
 
-from .dataset import Sample, select_boxes
+from .dataset import Sample, sample_alphas, select_boxes
 
 #: A box cut by a crop stays a positive when at least this share of its area is kept; less
 #: visible boxes become ignore regions (neither positive nor background).
@@ -43,6 +43,7 @@ def flip_sample(sample: Sample) -> Sample:
         boxes=b,
         bins=flip_bin(sample.bins),
         dontcare=d,
+        alphas=None if sample.alphas is None else flip_alpha(sample.alphas).astype(np.float32),
     )
 
 
@@ -207,6 +208,7 @@ class CarCrop:
 
     patch: np.ndarray
     bin: int
+    alpha: float = float("nan")
 
 
 def collect_car_crops(samples: list[Sample], min_height: float = 25.0) -> list[CarCrop]:
@@ -236,7 +238,8 @@ def collect_car_crops(samples: list[Sample], min_height: float = 25.0) -> list[C
                 or y2 > s.image.shape[0]
             ):
                 continue
-            crops.append(CarCrop(s.image[y1:y2, x1:x2].copy(), int(s.bins[i])))
+            alpha = float(sample_alphas(s)[i])
+            crops.append(CarCrop(s.image[y1:y2, x1:x2].copy(), int(s.bins[i]), alpha))
     return crops
 
 
@@ -264,7 +267,7 @@ def paste_cars(
         return sample
     img = sample.image.copy()
     H, W = img.shape[:2]
-    boxes, bins = [sample.boxes.reshape(-1, 4)], [sample.bins]
+    boxes, bins, alphas = [sample.boxes.reshape(-1, 4)], [sample.bins], [sample_alphas(sample)]
     occupied = np.concatenate([sample.boxes.reshape(-1, 4), sample.dontcare.reshape(-1, 4)])
     added = 0
     for _ in range(count * tries):
@@ -285,9 +288,9 @@ def paste_cars(
         bw, bh = bx[2] - bx[0], bx[3] - bx[1]
         if bw < 4 or bh < 4:
             continue
-        patch, obin = crop.patch, crop.bin
+        patch, obin, alpha = crop.patch, crop.bin, crop.alpha
         if rng.random() < 0.5:
-            patch, obin = patch[:, ::-1], flip_bin(obin)
+            patch, obin, alpha = patch[:, ::-1], flip_bin(obin), flip_alpha(alpha)
         patch = cv2.resize(np.ascontiguousarray(patch), (bw, bh), interpolation=cv2.INTER_AREA)
         mask = _feathered_mask(bh, bw, max(1, min(bw, bh) // 12))
         region = img[bx[1] : bx[3], bx[0] : bx[2]].astype(np.float32)
@@ -295,6 +298,7 @@ def paste_cars(
         box = bx[None].astype(np.float32)
         boxes.append(box)
         bins.append(np.array([obin], np.int64))
+        alphas.append(np.array([alpha], np.float32))
         occupied = np.concatenate([occupied, box])
         added += 1
     if not added:
@@ -305,6 +309,7 @@ def paste_cars(
         image=img,
         boxes=np.concatenate(boxes).astype(np.float32),
         bins=np.concatenate(bins),
+        alphas=np.concatenate(alphas).astype(np.float32),
         truncation=np.concatenate([_truncation(sample), np.zeros(n_new, np.float32)]),
         occluded=None
         if sample.occluded is None
@@ -331,6 +336,7 @@ def paste_native_crop(background: Sample, crop: Sample, x0: int, y0: int) -> Sam
         image=img,
         boxes=np.concatenate([background.boxes[~touch], cboxes]).astype(np.float32),
         bins=np.concatenate([background.bins[~touch], crop.bins]),
+        alphas=np.concatenate([sample_alphas(background)[~touch], sample_alphas(crop)]),
         truncation=np.concatenate([_truncation(background)[~touch], _truncation(crop)]),
         occluded=None,
         dontcare=np.concatenate(

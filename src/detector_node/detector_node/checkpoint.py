@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -13,7 +14,7 @@ from .model import DetectorConfig, YoloV2Passthrough
 def _shipped_checkpoint() -> Path:
     """The shipped checkpoint: ``src/detector_node/models/`` in the source tree (editable
     install), else ``share/detector_node/models/`` of a colcon/ament install."""
-    source = Path(__file__).resolve().parent.parent / "models" / "tiny_kitti.pt"
+    source = Path(__file__).resolve().parent.parent / "models" / "centernet_kitti.pt"
     if source.is_file():
         return source
     try:
@@ -24,8 +25,10 @@ def _shipped_checkpoint() -> Path:
         return source
 
 
-#: The checkpoint shipped in the repository: the tiny model pre-trained on synthetic sequences and
-#: fine-tuned on real KITTI frames (model card: docs/detector.md).
+#: The default checkpoint shipped in the repository: the pretrained CenterNet (@vladmandic/human
+#: 3.3.6, COCO) with its orientation head trained on real KITTI frames; the previous default
+#: ``tiny_kitti.pt`` (YOLOv2 tiny) stays beside it, loadable by name (model cards:
+#: docs/detector.md).
 SHIPPED_CHECKPOINT = _shipped_checkpoint()
 FORMAT_VERSION = 1
 
@@ -42,6 +45,8 @@ def save_checkpoint(
         "config": model.config.to_dict(),
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
     }
+    if getattr(model, "topology", None) is not None:  # CenterNet: the graph travels along
+        state["graph"] = json.dumps(model.topology)
     if extra:
         state.update(extra)
     path = Path(path)
@@ -51,14 +56,25 @@ def save_checkpoint(
     os.replace(tmp, path)
 
 
+def resolve_checkpoint(name: str | os.PathLike) -> Path:
+    """A checkpoint file, or a shipped model by name (``tiny_kitti`` / ``tiny_kitti.pt``,
+    ``centernet_kitti``: a bare name that is not an existing file is looked up in the shipped
+    models folder)."""
+    path = Path(name)
+    if path.is_file() or path.parent != Path("."):
+        return path
+    shipped = SHIPPED_CHECKPOINT.parent / (path.name if path.suffix == ".pt" else f"{path}.pt")
+    return shipped if shipped.is_file() else path
+
+
 def load_checkpoint(
     path: str | os.PathLike, device: str | torch.device = "cpu"
-) -> tuple[YoloV2Passthrough, dict]:
+) -> tuple[torch.nn.Module, dict]:
     """Load a checkpoint safely (``weights_only=True``); returns (model in eval mode, raw dict).
 
     Raises ValueError naming the file when it is missing or not a detector checkpoint.
     """
-    path = Path(path)
+    path = resolve_checkpoint(path)
     if not path.is_file():
         raise ValueError(f"{path}: checkpoint not found")
     try:
@@ -67,7 +83,15 @@ def load_checkpoint(
         raise ValueError(f"{path}: not a loadable weights-only checkpoint ({exc})") from None
     if not isinstance(state, dict) or "config" not in state or "state_dict" not in state:
         raise ValueError(f"{path}: not a detector checkpoint (config/state_dict missing)")
-    model = YoloV2Passthrough(DetectorConfig.from_dict(state["config"]))
+    config = DetectorConfig.from_dict(state["config"])
+    if config.size == "centernet":
+        from .centernet import CenterNetDetector
+
+        if "graph" not in state:
+            raise ValueError(f"{path}: CenterNet checkpoint without its graph")
+        model = CenterNetDetector(config, json.loads(state["graph"]), None)
+    else:
+        model = YoloV2Passthrough(config)
     model.load_state_dict(state["state_dict"])
     model.to(device).eval()
     return model, state

@@ -3,7 +3,9 @@ layouts, read through the player's KITTI label reader (left images and labels on
 selection, labels -> :class:`Sample`, resizing (augmentation: :mod:`detector_node.augmentation`).
 
 A data source is written ``ROOT`` (every sequence of a tracking layout, or every frame of an
-object layout), ``ROOT:SEQ,SEQ`` (selected tracking sequences) or ``ROOT:IDS`` (object frames by
+object layout), ``ROOT:SEQ,SEQ`` (selected tracking sequences; also for a ``tracking_keyframes``
+layout: ``image_2/SSSS_NNNNNN.png`` + ``frames.csv``, labelled by the rows of frame NNNNNN in
+``../tracking/training/label_02/SSSS.txt``) or ``ROOT:IDS`` (object frames by
 id and inclusive id range, e.g. ``ROOT:0-59,80-100``); training sources may add ``@WEIGHT`` (the
 sampling weight, :func:`parse_weighted_source`). Objects whose type is in
 ``positive_types`` (default Car and Van) are positives; DontCare regions are kept apart so the
@@ -59,6 +61,15 @@ class Sample:
     truncation: np.ndarray | None = None
     #: (N,) KITTI occlusion flag of each box (None = unknown)
     occluded: np.ndarray | None = None
+    #: (N,) observation angle alpha [rad] of each box, NaN = unknown (None = all unknown)
+    alphas: np.ndarray | None = None
+
+
+def sample_alphas(sample: Sample) -> np.ndarray:
+    """(N,) alphas of a sample's boxes, NaN where unknown."""
+    if sample.alphas is None:
+        return np.full(len(sample.boxes), np.nan, np.float32)
+    return sample.alphas
 
 
 def select_boxes(sample: Sample, keep: np.ndarray) -> Sample:
@@ -70,6 +81,7 @@ def select_boxes(sample: Sample, keep: np.ndarray) -> Sample:
         bins=sample.bins[keep],
         truncation=None if sample.truncation is None else sample.truncation[keep],
         occluded=None if sample.occluded is None else sample.occluded[keep],
+        alphas=None if sample.alphas is None else sample.alphas[keep],
     )
 
 
@@ -111,6 +123,8 @@ def frames_from_source(spec: str) -> list[FrameRef]:
     """Every labelled frame of one data source (see module docstring). For an object layout,
     ``ROOT:IDS`` selects frames by id (ids and inclusive ranges, e.g. ``ROOT:0-79,100``)."""
     root, seqs = parse_source(spec)
+    if (root / "frames.csv").is_file() and (root / "image_2").is_dir():
+        return _keyframes(root, seqs)
     if (root / "image_2").is_dir():
         wanted = _expand_ids(seqs) if seqs is not None else None
         return [
@@ -136,6 +150,25 @@ def frames_from_source(spec: str) -> list[FrameRef]:
         for png in sorted(left.glob("*.png")):
             fid = int(png.stem)
             refs.append(FrameRef(png, list(labels.get(fid, [])), f"{seq}/{fid:06d}"))
+    return refs
+
+
+def _keyframes(root: Path, seqs: list[str] | None) -> list[FrameRef]:
+    """Frames of a ``tracking_keyframes`` layout (see module docstring), optionally of some
+    sequences only; labels from the tracking layout beside it."""
+    label_dir = root.parent / "tracking" / "training" / "label_02"
+    wanted = None if seqs is None else {f"{int(s):04d}" if s.isdigit() else s for s in seqs}
+    refs, labels = [], {}
+    for png in sorted((root / "image_2").glob("*_*.png")):
+        seq, _, frame = png.stem.partition("_")
+        if (wanted is not None and seq not in wanted) or not frame.isdigit():
+            continue
+        if seq not in labels:
+            path = label_dir / f"{seq}.txt"
+            if not path.is_file():
+                raise KittiFormatError(f"{path}: labels of keyframe sequence {seq} not found")
+            labels[seq] = read_tracking_labels(path)
+        refs.append(FrameRef(png, list(labels[seq].get(int(frame), [])), f"kf{seq}/{frame}"))
     return refs
 
 
@@ -168,6 +201,14 @@ def split_objects(
     return boxes, bins, dcb
 
 
+def label_alphas(objects: list[KittiObject], positive_types) -> np.ndarray:
+    """(N,) alphas of the positives, NaN for KITTI's 'unknown' placeholder -10."""
+    pos = [o for o in objects if o.type in positive_types]
+    return np.array(
+        [np.nan if o.alpha < -math.pi - 1e-6 else o.alpha for o in pos], dtype=np.float32
+    )
+
+
 def _positive_flags(objects: list[KittiObject], positive_types) -> tuple[np.ndarray, np.ndarray]:
     """(truncation, occlusion) of the positives; the -1 placeholders of 2D-only labels -> 0."""
     pos = [o for o in objects if o.type in positive_types]
@@ -193,7 +234,10 @@ def load_full_sample(ref: FrameRef, positive_types: tuple[str, ...]) -> Sample:
     """Read a frame and its labels at its own resolution (any size; scale (1, 1))."""
     boxes, bins, dc = split_objects(ref.objects, positive_types)
     trunc, occl = _positive_flags(ref.objects, positive_types)
-    return Sample(read_png(ref.image_path), boxes, bins, dc, (1.0, 1.0), ref.name, trunc, occl)
+    alphas = label_alphas(ref.objects, positive_types)
+    return Sample(
+        read_png(ref.image_path), boxes, bins, dc, (1.0, 1.0), ref.name, trunc, occl, alphas
+    )
 
 
 def load_sample(ref: FrameRef, width: int, height: int, positive_types: tuple[str, ...]) -> Sample:
@@ -204,7 +248,9 @@ def load_sample(ref: FrameRef, width: int, height: int, positive_types: tuple[st
     s = np.array([sx, sy, sx, sy], dtype=np.float32)
     boxes, dc = boxes * s, dc * s
     keep = ((boxes[:, 2] - boxes[:, 0]) >= 2) & ((boxes[:, 3] - boxes[:, 1]) >= 2)
-    return select_boxes(Sample(img, boxes, bins, dc, (sx, sy), ref.name, trunc, occl), keep)
+    alphas = label_alphas(ref.objects, positive_types)
+    sample = Sample(img, boxes, bins, dc, (sx, sy), ref.name, trunc, occl, alphas)
+    return select_boxes(sample, keep)
 
 
 def collect_box_sizes(refs: list[FrameRef], width: int, height: int, positive_types=("Car", "Van")):

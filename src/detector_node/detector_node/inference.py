@@ -6,11 +6,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from vehicle_common.orientation_bins import bin_to_alpha, fold_alpha_signed
 
 from .boxes import decode_raw, nms
 from .checkpoint import SHIPPED_CHECKPOINT, load_checkpoint
 from .dataset import resize_image
-from .model import DetectorConfig, YoloV2Passthrough, split_output
+from .model import DetectorConfig, split_output
 
 #: the image size the checkpoints were trained at (KITTI): an overridden input size keeps the
 #: anchors at the training's input px per image px (CnnDetector.from_checkpoint)
@@ -25,6 +26,11 @@ class Detection:
     score: float  # objectness (one object class: class confidence is 1)
     orientation_bin: int
     orientation_probs: tuple[float, float, float, float]
+    #: continuous observation angle alpha [rad] folded into [-pi/2, pi/2) (the bin centre for
+    #: models without an angle head)
+    observation_angle: float = 0.0
+    #: its variance [rad^2]; < 0 = not provided (models with 4 bins only)
+    observation_angle_variance: float = -1.0
 
 
 def choose_device(device: str = "auto") -> torch.device:
@@ -54,7 +60,12 @@ def decode_output(
 ) -> list[list[Detection]]:
     """Raw network output (B, A*9, H, W) -> detections per image, in original px (divided by
     ``scale`` = input px per original px). Score = sigmoid(objectness); class-agnostic NMS;
-    orientation = argmax of the softmax over the 4 bins."""
+    orientation = argmax of the softmax over the 4 bins. CenterNet checkpoints decode with
+    :func:`detector_node.centernet.decode_centernet`."""
+    if config.size == "centernet":
+        from .centernet import decode_centernet
+
+        return decode_centernet(raw, config, score_threshold, nms_iou, scale, max_detections)
     out = split_output(raw.float(), config.num_anchors)
     gh, gw = out.shape[-2:]
     stride = (config.input_width / gw, config.input_height / gh)
@@ -82,6 +93,7 @@ def decode_output(
                     score=float(sc[j]),
                     orientation_bin=int(np.argmax(pr[j])),
                     orientation_probs=tuple(float(p) for p in pr[j]),
+                    observation_angle=float(fold_alpha_signed(bin_to_alpha(int(np.argmax(pr[j]))))),
                 )
                 for j in order
             ]
@@ -94,7 +106,7 @@ class CnnDetector:
 
     def __init__(
         self,
-        model: YoloV2Passthrough,
+        model: torch.nn.Module,
         device: torch.device | str = "cpu",
         score_threshold: float = 0.3,
         nms_iou: float = 0.45,

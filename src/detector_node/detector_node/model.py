@@ -95,9 +95,11 @@ def preset(size: str, **overrides) -> DetectorConfig:
     presets = {
         "full": dict(size="full", width=1.0, depth=7, input_height=352, input_width=1152),
         "tiny": dict(size="tiny", width=0.25, depth=1, input_height=192, input_width=640),
+        # pretrained CenterNet (detector_node.centernet); width/depth/anchors unused
+        "centernet": dict(size="centernet", width=1.0, depth=0, input_height=320, input_width=1024),
     }
     if size not in presets:
-        raise ValueError(f"unknown detector size {size!r} (full | tiny)")
+        raise ValueError(f"unknown detector size {size!r} (full | tiny | centernet)")
     return DetectorConfig(**{**presets[size], **overrides})
 
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 from vehicle_common.kitti import KittiObject
-from vehicle_common.orientation_bins import NUM_BINS, alpha_to_bin
+from vehicle_common.orientation_bins import NUM_BINS, alpha_to_bin, fold_alpha_signed
 
 from .inference import Detection
 
@@ -25,7 +25,8 @@ class OracleDetector:
 
     ``box_noise_px``: std of Gaussian noise added to each box edge [px]; ``score``: score given
     to every box; ``drop_probability``: chance of dropping each box; ``seed`` seeds the noise.
-    Orientation: the bin of the label's alpha, with probability 1.
+    Orientation: the bin of the label's alpha, with probability 1, and the label's alpha folded
+    into [-pi/2, pi/2) as the continuous angle with variance 0 (-1 when the label has none).
     """
 
     positive_types: tuple[str, ...] = ("Car", "Van")
@@ -57,8 +58,16 @@ class OracleDetector:
                 y1, y2 = np.clip([y1, y2], 0, image_size[1])
             b = alpha_to_bin(o.alpha)
             probs = tuple(1.0 if i == b else 0.0 for i in range(NUM_BINS))
+            known = o.alpha >= -np.pi - 1e-6  # KITTI's -10 = unknown
             out.append(
-                Detection((float(x1), float(y1), float(x2), float(y2)), float(self.score), b, probs)
+                Detection(
+                    (float(x1), float(y1), float(x2), float(y2)),
+                    float(self.score),
+                    b,
+                    probs,
+                    observation_angle=float(fold_alpha_signed(o.alpha)) if known else 0.0,
+                    observation_angle_variance=0.0 if known else -1.0,
+                )
             )
         return out
 

@@ -19,12 +19,14 @@ import json
 import random
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from .anchors import kmeans_anchors
+from .centernet import centernet_loss
 from .checkpoint import load_checkpoint, save_checkpoint
 from .dataset import (
     Sample,
@@ -33,6 +35,7 @@ from .dataset import (
     load_full_sample,
     load_sample,
     parse_weighted_source,
+    sample_alphas,
     sources_from_args,
 )
 from .inference import choose_device, decode_output, to_tensor
@@ -101,6 +104,73 @@ def anchor_box_sizes(sources: list[Source], config) -> np.ndarray:
     return wh[(wh > 1).all(axis=1)]
 
 
+def _centernet_model(args: argparse.Namespace, config, device):
+    """The CenterNet detector: from ``--init`` (a CenterNet checkpoint, input size of
+    ``config``) or from the pretrained package."""
+    from .pretrained import pretrained_centernet
+
+    if args.init:
+        model, _ = load_checkpoint(args.init, device)
+        if model.config.size != "centernet":
+            raise ValueError(f"{args.init}: not a centernet checkpoint")
+        model.config = config
+        print(f"initialised from {args.init}", flush=True)
+        return model
+    model = pretrained_centernet(config, args.pretrained).to(device)
+    print(f"initialised from the pretrained package ({args.pretrained or 'setup cache'})")
+    return model
+
+
+@dataclass
+class BankItem:
+    """One augmented training sample reduced to its fixed (frozen-backbone) feature."""
+
+    feature: torch.Tensor  # (128, H/4, W/4) float16
+    boxes: np.ndarray
+    alphas: np.ndarray
+    dontcare: np.ndarray
+
+
+def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> list[BankItem]:
+    """``--feature-bank N`` augmented samples drawn once from the training mix (same pipeline and
+    weights as the epochs), passed through the frozen graph; the epochs then train the heads on
+    these stored features (float16)."""
+    rng = np.random.default_rng([args.seed, 7919])
+    order = mix.draw(args.feature_bank, rng)
+    bank: list[BankItem] = []
+    t0 = time.time()
+    model.eval()
+    with torch.no_grad():
+        for start in range(0, len(order), args.batch_size):
+            batch = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
+            f = model.features(to_tensor([s.image for s in batch], device))
+            for s, fi in zip(batch, f, strict=True):
+                bank.append(BankItem(fi.half().cpu(), s.boxes, sample_alphas(s), s.dontcare))
+    print(f"feature bank: {len(bank)} samples in {time.time() - t0:.1f} s", flush=True)
+    return bank
+
+
+def _centernet_batch_loss(model, f: torch.Tensor, items, rng, orientation_weight: float):
+    """CenterNet loss of a batch of features ``f`` and their samples (boxes, alphas, DontCare);
+    the orientation head sees the ground-truth boxes with each edge moved by up to 5 % of the
+    box size (as the predicted boxes it meets at inference)."""
+    boxes = [it.boxes for it in items]
+
+    def orientation(batch_idx: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+        wh = (gt[:, 2:] - gt[:, :2]).repeat(1, 2)
+        noise = torch.from_numpy(rng.uniform(-0.05, 0.05, gt.shape).astype(np.float32))
+        return model.orientation_at(f, batch_idx, gt + noise.to(gt.device) * wh)
+
+    return centernet_loss(
+        model.dense(f),
+        boxes,
+        [sample_alphas(it) if isinstance(it, Sample) else it.alphas for it in items],
+        [it.dontcare for it in items],
+        {"bin": orientation_weight, "residual": orientation_weight},
+        orientation,
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="detector_train",
@@ -109,7 +179,35 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_data_arguments(p)
     p.add_argument("--output", type=Path, required=True, help="folder for last.pt / best.pt / log")
-    p.add_argument("--size", choices=["tiny", "full"], default="tiny")
+    p.add_argument(
+        "--size",
+        choices=["tiny", "full", "centernet"],
+        default="tiny",
+        help="tiny / full (the paper's YOLOv2) or centernet (pretrained MobileNetV3 CenterNet "
+        "of @vladmandic/human 3.3.6, installed by scripts/setup.sh, or --init / --pretrained)",
+    )
+    p.add_argument(
+        "--pretrained",
+        type=Path,
+        help="centernet: the package's centernet.json (default: the cache of scripts/setup.sh)",
+    )
+    p.add_argument(
+        "--feature-bank",
+        type=int,
+        default=0,
+        help="centernet with --freeze-backbone: draw this many augmented samples once, store "
+        "their graph features and train the heads on them (0 = fresh samples every step)",
+    )
+    p.add_argument(
+        "--orientation-only",
+        action="store_true",
+        help="centernet: train the new orientation head only (graph, heat and box heads fixed)",
+    )
+    p.add_argument(
+        "--freeze-backbone",
+        action="store_true",
+        help="centernet: train the heads only (the pretrained graph stays fixed)",
+    )
     p.add_argument("--width", type=float, help="channel multiplier (default: preset's)")
     p.add_argument("--depth", type=int, help="layers kept per stage (default: preset's)")
     p.add_argument("--input-width", type=int, help="network input width (default: preset's)")
@@ -239,7 +337,9 @@ def _train(args: argparse.Namespace) -> int:
     )
 
     start_epoch, best_ap, history = 0, -1.0, []
-    if args.resume:
+    if args.size == "centernet" and not args.resume:
+        model = _centernet_model(args, config, device)
+    elif args.resume:
         model, state = load_checkpoint(args.resume, device)
         config = model.config
         start_epoch = int(state.get("epoch", -1)) + 1
@@ -269,6 +369,14 @@ def _train(args: argparse.Namespace) -> int:
                 )
             model.load_state_dict(init_model.state_dict())
             print(f"initialised from {args.init}", flush=True)
+    config = model.config
+    centernet = config.size == "centernet"
+    if centernet and (args.freeze_backbone or args.orientation_only):
+        args.freeze_backbone = True
+        fixed = [model.graph] + ([model.heat, model.box] if args.orientation_only else [])
+        for part in fixed:
+            for prm in part.parameters():
+                prm.requires_grad_(False)
     mix = TrainingMix(
         sources,
         config.input_width,
@@ -296,7 +404,19 @@ def _train(args: argparse.Namespace) -> int:
             f"{np.round(weights.orientation_bin_weights, 3).tolist()}",
             flush=True,
         )
-    opt = torch.optim.Adam(model.parameters(), lr=args.lr, betas=(0.9, 0.999))
+    bank = None
+    if centernet and args.feature_bank:
+        if not args.freeze_backbone:
+            raise ValueError("--feature-bank needs --freeze-backbone (the features are fixed)")
+        bank = _feature_bank(model, mix, args, device)
+    if centernet:  # the new orientation head at the full rate, the pretrained parts at 1/5
+        new = list(model.orientation.parameters())
+        ids = {id(q) for q in new}
+        old = [q for q in model.parameters() if q.requires_grad and id(q) not in ids]
+        groups = [{"params": new, "scale": 1.0}, {"params": old, "scale": 0.2}]
+    else:
+        groups = [{"params": [q for q in model.parameters() if q.requires_grad], "scale": 1.0}]
+    opt = torch.optim.Adam(groups, lr=args.lr, betas=(0.9, 0.999))
     if args.resume and "optimizer" in state:
         opt.load_state_dict(state["optimizer"])
     ema = None
@@ -311,11 +431,14 @@ def _train(args: argparse.Namespace) -> int:
     for epoch in range(start_epoch, args.epochs):
         lr = learning_rate(epoch, args.epochs, args)
         for g in opt.param_groups:
-            g["lr"] = lr
+            g["lr"] = lr * g.get("scale", 1.0)
         model.train()
         rng = np.random.default_rng([args.seed, epoch])
         torch.manual_seed(args.seed * 1000 + epoch)
         order = mix.draw(epoch_samples, rng)
+        if bank is not None:
+            bank_order = rng.permutation(len(bank))[: min(epoch_samples, len(bank))]
+            order = bank_order
         sums: dict[str, float] = {}
         nb = 0
         bar = tqdm(
@@ -325,16 +448,25 @@ def _train(args: argparse.Namespace) -> int:
             leave=False,
         )
         for start in bar:
-            batch = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
-            raw = model(to_tensor([s.image for s in batch], device))
-            loss, terms = detection_loss(
-                raw,
-                [s.boxes for s in batch],
-                [s.bins for s in batch],
-                [s.dontcare for s in batch],
-                config,
-                weights,
-            )
+            if centernet:
+                if bank is not None:
+                    items = [bank[j] for j in bank_order[start : start + args.batch_size]]
+                    f = torch.stack([it.feature for it in items]).to(device).float()
+                else:
+                    items = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
+                    f = model.features(to_tensor([s.image for s in items], device))
+                loss, terms = _centernet_batch_loss(model, f, items, rng, args.orientation_weight)
+            else:
+                batch = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
+                raw = model(to_tensor([s.image for s in batch], device))
+                loss, terms = detection_loss(
+                    raw,
+                    [s.boxes for s in batch],
+                    [s.bins for s in batch],
+                    [s.dontcare for s in batch],
+                    config,
+                    weights,
+                )
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()

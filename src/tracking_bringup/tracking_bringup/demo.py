@@ -26,6 +26,9 @@ from tracking_bringup.launcher import GraphLauncher, LaunchError, graph_processe
 SYNTHETIC_CAMERA_OVERRIDES = (
     "stereo_depth.disparity_bias:=0.0",
     "stereo_depth.disparity_bias_column:=0.0",
+    # the default detector (pretrained on COCO, fine-tuned on real KITTI) does not see the
+    # renderer's box cars; the previous model was trained on them
+    "vehicle_detector.checkpoint:=tiny_kitti",
 )
 
 

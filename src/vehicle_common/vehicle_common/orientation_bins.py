@@ -54,3 +54,24 @@ def flip_bin(bins: int | np.ndarray) -> int | np.ndarray:
     b = np.asarray(bins, dtype=np.int64)
     out = np.where(b >= 0, FLIP_BIN[np.maximum(b, 0)], b)
     return int(out) if np.ndim(out) == 0 else out
+
+
+def fold_alpha_signed(alpha: float | np.ndarray) -> float | np.ndarray:
+    """Fold an observation angle [rad] modulo pi into [-pi/2, pi/2): the convention of the
+    continuous ``observation_angle`` of VehicleDetection2D (opposite directions share it, as
+    they share a bin). NaN stays NaN."""
+    a = np.mod(np.asarray(alpha, dtype=float) + math.pi / 2, math.pi) - math.pi / 2
+    return float(a) if np.ndim(a) == 0 else a
+
+
+def bin_residual_to_alpha(bins: int | np.ndarray, residual: float | np.ndarray):
+    """MultiBin decoding: the folded angle (:func:`fold_alpha_signed`) of bin centre + residual
+    [rad]; a residual past a neighbouring centre simply folds."""
+    return fold_alpha_signed(bin_to_alpha(bins) + np.asarray(residual, dtype=float))
+
+
+def alpha_to_bin_residual(alpha: float | np.ndarray):
+    """(bin, residual) of an observation angle: the residual is the folded difference to the bin
+    centre, in [-pi/8, pi/8]; inverse of :func:`bin_residual_to_alpha` up to the fold."""
+    b = alpha_to_bin(alpha)
+    return b, fold_alpha_signed(np.asarray(alpha, dtype=float) - bin_to_alpha(b))

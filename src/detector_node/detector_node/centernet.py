@@ -1,0 +1,412 @@
+"""CenterNet car detector on the pretrained MobileNetV3 CenterNet of ``@vladmandic/human``.
+
+The pretrained graph (TF.js, COCO-80, see :mod:`detector_node.pretrained`) runs through
+:class:`~detector_node.tfjs_graph.TfjsGraph` up to its head feature
+(``tower_0/CenternetHead/mul``: 128 channels at stride 4). On it sit three heads of the project:
+
+- ``heat``: separable 3x3 conv -> 1 channel, the car centre heat map (logit); initialised from the
+  COCO ``car`` channel (index 2) of the graph's class head;
+- ``box``: the graph's box head (separable 3x3 conv -> 4 channels, x 16): distances (left, top,
+  right, bottom) in input px from the cell position (column x 4, row x 4) to the box edges;
+- ``orientation``: a box head (RoI-style): the feature sampled bilinearly at 3x3 points inside a
+  box (at 1/6, 3/6, 5/6 of its width and height) plus the box's log aspect ratio and normalised
+  centre -> 64 -> ReLU -> 9 values: 4 bin logits (the paper's bins centred on 0/45/90/135 deg),
+  4 residuals (one per bin, angle = centre + pi/4 x tanh(residual)) and the log-variance of the
+  continuous angle (MultiBin-style, Mousavian et al. 2017); new, zero output at the start.
+  Trained on the ground-truth boxes; at inference evaluated on the boxes of the top
+  ``ORIENTATION_PEAKS`` heat-map peaks.
+
+Raw output (B, 14, H/4, W/4): [heat logit, l, t, r, b, 4 bin logits, 4 residuals, log-variance];
+the 9 orientation values are filled at the evaluated peaks (zero elsewhere).
+Input: RGB in [0, 1] (the graph's 0-255 scaling is applied inside).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+from vehicle_common.orientation_bins import NUM_BINS, alpha_to_bin_residual, bin_residual_to_alpha
+
+from .tfjs_graph import TfjsGraph
+
+FEATURE = "tower_0/CenternetHead/mul"
+CLS_HEAD = "CenternetHead/centernet_cls_output"
+BOX_HEAD = "CenternetHead/centernet_wh_output"
+BOX_SCALE = "tower_0/mul/y"
+STRIDE = 4
+COCO_CAR = 2
+FEATURE_CHANNELS = 128
+ORIENTATION_HIDDEN = 64
+ORIENTATION_POINTS = 3  # per box side: 3x3 sample points
+ORIENTATION_PEAKS = 100
+#: raw output channels
+HEAT, BOX, BINS, RESIDUALS, LOGVAR = 0, slice(1, 5), slice(5, 9), slice(9, 13), 13
+OUT_CHANNELS = 14
+#: largest residual [rad] (reaches the neighbouring bin centres)
+MAX_RESIDUAL = math.pi / 4
+LOGVAR_RANGE = (-9.0, 2.0)
+
+
+class SeparableHead(nn.Module):
+    """Depthwise 3x3 conv (no bias) then pointwise 1x1 conv (TensorFlow's separable_conv2d)."""
+
+    def __init__(self, channels: int, out: int) -> None:
+        super().__init__()
+        self.depthwise = nn.Conv2d(channels, channels, 3, padding=1, groups=channels, bias=False)
+        self.pointwise = nn.Conv2d(channels, out, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.pointwise(self.depthwise(x))
+
+    def load_tf(self, weights: dict[str, np.ndarray], prefix: str, channels=None) -> None:
+        """Copy ``prefix``/{depthwise_weights, pointwise_weights, biases} (TF layouts), keeping
+        only the output ``channels`` when given."""
+        dw = torch.from_numpy(weights[f"{prefix}/depthwise_weights"]).float()
+        pw = torch.from_numpy(weights[f"{prefix}/pointwise_weights"]).float()
+        b = torch.from_numpy(weights[f"{prefix}/biases"]).float()
+        if channels is not None:
+            pw, b = pw[..., channels], b[channels]
+        with torch.no_grad():
+            self.depthwise.weight.copy_(dw.permute(2, 3, 0, 1))
+            self.pointwise.weight.copy_(pw.permute(3, 2, 0, 1))
+            self.pointwise.bias.copy_(b)
+
+
+def graph_constants_zero(model: dict) -> dict[str, np.ndarray]:
+    """Zero arrays of every constant's declared shape and dtype (to rebuild a graph module whose
+    weights then come from a checkpoint's state dict)."""
+    out = {}
+    for n in model["modelTopology"]["node"]:
+        if n["op"] != "Const":
+            continue
+        t = n["attr"]["value"]["tensor"]
+        shape = [int(d["size"]) for d in t.get("tensorShape", {}).get("dim", [])]
+        dtype = np.int32 if t.get("dtype") == "DT_INT32" else np.float32
+        out[n["name"]] = np.zeros(shape, dtype)
+    return out
+
+
+class CenterNetDetector(nn.Module):
+    """The pretrained graph's feature + the car / box / orientation heads (module docstring)."""
+
+    def __init__(self, config, graph_model: dict, weights: dict[str, np.ndarray] | None) -> None:
+        super().__init__()
+        self.config = config
+        zero = weights is None
+        if zero:
+            weights = graph_constants_zero(graph_model)
+        self.graph = TfjsGraph(graph_model, weights, [FEATURE])
+        self.topology = {"modelTopology": {"node": self.graph.nodes_used}}
+        self.heat = SeparableHead(FEATURE_CHANNELS, 1)
+        self.box = SeparableHead(FEATURE_CHANNELS, 4)
+        n_in = FEATURE_CHANNELS * ORIENTATION_POINTS**2 + 3
+        self.orientation = nn.Sequential(
+            nn.Linear(n_in, ORIENTATION_HIDDEN),
+            nn.ReLU(inplace=True),
+            nn.Linear(ORIENTATION_HIDDEN, 2 * NUM_BINS + 1),
+        )
+        self.register_buffer("box_scale", torch.tensor(16.0))
+        with torch.no_grad():
+            self.orientation[-1].weight.zero_()
+            self.orientation[-1].bias.zero_()
+        if not zero:
+            self.heat.load_tf(weights, CLS_HEAD, [COCO_CAR])
+            self.box.load_tf(weights, BOX_HEAD)
+            self.box_scale.fill_(float(weights[BOX_SCALE]))
+
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        """Images (B, 3, H, W) RGB in [0, 1] -> the graph's head feature (B, 128, H/4, W/4)."""
+        return self.graph(x * 255.0)[FEATURE]
+
+    def dense(self, f: torch.Tensor) -> torch.Tensor:
+        """Feature -> (B, 5, H/4, W/4): heat logit and (l, t, r, b) [input px]."""
+        return torch.cat([self.heat(f), self.box(f) * self.box_scale], dim=1)
+
+    def orientation_at(self, f: torch.Tensor, batch: torch.Tensor, boxes: torch.Tensor):
+        """Orientation values (N, 9) of boxes (N, 4) [input px] of images ``batch`` (N,)."""
+        if not len(boxes):
+            return f.new_zeros((0, 2 * NUM_BINS + 1))
+        _, c, gh, gw = f.shape
+        frac = (torch.arange(ORIENTATION_POINTS, device=f.device, dtype=f.dtype) + 0.5) / (
+            ORIENTATION_POINTS
+        )
+        x1, y1, x2, y2 = boxes.unbind(1)
+        px = x1[:, None] + (x2 - x1)[:, None] * frac[None]  # (N, P)
+        py = y1[:, None] + (y2 - y1)[:, None] * frac[None]
+        # cell j is at input px STRIDE * j (the box head's convention); normalised for
+        # grid_sample with align_corners=False: pixel centre j -> (2j + 1) / size - 1
+        gx = (2 * (px / STRIDE) + 1) / gw - 1
+        gy = (2 * (py / STRIDE) + 1) / gh - 1
+        n = ORIENTATION_POINTS
+        grid = torch.stack(
+            [gx[:, None, :].expand(-1, n, -1), gy[:, :, None].expand(-1, -1, n)], dim=-1
+        ).reshape(-1, n * n, 2)  # (N, P*P, 2), row-major over (y, x) as (P, P)
+        # sample each image's boxes from its own feature map (no per-box copy of the map)
+        sampled = f.new_empty((len(boxes), c, n * n))
+        for i in torch.unique(batch).tolist():
+            sel = (batch == i).nonzero()[:, 0]
+            out = F.grid_sample(f[i : i + 1], grid[sel][None], align_corners=False)
+            sampled[sel] = out[0].permute(1, 0, 2)  # (1, C, Nb, P*P) -> (Nb, C, P*P)
+        w, h = (x2 - x1).clamp(min=1), (y2 - y1).clamp(min=1)
+        geo = torch.stack(
+            [
+                torch.log(w / h),
+                (x1 + x2) / (2 * STRIDE * gw) - 0.5,
+                (y1 + y2) / (2 * STRIDE * gh) - 0.5,
+            ],
+            dim=1,
+        )
+        return self.orientation(torch.cat([sampled.flatten(1), geo], dim=1))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Images (B, 3, H, W) RGB in [0, 1] -> raw output (B, 14, H/4, W/4), the orientation
+        values filled at the top ``ORIENTATION_PEAKS`` heat-map peaks of each image."""
+        f = self.features(x)
+        return self.raw_from_features(f)
+
+    def raw_from_features(self, f: torch.Tensor) -> torch.Tensor:
+        d = self.dense(f)
+        b, _, gh, gw = d.shape
+        _, idx = peaks(d, ORIENTATION_PEAKS)  # (B, K)
+        k = idx.shape[1]
+        batch = torch.arange(b, device=d.device).repeat_interleave(k)
+        cells = idx.reshape(-1)
+        vals = d.flatten(2)[batch, :, cells]  # (B*K, 5)
+        cx, cy = (cells % gw).to(d.dtype) * STRIDE, (cells // gw).to(d.dtype) * STRIDE
+        box = torch.stack(
+            [cx - vals[:, 1], cy - vals[:, 2], cx + vals[:, 3], cy + vals[:, 4]], dim=1
+        )
+        box = torch.maximum(
+            box, torch.stack([box[:, 0], box[:, 1], box[:, 0] + 1, box[:, 1] + 1], 1)
+        )
+        ori = self.orientation_at(f, batch, box)  # (B*K, 9)
+        extra = d.new_zeros((b, 2 * NUM_BINS + 1, gh * gw))
+        extra[batch, :, cells] = ori
+        return torch.cat([d, extra.view(b, -1, gh, gw)], dim=1)
+
+
+# ---------------------------------------------------------------------------------------------
+# decoding
+
+
+def decode_orientation(bin_logits: np.ndarray, residual_raw: np.ndarray, logvar: np.ndarray):
+    """(probs (N, 4), bin (N,), folded angle (N,) [rad], variance (N,) [rad^2]) of raw head
+    values: bin = argmax of the softmax; angle = bin centre + pi/4 tanh(residual of that bin),
+    folded into [-pi/2, pi/2); variance = exp(log-variance)."""
+    z = bin_logits - bin_logits.max(axis=1, keepdims=True)
+    p = np.exp(z)
+    p /= p.sum(axis=1, keepdims=True)
+    b = np.argmax(p, axis=1)
+    res = MAX_RESIDUAL * np.tanh(np.take_along_axis(residual_raw, b[:, None], 1)[:, 0])
+    angle = np.asarray(bin_residual_to_alpha(b, res), dtype=float).reshape(-1)
+    var = np.exp(np.clip(logvar, *LOGVAR_RANGE))
+    return p, b, angle, var
+
+
+def peaks(raw: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Top-``k`` local maxima (3x3) of the heat map of each image: (scores (B, k), flat cell
+    indices (B, k))."""
+    heat = torch.sigmoid(raw[:, HEAT : HEAT + 1])
+    keep = heat == F.max_pool2d(heat, 3, 1, 1)
+    flat = (heat * keep).flatten(1)
+    k = min(k, flat.shape[1])
+    return torch.topk(flat, k, dim=1)
+
+
+def decode_centernet(
+    raw: torch.Tensor,
+    config,
+    score_threshold: float,
+    nms_iou: float,
+    scale: tuple[float, float] = (1.0, 1.0),
+    max_detections: int = 100,
+):
+    """Raw output -> :class:`~detector_node.inference.Detection` lists (original px: input px
+    divided by ``scale``): heat-map peaks >= ``score_threshold``, boxes from the distances,
+    class-agnostic NMS, 4-bin probabilities and the continuous angle with its variance."""
+    from .boxes import nms
+    from .inference import Detection
+
+    raw = raw.float()
+    gw = raw.shape[3]
+    scores, idx = peaks(raw, max_detections)
+    out = []
+    s = np.array([scale[0], scale[1], scale[0], scale[1]])
+    for i in range(raw.shape[0]):
+        sc = scores[i].cpu().numpy()
+        ix = idx[i].cpu().numpy()
+        keep = sc >= score_threshold
+        sc, ix = sc[keep], ix[keep]
+        vals = raw[i].flatten(1)[:, torch.from_numpy(ix).to(raw.device)].T.cpu().numpy()  # (N, 14)
+        cx, cy = (ix % gw) * STRIDE, (ix // gw) * STRIDE
+        d = vals[:, BOX]
+        bx = np.stack([cx - d[:, 0], cy - d[:, 1], cx + d[:, 2], cy + d[:, 3]], 1) / s
+        bx[:, [0, 2]] = np.clip(bx[:, [0, 2]], 0, config.input_width / scale[0])
+        bx[:, [1, 3]] = np.clip(bx[:, [1, 3]], 0, config.input_height / scale[1])
+        valid = (bx[:, 2] > bx[:, 0]) & (bx[:, 3] > bx[:, 1])
+        bx, sc, vals = bx[valid], sc[valid], vals[valid]
+        probs, bins, angle, var = decode_orientation(
+            vals[:, BINS], vals[:, RESIDUALS], vals[:, LOGVAR]
+        )
+        order = nms(bx, sc, nms_iou)[:max_detections]
+        out.append(
+            [
+                Detection(
+                    box=tuple(float(v) for v in bx[j]),
+                    score=float(sc[j]),
+                    orientation_bin=int(bins[j]),
+                    orientation_probs=tuple(float(p) for p in probs[j]),
+                    observation_angle=float(angle[j]),
+                    observation_angle_variance=float(var[j]),
+                )
+                for j in order
+            ]
+        )
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# training loss
+
+
+def gaussian_radius(h: float, w: float, min_overlap: float = 0.7) -> float:
+    """CenterNet's radius (output cells) within which a shifted box keeps IoU >= min_overlap
+    (smallest root of the three corner cases)."""
+    b1 = h + w
+    c1 = w * h * (1 - min_overlap) / (1 + min_overlap)
+    r1 = (b1 + math.sqrt(max(b1**2 - 4 * c1, 0))) / 2
+    b2 = 2 * (h + w)
+    c2 = (1 - min_overlap) * w * h
+    r2 = (b2 + math.sqrt(max(b2**2 - 16 * c2, 0))) / 2
+    a3 = 4 * min_overlap
+    b3 = -2 * min_overlap * (h + w)
+    c3 = (min_overlap - 1) * w * h
+    r3 = (b3 + math.sqrt(max(b3**2 - 4 * a3 * c3, 0))) / 2
+    return min(r1, r2, r3)
+
+
+def build_targets(samples_boxes, samples_alphas, samples_dontcare, gh: int, gw: int):
+    """Per image: heat target (gh, gw), negative weight (0 inside DontCare / ignore regions),
+    and the positives' (cell index, ltrb target (4,), bin (-1 unknown), residual)."""
+    b = len(samples_boxes)
+    heat = np.zeros((b, gh, gw), np.float32)
+    negw = np.ones((b, gh, gw), np.float32)
+    cells, ltrb, bins, res, batch = [], [], [], [], []
+    ys, xs = np.mgrid[0:gh, 0:gw]
+    for i in range(b):
+        for dc in samples_dontcare[i].reshape(-1, 4):
+            x1, y1 = int(math.floor(dc[0] / STRIDE)), int(math.floor(dc[1] / STRIDE))
+            x2, y2 = int(math.ceil(dc[2] / STRIDE)), int(math.ceil(dc[3] / STRIDE))
+            negw[i, max(y1, 0) : max(y2, 0), max(x1, 0) : max(x2, 0)] = 0.0
+        alphas = samples_alphas[i]
+        for box, alpha in zip(samples_boxes[i].reshape(-1, 4), alphas, strict=True):
+            cx, cy = (box[0] + box[2]) / 2 / STRIDE, (box[1] + box[3]) / 2 / STRIDE
+            gx, gy = min(max(int(cx), 0), gw - 1), min(max(int(cy), 0), gh - 1)
+            bw, bh = (box[2] - box[0]) / STRIDE, (box[3] - box[1]) / STRIDE
+            r = max(0.0, gaussian_radius(bh, bw))
+            sigma = (2 * int(r) + 1) / 6
+            g = np.exp(-((xs - gx) ** 2 + (ys - gy) ** 2) / (2 * sigma**2))
+            heat[i] = np.maximum(heat[i], g.astype(np.float32))
+            heat[i, gy, gx] = 1.0
+            negw[i, gy, gx] = 1.0
+            px, py = gx * STRIDE, gy * STRIDE
+            ltrb.append([px - box[0], py - box[1], box[2] - px, box[3] - py])
+            cells.append(gy * gw + gx)
+            batch.append(i)
+            if np.isfinite(alpha):
+                bn, rs = alpha_to_bin_residual(float(alpha))
+                bins.append(int(bn))
+                res.append(float(rs))
+            else:
+                bins.append(-1)
+                res.append(0.0)
+    return (
+        heat,
+        negw,
+        np.array(batch, np.int64),
+        np.array(cells, np.int64),
+        np.array(ltrb, np.float32).reshape(-1, 4),
+        np.array(bins, np.int64),
+        np.array(res, np.float32),
+    )
+
+
+def ltrb_iou(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """IoU of boxes given as distances (l, t, r, b) from the same point."""
+    p, t = pred.clamp(min=0), target
+    inter = (torch.minimum(p[:, 0], t[:, 0]) + torch.minimum(p[:, 2], t[:, 2])) * (
+        torch.minimum(p[:, 1], t[:, 1]) + torch.minimum(p[:, 3], t[:, 3])
+    )
+    area_p = (p[:, 0] + p[:, 2]) * (p[:, 1] + p[:, 3])
+    area_t = (t[:, 0] + t[:, 2]) * (t[:, 1] + t[:, 3])
+    return inter / (area_p + area_t - inter).clamp(min=1e-6)
+
+
+def centernet_loss(
+    raw, samples_boxes, samples_alphas, samples_dontcare, weights=None, orientation=None
+):
+    """CenterNet loss of a batch and its terms: penalty-reduced focal loss on the heat map
+    (alpha 2, beta 4; negatives inside DontCare / ignore regions not counted), box L1 (in
+    stride units, weight 0.1) + 1 - IoU at the positive cells, orientation cross-entropy over the
+    4 bins and Gaussian negative log-likelihood of the true bin's residual with the predicted
+    variance (labels with a known alpha only); each normalised by its number of positives.
+
+    ``raw``: the dense output (B, >= 5, H/4, W/4); ``orientation``: a function (batch (N,),
+    boxes (N, 4)) -> (N, 9) evaluating the orientation head on the ground-truth boxes (None: no
+    orientation terms)."""
+    w = {"heat": 1.0, "l1": 0.1, "iou": 1.0, "bin": 1.0, "residual": 1.0, **(weights or {})}
+    dev = raw.device
+    b, _, gh, gw = raw.shape
+    heat_t, negw, bi, cells, ltrb, bins, res = build_targets(
+        samples_boxes, samples_alphas, samples_dontcare, gh, gw
+    )
+    heat_t = torch.from_numpy(heat_t).to(dev)
+    negw = torch.from_numpy(negw).to(dev)
+    logit = raw[:, HEAT]
+    p = torch.sigmoid(logit).clamp(1e-4, 1 - 1e-4)
+    pos = heat_t == 1.0
+    n_pos = max(int(pos.sum()), 1)
+    pos_loss = -(torch.log(p) * (1 - p) ** 2)[pos].sum()
+    neg_loss = -(torch.log(1 - p) * p**2 * (1 - heat_t) ** 4 * negw)[~pos].sum()
+    l_heat = (pos_loss + neg_loss) / n_pos
+    zero = raw.sum() * 0.0
+    l_l1 = l_iou = l_bin = l_res = zero
+    if len(cells):
+        bi_t = torch.from_numpy(bi).to(dev)
+        cells_t = torch.from_numpy(cells).to(dev)
+        vals = raw.flatten(2)[bi_t, :, cells_t]  # (N, 14)
+        tgt = torch.from_numpy(ltrb).to(dev)
+        l_l1 = (vals[:, BOX] - tgt).abs().sum(1).mean() / STRIDE
+        l_iou = (1 - ltrb_iou(vals[:, BOX], tgt)).mean()
+        known = torch.from_numpy(bins >= 0).to(dev)
+        if known.any() and orientation is not None:
+            gt_boxes = torch.from_numpy(
+                np.concatenate([b_.reshape(-1, 4) for b_ in samples_boxes]).astype(np.float32)
+            ).to(dev)
+            tb = torch.from_numpy(bins).to(dev)[known]
+            v = orientation(bi_t[known], gt_boxes[known])
+            l_bin = F.cross_entropy(v[:, 0:NUM_BINS], tb)
+            res_raw = v[:, NUM_BINS : 2 * NUM_BINS]
+            pred_res = MAX_RESIDUAL * torch.tanh(res_raw.gather(1, tb[:, None])[:, 0])
+            err = pred_res - torch.from_numpy(res).to(dev)[known]
+            logvar = v[:, 2 * NUM_BINS].clamp(*LOGVAR_RANGE)
+            l_res = (0.5 * (err**2 * torch.exp(-logvar) + logvar)).mean()
+    total = (
+        w["heat"] * l_heat
+        + w["l1"] * l_l1
+        + w["iou"] * l_iou
+        + w["bin"] * l_bin
+        + w["residual"] * l_res
+    )
+    terms = {
+        "heat": float(l_heat.detach()),
+        "l1": float(l_l1.detach()),
+        "iou": float(l_iou.detach()),
+        "bin": float(l_bin.detach()),
+        "res": float(l_res.detach()),
+    }
+    return total, terms
