@@ -60,7 +60,9 @@ def validation_frames(kitti: Path = KITTI) -> list[LabelledFrame]:
 
     from detector_node import real_split
 
-    trained_seqs = set(real_split.TRAIN_TRACKING_SEQUENCES)
+    # whole tracking sequences the shipped checkpoint trained on (none since the pretrained
+    # CenterNet: it trains on keyframes of other sequences; tiny_kitti.pt trained on 0001)
+    trained_seqs = set(getattr(real_split, "TRAIN_TRACKING_SEQUENCES", ()))
     trained_ids: set[int] = set()
     for item in real_split.TRAIN_OBJECT_IDS.split(","):
         lo, _, hi = item.partition("-")
