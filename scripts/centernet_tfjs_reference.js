@@ -1,5 +1,11 @@
 // Runs the original TF.js CenterNet graph (pure-JS CPU backend) on a fixed 512x512 input and
-// prints a strided subset of its heat-map and box outputs as JSON (test fixture).
+// prints a strided subset of its heat-map and box outputs as JSON: the fixture
+// tests/detector/fixtures/centernet_tfjs_reference.json of test_conversion_matches_stored_tfjs_output.
+// Re-create (npm packages in a scratch folder outside the repository):
+//   mkdir /tmp/tfjs && cd /tmp/tfjs && npm init -y && npm install @tensorflow/tfjs-core@4.22.0 \
+//     @tensorflow/tfjs-converter@4.22.0 @tensorflow/tfjs-backend-cpu@4.22.0
+//   NODE_PATH=/tmp/tfjs/node_modules node scripts/centernet_tfjs_reference.js \
+//     .venv/pretrained/vladmandic-human-3.3.6 > tests/detector/fixtures/centernet_tfjs_reference.json
 const fs = require('fs');
 const path = require('path');
 const tf = require('@tensorflow/tfjs-core');
