@@ -6,11 +6,12 @@ from __future__ import annotations
 
 from tracking_bringup.camera import camera_overrides, checkpoint_input_size, detector_input_size
 
-SHIPPED = (832, 256)
+SHIPPED = (832, 256)  # the tiny YOLO checkpoint's input (the geometry tests below use it)
 
 
 def test_shipped_checkpoint_input():
-    assert checkpoint_input_size("") == SHIPPED
+    assert checkpoint_input_size("") == (1024, 320)  # centernet_kitti.pt, the node's default
+    assert checkpoint_input_size("tiny_kitti") == SHIPPED
 
 
 def test_kitti_keeps_the_shipped_settings():

@@ -1,7 +1,8 @@
 """The CNN's input size for a camera that is not KITTI's: with an overridden input size the
 anchors follow each image's input px per image px relative to training, so a 1280x720 image at
 896x512 keeps the cars' box heights (they were stretched 2x with the input's aspect before);
-a KITTI-sized image gets the anchors it always got."""
+a KITTI-sized image gets the anchors it always got. Anchors are the tiny YOLO checkpoint's
+(``tiny_kitti``); the shipped CenterNet has none."""
 
 from __future__ import annotations
 
@@ -13,11 +14,11 @@ from detector_node.inference import CnnDetector
 
 @pytest.fixture(scope="module")
 def shipped():
-    return CnnDetector.from_checkpoint("", "cpu")
+    return CnnDetector.from_checkpoint("tiny_kitti", "cpu")
 
 
 def test_kitti_sized_images_keep_the_input_ratio_anchors(shipped):
-    big = CnnDetector.from_checkpoint("", "cpu", input_width=1152, input_height=352)
+    big = CnnDetector.from_checkpoint("tiny_kitti", "cpu", input_width=1152, input_height=352)
     _, scale = resize_image(np.zeros((375, 1242, 3), np.uint8), 1152, 352)
     c = shipped.config
     sx, sy = 1152 / c.input_width, 352 / c.input_height
@@ -28,7 +29,7 @@ def test_kitti_sized_images_keep_the_input_ratio_anchors(shipped):
 
 def test_720p_anchors_keep_the_training_pixel_scale(shipped):
     c = shipped.config
-    det = CnnDetector.from_checkpoint("", "cpu", input_width=896, input_height=512)
+    det = CnnDetector.from_checkpoint("tiny_kitti", "cpu", input_width=896, input_height=512)
     _, scale = resize_image(np.zeros((720, 1280, 3), np.uint8), 896, 512)
     ratio = np.array(det.config_for(scale).anchors) / np.array(c.anchors)
     # 896/1280 = 0.70 and 512/720 = 0.71 input px per image px vs 832/1242 and 256/375
@@ -53,7 +54,7 @@ def test_720p_synthetic_cars_get_boxes_of_their_height(tmp_path):
         if o.type in ("Car", "Van") and o.occluded == 0 and o.bbox[3] - o.bbox[1] > 25
     ]
     assert gt
-    dets = CnnDetector.from_checkpoint("", "cpu", input_width=896, input_height=512).detect(left)
+    dets = CnnDetector.from_checkpoint("tiny_kitti", "cpu", input_width=896, input_height=512).detect(left)
     m = iou_2d(np.array(gt), np.array([d.box for d in dets]))
     best = m.argmax(axis=1)
     heights = [
