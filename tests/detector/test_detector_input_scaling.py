@@ -54,7 +54,9 @@ def test_720p_synthetic_cars_get_boxes_of_their_height(tmp_path):
         if o.type in ("Car", "Van") and o.occluded == 0 and o.bbox[3] - o.bbox[1] > 25
     ]
     assert gt
-    dets = CnnDetector.from_checkpoint("tiny_kitti", "cpu", input_width=896, input_height=512).detect(left)
+    dets = CnnDetector.from_checkpoint(
+        "tiny_kitti", "cpu", input_width=896, input_height=512
+    ).detect(left)
     m = iou_2d(np.array(gt), np.array([d.box for d in dets]))
     best = m.argmax(axis=1)
     heights = [
