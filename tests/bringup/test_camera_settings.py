@@ -32,3 +32,17 @@ def test_720p_short_baseline_camera():
     assert (
         camera_overrides(1280, 720, 700.0, 0.12, SHIPPED)[2] == "stereo_depth.num_disparities:=32"
     )
+
+
+def test_demo_derives_the_camera_settings_for_the_checkpoint_it_loads():
+    """On synthetic data the demo runs tiny_kitti: the input size must be derived from its
+    832x256, not from the shipped CenterNet's 1024x320 (1088x640 at 720p, 2D AP 45 vs 76)."""
+    from tracking_bringup.demo import detector_checkpoint
+    from tracking_bringup.environment import PARAMS_FILE
+
+    assert detector_checkpoint(PARAMS_FILE, [], synthetic=True) == "tiny_kitti"
+    assert detector_checkpoint(PARAMS_FILE, [], synthetic=False) == ""
+    mine = ["vehicle_detector.checkpoint:=centernet_kitti"]
+    assert detector_checkpoint(PARAMS_FILE, mine, synthetic=True) == "centernet_kitti"
+    size = checkpoint_input_size(detector_checkpoint(PARAMS_FILE, [], synthetic=True))
+    assert detector_input_size(1280, 720, 700.0, size) == (896, 512)

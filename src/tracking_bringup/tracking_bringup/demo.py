@@ -32,6 +32,17 @@ SYNTHETIC_CAMERA_OVERRIDES = (
 )
 
 
+def detector_checkpoint(params_file, user_params: list[str], synthetic: bool) -> str:
+    """The checkpoint the demo's detector will load: the parameter file's, then the synthetic
+    data's override (``tiny_kitti``), then the user's ``-p vehicle_detector.checkpoint:=``
+    (the same order as the overrides the demo passes)."""
+    given = [*(SYNTHETIC_CAMERA_OVERRIDES if synthetic else ()), *user_params]
+    node_params = [ov.split(".", 1)[1] for ov in given if ov.startswith("vehicle_detector.")]
+    return str(
+        graph.parameter_value(params_file, node_params, "vehicle_detector", "checkpoint", "")
+    )
+
+
 def _error(msg: str) -> int:
     print(f"error: {msg}", file=sys.stderr)
     return 2
@@ -170,14 +181,9 @@ def main(argv: list[str] | None = None) -> int:
         return _error(str(exc))
     camera = []
     if not args.kitti_root and (args.focal > 0 or (args.width, args.height) != (1242, 375)):
-        checkpoint = graph.parameter_value(
-            args.params,
-            [ov.split(".", 1)[1] for ov in args.param if ov.startswith("vehicle_detector.")],
-            "vehicle_detector",
-            "checkpoint",
-            "",
-        )
-        camera = _camera_settings(root, sequence, args.no_camera_settings, str(checkpoint))
+        # derived for the checkpoint the detector will load (tiny_kitti on synthetic data)
+        checkpoint = detector_checkpoint(args.params, args.param, synthetic=True)
+        camera = _camera_settings(root, sequence, args.no_camera_settings, checkpoint)
 
     bag = out / "bag"
     overrides = [
