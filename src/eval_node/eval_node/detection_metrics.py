@@ -360,21 +360,7 @@ def localisation_ap(
 ) -> dict[str, dict[float, dict]]:
     """3D localisation AP by centre-of-mass distance: ``{difficulty: {d: {"ap_r41", "ap_r11",
     "ap_r40", "num_gt"}}}`` (fractions, NaN without counted ground truth)."""
-    return {
-        diff: {
-            float(d): precision_recall(
-                gt,
-                pred,
-                criterion="centre_distance",
-                threshold=float(d),
-                difficulty=diff,
-                cls=cls,
-                interpolation=interpolation,
-            ).as_dict()
-            for d in distances
-        }
-        for diff in difficulties
-    }
+    return _ap_grid(gt, pred, "centre_distance", distances, difficulties, cls, interpolation)
 
 
 def detection_ap_2d(
@@ -387,18 +373,23 @@ def detection_ap_2d(
 ) -> dict[str, dict[float, dict]]:
     """2D detection AP (KITTI devkit, IoU > t): ``{difficulty: {iou: {"ap_r41", "ap_r11",
     "ap_r40", "num_gt"}}}``."""
+    return _ap_grid(gt, pred, "iou2d", ious, difficulties, cls, interpolation)
+
+
+def _ap_grid(gt, pred, criterion, thresholds, difficulties, cls, interpolation) -> dict:
+    """``{difficulty: {threshold: PrecisionRecall.as_dict()}}`` of one criterion."""
     return {
         diff: {
             float(t): precision_recall(
                 gt,
                 pred,
-                criterion="iou2d",
+                criterion=criterion,
                 threshold=float(t),
                 difficulty=diff,
                 cls=cls,
                 interpolation=interpolation,
             ).as_dict()
-            for t in ious
+            for t in thresholds
         }
         for diff in difficulties
     }

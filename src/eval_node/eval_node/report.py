@@ -51,16 +51,21 @@ def table_rows(res: dict) -> tuple[list[str], list[list[str]]]:
     voc = res["detections_2d"].get("voc11_0.5")
     if voc:
         rows.append(["2D det VOC11 @ 0.5"] + [_pct(voc[lv]) for lv in LEVELS])
-    counted = next(iter(res["detections_2d"].values()), {})
+    counted = _counted(res)
     if all(f"{lv}_num_gt" in counted for lv in LEVELS):
         rows.append(["counted ground truth"] + [str(counted[f"{lv}_num_gt"]) for lv in LEVELS])
     return ["metric (AP|R40 %)", *LEVELS], rows
 
 
+def _counted(res: dict) -> dict:
+    """The first 2D AP row: it holds the counted ground truth per level (``<level>_num_gt``)."""
+    return next(iter(res["detections_2d"].values()), {})
+
+
 def cap_note(res: dict) -> str | None:
     """A line saying where the devkit's interpolation caps AP|R40 (fewer than 40 counted
     ground-truth boxes: about num_gt / 40 at most), or None."""
-    counted = next(iter(res["detections_2d"].values()), {})
+    counted = _counted(res)
     few = [
         f"{lv} {counted[f'{lv}_num_gt']}"
         for lv in LEVELS

@@ -174,7 +174,9 @@ class StereoDepthNode(Node):
         self._odometry_thread = (
             ThreadPoolExecutor(1, thread_name_prefix="odometry") if p.visual_odometry else None
         )
-        self._vehicle_boxes: list = []  # of the latest ranged frame, kept out of the odometry
+        self._vehicle_boxes: list = []
+        self._bias_key: tuple | None = None  # (width, geometry) of the cached column bias
+        self._bias: np.ndarray | None = None  # of the latest ranged frame, kept out of the odometry
         cache = p.sync_cache_size
         self.pair_sync = ExactStampSync(("left", "right"), cache, in_order=True)
         self.frame_sync = ExactStampSync(("frame", "detections"), cache, in_order=True)
@@ -417,11 +419,23 @@ class StereoDepthNode(Node):
         self.pub_det3d.publish(out)
         self.frames.published()
 
+    def _column_bias(self, width: int, geometry: StereoGeometry) -> np.ndarray:
+        """The ranging's disparity bias model per image column [px] (read-only); it depends
+        only on the calibration and the parameters, so it is computed once per geometry."""
+        key = (width, geometry)
+        if self._bias_key != key:
+            bias = np.asarray(
+                disparity_bias_at(np.arange(width), geometry, self.ranging_params), dtype=float
+            )
+            bias.setflags(write=False)
+            self._bias_key, self._bias = key, bias
+        return self._bias
+
     def _check(self, frame: _Frame, boxes, results) -> list:
         """Plausibility of the ranged boxes (:mod:`.plausibility`) against this frame's road
         plane (fitted to the disparity map with the ranging's bias model subtracted)."""
         geo = frame.geometry
-        bias = disparity_bias_at(np.arange(frame.disparity.shape[1]), geo, self.ranging_params)
+        bias = self._column_bias(frame.disparity.shape[1], geo)
         plane = self.ground.update(frame.disparity, geo, bias)
         fb = geo.fx * geo.baseline
         depths = [fb / r.disparity if r is not None else None for r in results]
@@ -432,7 +446,7 @@ class StereoDepthNode(Node):
         camera's motion since the previous processed pair. Returns the future, or None."""
         if self.odometry is None:
             return None
-        bias = disparity_bias_at(np.arange(gray.shape[1]), frame.geometry, self.ranging_params)
+        bias = self._column_bias(gray.shape[1], frame.geometry)
         return self._odometry_thread.submit(
             self.odometry.estimate,
             stamp_ns(frame.header),
