@@ -376,7 +376,7 @@ class TfjsGraph(nn.Module):
                     raise TfjsGraphError(f"node {name}: constant resize without an input size")
                 scale = scales[name]
                 env[name] = resize_bilinear_legacy(
-                    v, round(v.shape[2] * scale[0]), round(v.shape[3] * scale[1])
+                    v, round(int(v.shape[2]) * float(scale[0])), round(int(v.shape[3]) * float(scale[1]))
                 )
         return {o: env[o.split(":")[0]] for o in self.outputs}
 
