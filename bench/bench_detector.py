@@ -13,7 +13,8 @@ Prints, for the shipped (or a given) checkpoint:
   modulo 180 deg; the bin centre for checkpoints without the angle head) over the same pairs;
 - the median inference time (preprocessing + network + decoding) on a 1242x375 frame of the
   checkpoint and of the previous model ``tiny_kitti.pt`` (and with --with-full the paper's full
-  configuration), runs interleaved in one process, torch threads = 2 (the node's default), 3
+  configuration), runs interleaved in one process, threads = 1 (the graph's detector setting),
+  the CenterNet on ONNX Runtime when installed (``--runtime``) and on PyTorch beside it, 3
   warm-up runs, the ratio to tiny_kitti and the load average before and after.
 
 Usage: python bench/bench_detector.py [--checkpoint PT|NAME] [--synthetic ROOT:SEQ] [--threads 2]
@@ -147,7 +148,10 @@ def angle_errors(gt: dict, pred: dict) -> np.ndarray:
 def time_models(models: dict, runs: int = 20, warmup: int = 3) -> dict[str, float]:
     """Median seconds per 1242x375 frame (preprocessing + network + decoding) of each model,
     the runs interleaved (model A, model B, A, B, ...) so that they share the machine's load."""
-    dets = {k: CnnDetector(m, "cpu", score_threshold=0.3) for k, m in models.items()}
+    dets = {
+        k: m if isinstance(m, CnnDetector) else CnnDetector(m, "cpu", score_threshold=0.3)
+        for k, m in models.items()
+    }
     rgb = np.random.default_rng(0).integers(0, 255, (375, 1242, 3), dtype=np.uint8)
     for _ in range(warmup):
         for det in dets.values():
@@ -168,7 +172,15 @@ def main() -> None:
     p.add_argument("--checkpoint", default="", help="detector checkpoint ('' = shipped)")
     p.add_argument("--synthetic", help="held-out synthetic data ROOT:SEQ (default: generate)")
     p.add_argument("--frames", type=int, default=100, help="frames of the generated sequence")
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument(
+        "--threads", type=int, default=1, help="torch / ONNX Runtime threads (graph setting: 1)"
+    )
+    p.add_argument(
+        "--runtime",
+        default="auto",
+        choices=("auto", "torch", "onnxruntime"),
+        help="runtime of the checkpoint (auto: ONNX Runtime for CenterNet when installed)",
+    )
     p.add_argument("--score-threshold", type=float, default=0.05)
     p.add_argument("--skip-timing", action="store_true")
     p.add_argument("--skip-synthetic", action="store_true", help="real validation frames only")
@@ -189,11 +201,13 @@ def main() -> None:
         score_threshold=args.score_threshold,
         input_width=args.input_width,
         input_height=args.input_height,
+        runtime=args.runtime,
     )
     c = det.config
     print(
         f"checkpoint: {args.checkpoint or 'shipped'}: {c.size} (width {c.width}, depth "
-        f"{c.depth}), input {c.input_width}x{c.input_height}, torch threads {args.threads}"
+        f"{c.depth}), input {c.input_width}x{c.input_height}, runtime {det.runtime}, threads "
+        f"{args.threads}"
     )
     results = {}
     if args.skip_real:
@@ -223,16 +237,21 @@ def main() -> None:
     if not args.skip_timing:
         print(
             f"\n== inference time per 1242x375 frame (median of {args.runs}, runs interleaved, "
-            f"torch threads {args.threads}); load average before: "
+            f"threads {args.threads}); load average before: "
             f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}"
         )
-        models = {"checkpoint": det.model}
+        models = {f"checkpoint ({det.runtime})": det}
+        if det.runtime != "torch":
+            models["checkpoint (torch)"] = CnnDetector(det.model, "cpu", 0.3, runtime="torch")
         base, _ = load_checkpoint(BASELINE, "cpu")
         models["baseline tiny_kitti"] = base
         if args.with_full:
             models["full (1152x352, random weights)"] = YoloV2Passthrough(preset("full")).eval()
         t = time_models(models, runs=args.runs)
+        t["checkpoint"] = t[f"checkpoint ({det.runtime})"]
         for k, v in t.items():
+            if k == "checkpoint":
+                continue
             print(f"  {k:34s} {1000 * v:7.1f} ms  {1 / v:5.1f} fps")
         ratio = t["checkpoint"] / t["baseline tiny_kitti"]
         print(f"  checkpoint / tiny_kitti time ratio: {ratio:.2f} (same run)")

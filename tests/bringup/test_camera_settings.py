@@ -10,7 +10,10 @@ SHIPPED = (832, 256)  # the tiny YOLO checkpoint's input (the geometry tests bel
 
 
 def test_shipped_checkpoint_input():
-    assert checkpoint_input_size("") == (1024, 320)  # centernet_kitti.pt, the node's default
+    # centernet_kitti.pt, the node's default: 896x224 below the top 25 % = 896x298.7 for the
+    # whole image
+    w, h = checkpoint_input_size("")
+    assert w == 896 and abs(h - 224 / 0.75) < 1e-9
     assert checkpoint_input_size("tiny_kitti") == SHIPPED
 
 
@@ -19,6 +22,7 @@ def test_kitti_keeps_the_shipped_settings():
     assert camera_overrides(1242, 375, 721.5377, 0.5327, SHIPPED) == [
         "vehicle_detector.input_width:=832",
         "vehicle_detector.input_height:=256",
+        "vehicle_detector.roi_top:=0.0",
         "stereo_depth.num_disparities:=96",
     ]
 
@@ -30,7 +34,7 @@ def test_720p_short_baseline_camera():
     assert (w, h) == (896, 512)
     assert abs((w / 1280) / (h / 720) - 1.0) < 0.05
     assert (
-        camera_overrides(1280, 720, 700.0, 0.12, SHIPPED)[2] == "stereo_depth.num_disparities:=32"
+        camera_overrides(1280, 720, 700.0, 0.12, SHIPPED)[3] == "stereo_depth.num_disparities:=32"
     )
 
 

@@ -110,6 +110,10 @@ class CenterNetDetector(nn.Module):
             nn.Linear(ORIENTATION_HIDDEN, 2 * NUM_BINS + 1),
         )
         self.register_buffer("box_scale", torch.tensor(16.0))
+        #: (ax, bx, ay, by, log-aspect offset): the orientation head's box geometry for an
+        #: input other than the training's (see orientation_at); None = the input is the
+        #: training's framing (whole image at the checkpoint's input size)
+        self.geo_frame: tuple[float, float, float, float, float] | None = None
         with torch.no_grad():
             self.orientation[-1].weight.zero_()
             self.orientation[-1].bias.zero_()
@@ -152,11 +156,21 @@ class CenterNetDetector(nn.Module):
             out = F.grid_sample(f[i : i + 1], grid[sel][None], align_corners=False)
             sampled[sel] = out[0].permute(1, 0, 2)  # (1, C, Nb, P*P) -> (Nb, C, P*P)
         w, h = (x2 - x1).clamp(min=1), (y2 - y1).clamp(min=1)
+        # box geometry as in training: the whole image squashed to the checkpoint's input
+        # (normalised centre, log aspect ratio at the training's x / y scale); geo_frame maps
+        # another input size or a cropped region of interest onto it (CnnDetector sets it)
+        ax, bx, ay, by, aspect = self.geo_frame or (
+            1 / (STRIDE * gw),
+            0.0,
+            1 / (STRIDE * gh),
+            0.0,
+            0.0,
+        )
         geo = torch.stack(
             [
-                torch.log(w / h),
-                (x1 + x2) / (2 * STRIDE * gw) - 0.5,
-                (y1 + y2) / (2 * STRIDE * gh) - 0.5,
+                torch.log(w / h) + aspect,
+                (x1 + x2) / 2 * ax + bx - 0.5,
+                (y1 + y2) / 2 * ay + by - 0.5,
             ],
             dim=1,
         )
@@ -168,8 +182,10 @@ class CenterNetDetector(nn.Module):
         f = self.features(x)
         return self.raw_from_features(f)
 
-    def raw_from_features(self, f: torch.Tensor) -> torch.Tensor:
-        d = self.dense(f)
+    def raw_from_features(self, f: torch.Tensor, d: torch.Tensor | None = None) -> torch.Tensor:
+        """Raw output from the head feature (and its :meth:`dense` output when already
+        computed, as the ONNX Runtime backend does)."""
+        d = self.dense(f) if d is None else d
         b, _, gh, gw = d.shape
         _, idx = peaks(d, ORIENTATION_PEAKS)  # (B, K)
         k = idx.shape[1]

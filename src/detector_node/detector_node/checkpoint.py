@@ -93,5 +93,39 @@ def load_checkpoint(
     else:
         model = YoloV2Passthrough(config)
     model.load_state_dict(state["state_dict"])
+    if config.size == "centernet":
+        model.graph.fuse()  # the constants' values are known now
     model.to(device).eval()
     return model, state
+
+
+def set_inference_framing(
+    src: str | os.PathLike,
+    dst: str | os.PathLike,
+    input_width: int,
+    input_height: int,
+    roi_top: float,
+) -> None:
+    """Copy a CenterNet checkpoint with another inference framing: network input size and the
+    top fraction of the image left out (``DetectorConfig.roi_top``). The weights are unchanged;
+    the input size they were trained at is kept as ``training_input`` (the orientation head's
+    box geometry refers to it: ``CnnDetector._geo_frame``)."""
+    path = resolve_checkpoint(src)
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    config = DetectorConfig.from_dict(state["config"])
+    if config.size != "centernet":
+        raise ValueError(f"{path}: only CenterNet checkpoints are fully convolutional here")
+    state.setdefault("training_input", [config.input_width, config.input_height])
+    new = DetectorConfig.from_dict(
+        {
+            **config.to_dict(),
+            "input_width": input_width,
+            "input_height": input_height,
+            "roi_top": roi_top,
+        }
+    )
+    state["config"] = new.to_dict()
+    dst = Path(dst)
+    tmp = dst.with_suffix(dst.suffix + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, dst)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -101,8 +102,37 @@ def decode_output(
     return result
 
 
+RUNTIMES = ("auto", "torch", "onnxruntime")
+
+
+def resolve_runtime(runtime: str, config: DetectorConfig, device: torch.device) -> str:
+    """The inference runtime actually used: 'onnxruntime' runs the CenterNet's dense part on
+    ONNX Runtime (CPU; :mod:`detector_node.onnx_backend`), 'torch' everything in PyTorch.
+    'auto' = onnxruntime for a CenterNet checkpoint on the CPU when the packages are installed,
+    else torch. Raises ValueError for an unknown name or an impossible request."""
+    if runtime not in RUNTIMES:
+        raise ValueError(f"runtime must be one of {', '.join(RUNTIMES)}, got {runtime!r}")
+    if runtime == "torch":
+        return "torch"
+    from .onnx_backend import onnxruntime_available
+
+    possible = config.size == "centernet" and device.type == "cpu"
+    if runtime == "auto":
+        return "onnxruntime" if possible and onnxruntime_available() else "torch"
+    if not possible:
+        raise ValueError(
+            "runtime 'onnxruntime' needs a CenterNet checkpoint on the CPU "
+            f"(got {config.size} on {device.type})"
+        )
+    if not onnxruntime_available():
+        raise ValueError("runtime 'onnxruntime': the onnx / onnxruntime packages are not installed")
+    return "onnxruntime"
+
+
 class CnnDetector:
-    """The CNN backend: a model from a checkpoint plus its input size."""
+    """The CNN backend: a model from a checkpoint plus its input size and inference runtime
+    (``runtime``: see :func:`resolve_runtime`; ``threads``: the ONNX Runtime session's intra-op
+    threads, default torch's current count)."""
 
     def __init__(
         self,
@@ -110,12 +140,33 @@ class CnnDetector:
         device: torch.device | str = "cpu",
         score_threshold: float = 0.3,
         nms_iou: float = 0.45,
+        runtime: str = "auto",
+        threads: int | None = None,
+        roi_top: float | None = None,
     ) -> None:
+        roi_top = model.config.roi_top if roi_top is None or roi_top < 0 else roi_top
+        if not 0.0 <= roi_top < 0.9:
+            raise ValueError(
+                f"roi_top must be in [0, 0.9) (or < 0: the checkpoint's), got {roi_top}"
+            )
+        #: fraction of the image height at the top that is not searched (see :meth:`detect`;
+        #: default the checkpoint's)
+        self.roi_top = float(roi_top)
         self.device = torch.device(device)
         self.model = model.to(self.device).eval()
         self.config = model.config
         self.score_threshold = score_threshold
         self.nms_iou = nms_iou
+        #: the input size the checkpoint was trained at (from_checkpoint keeps it when the
+        #: input size is overridden)
+        self._training_input = (self.config.input_width, self.config.input_height)
+        #: the runtime in use: 'torch' or 'onnxruntime'
+        self.runtime = resolve_runtime(runtime, self.config, self.device)
+        self._network = self.model
+        if self.runtime == "onnxruntime":
+            from .onnx_backend import OnnxCenterNet
+
+            self._network = OnnxCenterNet(self.model, threads)
         #: with an overridden input size: (anchors of the checkpoint, its input px per image
         #: px in training); the anchors then follow each image's scale (see from_checkpoint)
         self._anchor_reference: tuple[tuple, tuple[float, float]] | None = None
@@ -130,6 +181,9 @@ class CnnDetector:
         nms_iou: float = 0.45,
         input_width: int = 0,
         input_height: int = 0,
+        runtime: str = "auto",
+        threads: int | None = None,
+        roi_top: float | None = None,
     ) -> CnnDetector:
         """Load ``path`` ('' = the shipped checkpoint); a non-zero input size overrides the
         checkpoint's (multiples of 32; the network is fully convolutional). With an overridden
@@ -138,7 +192,11 @@ class CnnDetector:
         size ratio, as before; for another camera (1280x720 at 896x512) the anchors stay at the
         cars' pixel size instead of being stretched with the input's other aspect ratio."""
         dev = choose_device(device)
-        model, _ = load_checkpoint(path or SHIPPED_CHECKPOINT, dev)
+        model, state = load_checkpoint(path or SHIPPED_CHECKPOINT, dev)
+        # the input size the weights were trained at (a checkpoint whose inference input was
+        # changed afterwards keeps it as "training_input")
+        trained = (model.config.input_width, model.config.input_height)
+        trained = tuple(int(v) for v in state.get("training_input", trained))
         reference = None
         if input_width or input_height:
             c = model.config
@@ -157,8 +215,9 @@ class CnnDetector:
                 }
             )
             model.config = cfg
-        detector = cls(model, dev, score_threshold, nms_iou)
+        detector = cls(model, dev, score_threshold, nms_iou, runtime, threads, roi_top)
         detector._anchor_reference = reference
+        detector._training_input = trained
         return detector
 
     def config_for(self, scale: tuple[float, float]) -> DetectorConfig:
@@ -174,10 +233,35 @@ class CnnDetector:
             )
         return self._scaled_configs[key]
 
+    def _geo_frame(self, width: int, height: int, top: int, scale: tuple[float, float]):
+        """The CenterNet orientation head's box-geometry map (centernet.orientation_at) from
+        this input (image of ``width`` x ``height`` px, ``top`` rows left out, resized by
+        ``scale``) to its training framing (the whole image at the checkpoint's input size):
+        centre x / width, (centre y + top) / height, aspect ratio at the training's x / y
+        scale. None when the two framings are the same."""
+        tw, th = self._training_input
+        if top == 0 and (self.config.input_width, self.config.input_height) == (tw, th):
+            return None
+        sx, sy = scale
+        aspect = math.log((tw / width) / (th / height)) - math.log(sx / sy)
+        return (1.0 / (sx * width), 0.0, 1.0 / (sy * height), top / height, aspect)
+
     @torch.no_grad()
     def detect(self, rgb: np.ndarray) -> list[Detection]:
-        """Detections in an RGB uint8 image (H, W, 3), boxes in its pixels."""
-        img, scale = resize_image(rgb, self.config.input_width, self.config.input_height)
-        raw = self.model(to_tensor([img], self.device))
+        """Detections in an RGB uint8 image (H, W, 3), boxes in its pixels.
+
+        With ``roi_top`` > 0 the image's top rows (that fraction of its height, above the
+        region where vehicles are sought) are left out before the resize to the network input,
+        and the boxes are shifted back to the full image."""
+        top = int(round(self.roi_top * rgb.shape[0]))
+        img, scale = resize_image(rgb[top:], self.config.input_width, self.config.input_height)
+        if hasattr(self.model, "geo_frame"):
+            self.model.geo_frame = self._geo_frame(rgb.shape[1], rgb.shape[0], top, scale)
+        raw = self._network(to_tensor([img], self.device))
         config = self.config_for(scale)
-        return decode_output(raw, config, self.score_threshold, self.nms_iou, scale)[0]
+        dets = decode_output(raw, config, self.score_threshold, self.nms_iou, scale)[0]
+        if top:
+            for d in dets:
+                x1, y1, x2, y2 = d.box
+                d.box = (x1, y1 + top, x2, y2 + top)
+        return dets

@@ -54,8 +54,13 @@ class DetectorConfig:
     input_width: int = 640
     anchors: tuple[tuple[float, float], ...] = field(default=())
     positive_types: tuple[str, ...] = ("Car", "Van")
+    #: fraction of the image height at the top left out before the resize to the input (the
+    #: region above where vehicles are sought; inference.CnnDetector.detect): 0 = whole image
+    roi_top: float = 0.0
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.roi_top < 0.9:
+            raise ValueError(f"roi_top {self.roi_top} must be in [0, 0.9)")
         if self.input_height % 32 or self.input_width % 32:
             raise ValueError(
                 f"input size {self.input_width}x{self.input_height} must be multiples of 32"

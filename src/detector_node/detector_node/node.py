@@ -47,7 +47,13 @@ class DetectorParameters:
     # [px] network input; 0 = the checkpoint's; the network's stride is 32
     input_width: int = param(0, low=0, multiple_of=32)
     input_height: int = param(0, low=0, multiple_of=32)
-    num_threads: int = param(2, low=1)  # torch CPU threads
+    num_threads: int = param(2, low=1)  # torch / ONNX Runtime CPU threads
+    # inference runtime: auto (ONNX Runtime for a CenterNet checkpoint on the CPU when the
+    # onnx / onnxruntime packages are installed, else PyTorch) | torch | onnxruntime
+    runtime: str = param("auto", choices=("auto", "torch", "onnxruntime"))
+    # fraction of the image height at the top not searched (above where vehicles are);
+    # < 0 = the checkpoint's (0.25 for the shipped CenterNet, 0 for tiny_kitti)
+    roi_top: float = param(-1.0, low=-1.0, high=0.8)
     # newest images kept waiting while one is detected (1: latest-frame policy; the launchers
     # set it to the player's lockstep_window in lockstep so that nothing is skipped)
     frame_queue: int = param(1, low=1)
@@ -83,11 +89,16 @@ class VehicleDetectorNode(Node):
                 p.nms_iou,
                 p.input_width,
                 p.input_height,
+                runtime=p.runtime,
+                threads=p.num_threads,
+                roi_top=p.roi_top,
             )
             c = self.cnn.config
             self.get_logger().info(
                 f"cnn backend: {c.size} model (width {c.width}, depth {c.depth}), input "
-                f"{c.input_width}x{c.input_height}, device {self.cnn.device}"
+                f"{c.input_width}x{c.input_height}, region of interest below the top "
+                f"{100 * self.cnn.roi_top:.0f} %, device {self.cnn.device}, runtime "
+                f"{self.cnn.runtime}"
             )
             # the first inference's set-up cost is paid here, before the graph is ready
             self.cnn.detect(np.zeros((c.input_height, c.input_width, 3), np.uint8))

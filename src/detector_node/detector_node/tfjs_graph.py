@@ -239,7 +239,15 @@ class TfjsGraph(nn.Module):
         for name, op, _, _ in self.ops:
             if op not in _SIMPLE and op not in _BINARY and op not in _CONVS and op not in other:
                 raise TfjsGraphError(f"node {name}: op {op} not supported")
+        self.fuse()
+
+    def fuse(self) -> None:
+        """Peephole fusions that read constant values (:meth:`_fuse_hard_swish`,
+        :meth:`_fuse_hard_sigmoid`). Run at construction, and again after weights are loaded
+        into a graph built with zero constants (a checkpoint): then the constants' values were
+        not known at construction. Idempotent; the parameters are untouched."""
         self._fuse_hard_swish()
+        self._fuse_hard_sigmoid()
 
     def _scalar(self, name: str) -> float | None:
         """Value of a scalar float constant, else None."""
@@ -281,6 +289,40 @@ class TfjsGraph(nn.Module):
             if any(uses.get(n, 0) != 1 or n in self.outputs for n in inner):
                 continue
             fused[name] = (name, "_HardSwish", [x[0]], {"scale": 6.0 * scale})
+            dropped.update(inner)
+        self.ops = [fused.get(o[0], o) for o in self.ops if o[0] not in dropped]
+
+    def _fuse_hard_sigmoid(self) -> None:
+        """Peephole: ``Mul(c, Relu6(Add(y, 3)))`` with c ~ 1/6 (the hard sigmoid of
+        MobileNetV3's squeeze-excite gates, 3 element-wise passes) -> ``hardsigmoid(y) * 6c``
+        when the intermediate results are used nowhere else."""
+        by_name = {o[0]: o for o in self.ops}
+        uses: dict[str, int] = {}
+        for _, _, inputs, _ in self.ops:
+            for i in inputs:
+                uses[i] = uses.get(i, 0) + 1
+        dropped: set[str] = set()
+        fused: dict[str, tuple] = {}
+        for name, op, inputs, _node in self.ops:
+            if op != "Mul" or len(inputs) != 2:
+                continue
+            c = [self._scalar(i) for i in inputs]
+            r = [by_name.get(i) for i in inputs]
+            j = next((k for k in (0, 1) if r[k] is not None and r[k][1] == "Relu6"), None)
+            # 1/6 as stored (float16: 0.16663 -> a gate of at most 0.99976, kept exactly)
+            if j is None or c[1 - j] is None or abs(6.0 * c[1 - j] - 1.0) > 1e-3:
+                continue
+            add = by_name.get(r[j][2][0])
+            if add is None or add[1] not in ("Add", "AddV2"):
+                continue
+            three = [self._scalar(i) for i in add[2]]
+            y = [i for i, v in zip(add[2], three, strict=True) if v is None]
+            if len(y) != 1 or 3.0 not in three:
+                continue
+            inner = (r[j][0], add[0])
+            if any(uses.get(n, 0) != 1 or n in self.outputs for n in inner):
+                continue
+            fused[name] = (name, "_HardSigmoid", [y[0]], {"scale": 6.0 * c[1 - j]})
             dropped.update(inner)
         self.ops = [fused.get(o[0], o) for o in self.ops if o[0] not in dropped]
 
@@ -344,6 +386,9 @@ class TfjsGraph(nn.Module):
             elif op == "_HardSwish":
                 y = F.hardswish(self._value(env, inputs[0]))
                 env[name] = y if node["scale"] == 1.0 else y * node["scale"]
+            elif op == "_HardSigmoid":
+                y = F.hardsigmoid(self._value(env, inputs[0]))
+                env[name] = y if node["scale"] == 1.0 else y * node["scale"]
             elif op in _SIMPLE:
                 env[name] = _SIMPLE[op](self._value(env, inputs[0]))
             elif op in _BINARY:
@@ -376,7 +421,9 @@ class TfjsGraph(nn.Module):
                     raise TfjsGraphError(f"node {name}: constant resize without an input size")
                 scale = scales[name]
                 env[name] = resize_bilinear_legacy(
-                    v, round(int(v.shape[2]) * float(scale[0])), round(int(v.shape[3]) * float(scale[1]))
+                    v,
+                    round(int(v.shape[2]) * float(scale[0])),
+                    round(int(v.shape[3]) * float(scale[1])),
                 )
         return {o: env[o.split(":")[0]] for o in self.outputs}
 

@@ -2,7 +2,8 @@
 
 Two things in the graph are not read from CameraInfo at run time and must fit the camera:
 - the CNN's input size (``vehicle_detector.input_width`` / ``input_height``; 0 = the
-  checkpoint's, 832x256 for the shipped one, trained on KITTI's 1242x375 at fx 721.5 px): the
+  checkpoint's, 896x224 below the top 25 % of the image for the shipped one, whose weights
+  were trained on KITTI's 1242x375 at fx 721.5 px): the
   image is resized to it, so another aspect ratio is squeezed and another focal length shows the
   cars at another size than in training. :func:`detector_input_size` keeps the training's pixels
   per metre in both directions (the detector then keeps its anchors at that scale:
@@ -28,12 +29,17 @@ def _round32(v: float) -> int:
     return max(32, int(round(v / 32.0)) * 32)
 
 
-def checkpoint_input_size(checkpoint: str = "") -> tuple[int, int]:
-    """The network input (width, height) of a detector checkpoint ("" = the shipped one)."""
+def checkpoint_input_size(checkpoint: str = "") -> tuple[float, float]:
+    """The network input (width, height) of a detector checkpoint ("" = the shipped one) as
+    the whole KITTI image's: a checkpoint that leaves the top ``roi_top`` of the image out
+    (the shipped CenterNet: 896x224 below the top 25 %) shows the image at 224 / 0.75 px of
+    height per 375, which is what another camera's whole image is scaled by (it is not
+    cropped: camera_overrides sets roi_top 0, its horizon is not KITTI's)."""
     from detector_node.checkpoint import SHIPPED_CHECKPOINT, load_checkpoint
 
     model, _ = load_checkpoint(checkpoint or SHIPPED_CHECKPOINT, "cpu")
-    return model.config.input_width, model.config.input_height
+    c = model.config
+    return c.input_width, c.input_height / (1.0 - c.roi_top)
 
 
 def detector_input_size(
@@ -61,5 +67,6 @@ def camera_overrides(
     return [
         f"vehicle_detector.input_width:={w}",
         f"vehicle_detector.input_height:={h}",
+        "vehicle_detector.roi_top:=0.0",
         f"stereo_depth.num_disparities:={num_disparities_for(fx, baseline, min_depth)}",
     ]

@@ -1,0 +1,347 @@
+"""ONNX Runtime inference of the CenterNet detector (an optional, faster CPU backend).
+
+The PyTorch module (:class:`~detector_node.centernet.CenterNetDetector`) stays the model: it is
+what is trained, saved and loaded. For inference its dense part -- the TF.js graph up to the
+head feature plus the ``heat`` and ``box`` heads -- is written as an ONNX graph with the
+module's current weights (:func:`centernet_to_onnx`) and run by ONNX Runtime; the sparse part
+(peaks, the orientation head at the peaks) stays in PyTorch
+(:meth:`CenterNetDetector.raw_from_features`), so both backends produce the same raw output.
+
+The ONNX graph is written op by op from the TF.js op list, not traced from PyTorch, so that
+TensorFlow's semantics map onto single ONNX ops that ONNX Runtime fuses and runs in its blocked
+(NCHWc) layout:
+
+- SAME padding with an odd total (stride-2 convolutions, max pooling) becomes the operator's own
+  asymmetric ``pads`` (PyTorch has no asymmetric padding: it needs a separate pad, a copy);
+- legacy ``ResizeBilinear`` (no half-pixel centres, no corner alignment: output pixel i samples
+  input i * in / out, clamped) is ONNX ``Resize`` linear with ``asymmetric`` coordinates;
+- MobileNetV3's hard-swish is ``HardSwish`` (times the graph's scale when it is not 1).
+
+Shapes are static: one graph per input size (the detector's input size is fixed per run).
+Parity with the PyTorch module is tested (``tests/detector/test_onnx_backend.py``).
+
+Needs the ``onnx`` and ``onnxruntime`` packages (installed by ``scripts/setup.sh``); without
+them :func:`onnxruntime_available` is False and the detector uses PyTorch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from . import tfjs_graph as tg
+
+HARD_SWISH = "HardSwish"
+#: names of the ONNX graph's input and outputs
+INPUT, FEATURE_OUT, DENSE_OUT = "image", "feature", "dense"
+
+
+def onnxruntime_available() -> bool:
+    """True when both ``onnx`` (to write the graph) and ``onnxruntime`` import."""
+    try:
+        import onnx  # noqa: F401
+        import onnxruntime  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+class _Writer:
+    """Collects ONNX nodes and initializers with unique names."""
+
+    def __init__(self) -> None:
+        from onnx import helper, numpy_helper
+
+        self.helper, self.numpy_helper = helper, numpy_helper
+        self.nodes: list = []
+        self.inits: list = []
+        self._n = 0
+
+    def const(self, value: np.ndarray | torch.Tensor, hint: str = "c") -> str:
+        arr = value.detach().cpu().numpy() if isinstance(value, torch.Tensor) else value
+        self._n += 1
+        name = f"{hint}__{self._n}"
+        self.inits.append(self.numpy_helper.from_array(np.ascontiguousarray(arr), name))
+        return name
+
+    def op(self, op_type: str, inputs: list[str], hint: str, **attrs) -> str:
+        self._n += 1
+        out = f"{hint}__{self._n}"
+        self.nodes.append(self.helper.make_node(op_type, inputs, [out], **attrs))
+        return out
+
+
+def _pads(h: int, w: int, k: tuple[int, int], s: tuple[int, int], d: tuple[int, int], same: bool):
+    """ONNX pads [top, left, bottom, right] and the output size of a window op."""
+    if not same:
+        oh = (h - (k[0] - 1) * d[0] - 1) // s[0] + 1
+        ow = (w - (k[1] - 1) * d[1] - 1) // s[1] + 1
+        return [0, 0, 0, 0], (oh, ow)
+    ph = tg._same_pad(h, k[0], s[0], d[0])
+    pw = tg._same_pad(w, k[1], s[1], d[1])
+    return [ph[0], pw[0], ph[1], pw[1]], (-(-h // s[0]), -(-w // s[1]))
+
+
+def centernet_to_onnx(model, height: int, width: int) -> bytes:
+    """Serialized ONNX model of ``model``'s dense part at input (1, 3, height, width).
+
+    Input ``image``: RGB in [0, 1], float32 NCHW. Outputs ``feature`` (1, 128, H/4, W/4): the
+    graph's head feature; ``dense`` (1, 5, H/4, W/4): heat logit and (l, t, r, b) [input px],
+    as :meth:`CenterNetDetector.dense`. Raises :class:`~detector_node.tfjs_graph.TfjsGraphError`
+    for an op it cannot write."""
+    from onnx import TensorProto, helper
+
+    from .centernet import FEATURE
+
+    g: tg.TfjsGraph = model.graph
+    wr = _Writer()
+    scales = g._resize_scales()
+    # value name -> (onnx name, (H, W))
+    env: dict[str, tuple[str, tuple[int, int]]] = {}
+    x = wr.op("Mul", [INPUT, wr.const(np.array(255.0, np.float32))], "scaled")
+    env[g.input_name] = (x, (height, width))
+
+    def val(name: str) -> tuple[str, tuple[int, int] | None]:
+        if name in env:
+            return env[name]
+        if tg._key(name) in g.params:
+            return wr.const(g.params[tg._key(name)].float(), "w"), None
+        if name in g.const_names:
+            t = getattr(g, g.const_names[name])
+            if t.dtype.is_floating_point:
+                t = t.float()
+            return wr.const(t, "k"), None
+        raise tg.TfjsGraphError(f"node {name}: value not available")
+
+    def hw_of(inputs: list[str]) -> tuple[int, int]:
+        shapes = [env[i][1] for i in inputs if i in env]
+        return max(shapes)
+
+    for name, op, inputs, node in g.ops:
+        if op in tg._CONVS:
+            xin, (h, w) = env[inputs[0]]
+            wt = g._value({}, inputs[1])
+            s = tg._attr(node, "strides", [1, 1, 1, 1])[1:3]
+            d = tg._attr(node, "dilations", [1, 1, 1, 1])[1:3]
+            k = (int(wt.shape[2]), int(wt.shape[3]))
+            padding = tg._attr(node, "padding", "VALID")
+            if padding not in ("SAME", "VALID"):
+                raise tg.TfjsGraphError(f"node {name}: padding {padding} not supported")
+            pads, out_hw = _pads(h, w, k, tuple(s), tuple(d), padding == "SAME")
+            fused = tg._attr(node, "fused_ops", []) if "Fused" in op else []
+            ins = [xin, val(inputs[1])[0]]
+            if fused and fused[0] == "BiasAdd":
+                ins.append(val(inputs[2])[0])
+                fused = fused[1:]
+            groups = int(wt.shape[0]) if "Depthwise" in op else 1
+            y = wr.op(
+                "Conv",
+                ins,
+                "conv",
+                kernel_shape=list(k),
+                strides=list(s),
+                dilations=list(d),
+                pads=pads,
+                group=groups,
+            )
+            for f in fused:
+                if f == "Relu":
+                    y = wr.op("Relu", [y], "relu")
+                elif f == "Relu6":
+                    y = wr.op(
+                        "Clip", [y, wr.const(np.float32(0)), wr.const(np.float32(6))], "relu6"
+                    )
+                else:
+                    raise tg.TfjsGraphError(f"node {name}: fused activation {f} not supported")
+            env[name] = (y, out_hw)
+        elif op == "_HardSwish":
+            xin, hw = env[inputs[0]]
+            if HARD_SWISH == "HardSwish":
+                y = wr.op("HardSwish", [xin], "hswish")
+            else:
+                gate = wr.op("HardSigmoid", [xin], "hsig", alpha=1.0 / 6.0, beta=0.5)
+                y = wr.op("Mul", [xin, gate], "hswish")
+            if node["scale"] != 1.0:
+                y = wr.op("Mul", [y, wr.const(np.array(node["scale"], np.float32))], "hscale")
+            env[name] = (y, hw)
+        elif op == "_HardSigmoid":
+            xin, hw = env[inputs[0]]
+            y = wr.op("HardSigmoid", [xin], "hsig", alpha=1.0 / 6.0, beta=0.5)
+            if node["scale"] != 1.0:
+                y = wr.op("Mul", [y, wr.const(np.array(node["scale"], np.float32))], "hsscale")
+            env[name] = (y, hw)
+        elif op in ("Relu", "Sigmoid", "Identity"):
+            xin, hw = env[inputs[0]]
+            env[name] = (wr.op(op, [xin], op.lower()), hw)
+        elif op == "Relu6":
+            xin, hw = env[inputs[0]]
+            y = wr.op("Clip", [xin, wr.const(np.float32(0)), wr.const(np.float32(6))], "relu6")
+            env[name] = (y, hw)
+        elif op in tg._BINARY:
+            onnx_op = {"Add": "Add", "AddV2": "Add", "Sub": "Sub", "Mul": "Mul"}[op]
+            a, b = val(inputs[0])[0], val(inputs[1])[0]
+            env[name] = (wr.op(onnx_op, [a, b], onnx_op.lower()), hw_of(inputs))
+        elif op == "Mean":
+            axes = sorted(int(a) % 4 for a in np.atleast_1d(g._value({}, inputs[1]).cpu()))
+            if axes != [1, 2]:
+                raise tg.TfjsGraphError(f"node {name}: Mean over axes {axes} not supported")
+            if tg._attr(node, "keep_dims", False):  # (blocked-layout capable)
+                y = wr.op("GlobalAveragePool", [env[inputs[0]][0]], "mean")
+            else:
+                y = wr.op("ReduceMean", [env[inputs[0]][0]], "mean", axes=[2, 3], keepdims=0)
+            env[name] = (y, (1, 1))
+        elif op == "ConcatV2":
+            axis = int(g._value({}, inputs[-1]))
+            if axis not in (3, -1):
+                raise tg.TfjsGraphError(f"node {name}: concat on axis {axis} not supported")
+            parts = [val(i)[0] for i in inputs[:-1]]
+            env[name] = (wr.op("Concat", parts, "concat", axis=1), hw_of(inputs[:-1]))
+        elif op == "MaxPool":
+            xin, (h, w) = env[inputs[0]]
+            k = tg._attr(node, "ksize")[1:3]
+            s = tg._attr(node, "strides")[1:3]
+            pads, out_hw = _pads(
+                h, w, tuple(k), tuple(s), (1, 1), tg._attr(node, "padding") == "SAME"
+            )
+            y = wr.op("MaxPool", [xin], "maxpool", kernel_shape=k, strides=s, pads=pads)
+            env[name] = (y, out_hw)
+        elif op == "ResizeBilinear":
+            if tg._attr(node, "align_corners", False) or tg._attr(
+                node, "half_pixel_centers", False
+            ):
+                raise tg.TfjsGraphError(f"node {name}: only legacy bilinear sampling supported")
+            xin, (h, w) = env[inputs[0]]
+            if name not in scales:
+                raise tg.TfjsGraphError(f"node {name}: constant resize without an input size")
+            sh, sw = scales[name]
+            out_hw = (round(h * sh), round(w * sw))
+            channels = _channels(g, inputs[0])
+            sizes = wr.const(np.array([1, channels, *out_hw], np.int64), "sizes")
+            y = wr.op(
+                "Resize",
+                [xin, "", "", sizes],
+                "resize",
+                mode="linear",
+                coordinate_transformation_mode="asymmetric",
+            )
+            env[name] = (y, out_hw)
+        else:
+            raise tg.TfjsGraphError(f"node {name}: op {op} not supported")
+
+    feature, _ = env[FEATURE]
+    for n in wr.nodes:  # the feature is an output under its own name (no copy)
+        n.input[:] = [FEATURE_OUT if i == feature else i for i in n.input]
+        n.output[:] = [FEATURE_OUT if o == feature else o for o in n.output]
+    feature = FEATURE_OUT
+    heads = []
+    for head, scale in ((model.heat, None), (model.box, model.box_scale)):
+        dw = head.depthwise.weight
+        y = wr.op(
+            "Conv",
+            [feature, wr.const(dw.float(), "dw")],
+            "head_dw",
+            kernel_shape=[3, 3],
+            pads=[1, 1, 1, 1],
+            group=int(dw.shape[0]),
+        )
+        y = wr.op(
+            "Conv",
+            [
+                y,
+                wr.const(head.pointwise.weight.float(), "pw"),
+                wr.const(head.pointwise.bias.float()),
+            ],
+            "head_pw",
+            kernel_shape=[1, 1],
+        )
+        if scale is not None:
+            y = wr.op("Mul", [y, wr.const(scale.float().reshape(()), "box_scale")], "box_scaled")
+        heads.append(y)
+    wr.nodes.append(helper.make_node("Concat", heads, [DENSE_OUT], axis=1))
+    gh, gw = -(-height // 4), -(-width // 4)
+    graph = helper.make_graph(
+        wr.nodes,
+        "centernet_dense",
+        [helper.make_tensor_value_info(INPUT, TensorProto.FLOAT, [1, 3, height, width])],
+        [
+            helper.make_tensor_value_info(FEATURE_OUT, TensorProto.FLOAT, [1, 128, gh, gw]),
+            helper.make_tensor_value_info(DENSE_OUT, TensorProto.FLOAT, [1, 5, gh, gw]),
+        ],
+        wr.inits,
+    )
+    m = helper.make_model(
+        graph, opset_imports=[helper.make_opsetid("", 17)], producer_name="detector_node"
+    )
+    m.ir_version = 8
+    return m.SerializeToString()
+
+
+def _channels(g: tg.TfjsGraph, name: str) -> int:
+    """Channel count of a value of the graph (from the filters and concatenations before it)."""
+    by_name = {o[0]: o for o in g.ops}
+    memo: dict[str, int] = {}
+
+    def ch(n: str) -> int:
+        if n in memo:
+            return memo[n]
+        if n not in by_name:
+            raise tg.TfjsGraphError(f"node {n}: channel count unknown")
+        _, op, inputs, _ = by_name[n]
+        if op in tg._CONVS:
+            w = g._value({}, inputs[1])
+            c = int(w.shape[0])
+        elif op == "ConcatV2":
+            c = sum(ch(i) for i in inputs[:-1])
+        else:
+            c = max(ch(i) for i in inputs if i in by_name)
+        memo[n] = c
+        return c
+
+    return ch(name)
+
+
+class OnnxCenterNet:
+    """The CenterNet's dense part on ONNX Runtime, the sparse part on the PyTorch module.
+
+    ``runner(x)`` takes (1, 3, H, W) RGB in [0, 1] (a torch tensor) and returns the raw output of
+    ``model(x)``. One ONNX Runtime session per input size, built on first use with
+    ``threads`` intra-op threads (default: torch's current count, i.e. the node's
+    ``num_threads``)."""
+
+    def __init__(self, model, threads: int | None = None) -> None:
+        if not onnxruntime_available():
+            raise RuntimeError("onnxruntime backend: the onnx / onnxruntime packages are missing")
+        self.model = model
+        self.threads = threads or torch.get_num_threads()
+        self._sessions: dict[tuple[int, int], object] = {}
+
+    def session(self, height: int, width: int):
+        key = (height, width)
+        if key not in self._sessions:
+            import onnxruntime as ort
+
+            so = ort.SessionOptions()
+            so.intra_op_num_threads = self.threads
+            so.inter_op_num_threads = 1
+            so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+            so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+            so.log_severity_level = 3
+            self._sessions[key] = ort.InferenceSession(
+                centernet_to_onnx(self.model, height, width),
+                so,
+                providers=["CPUExecutionProvider"],
+            )
+        return self._sessions[key]
+
+    def dense(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(feature, dense) of a (1, 3, H, W) batch, as torch tensors."""
+        if x.shape[0] != 1:
+            raise ValueError("onnxruntime backend: one image at a time")
+        s = self.session(int(x.shape[2]), int(x.shape[3]))
+        f, d = s.run(None, {INPUT: np.ascontiguousarray(x.detach().cpu().numpy(), np.float32)})
+        return torch.from_numpy(f), torch.from_numpy(d)
+
+    @torch.no_grad()
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        f, d = self.dense(x)
+        return self.model.raw_from_features(f, d)

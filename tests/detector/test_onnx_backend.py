@@ -1,0 +1,163 @@
+"""The CenterNet's ONNX Runtime backend, the graph's peephole fusions, the region of interest
+and the orientation head's box geometry under another framing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from detector_node.centernet import CenterNetDetector
+from detector_node.checkpoint import load_checkpoint, set_inference_framing
+from detector_node.inference import CnnDetector, resolve_runtime
+from detector_node.model import DetectorConfig, preset
+from detector_node.onnx_backend import onnxruntime_available
+
+needs_ort = pytest.mark.skipif(not onnxruntime_available(), reason="onnxruntime not installed")
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    torch.manual_seed(0)
+    model, state = load_checkpoint("centernet_kitti", "cpu")
+    return model, state
+
+
+def _unfused(state) -> CenterNetDetector:
+    """The shipped weights in a graph built with zero constants and never fused."""
+    import json
+
+    config = DetectorConfig.from_dict(state["config"])
+    m = CenterNetDetector(config, json.loads(state["graph"]), None)
+    m.load_state_dict(state["state_dict"])
+    return m.eval()
+
+
+def test_fusions_apply_after_loading_and_keep_the_output(shipped):
+    model, state = shipped
+    ops = [o[1] for o in model.graph.ops]
+    # MobileNetV3: hard-swish activations and the squeeze-excite gates' hard sigmoids
+    assert ops.count("_HardSwish") >= 10 and ops.count("_HardSigmoid") >= 5
+    plain = _unfused(state)
+    assert "_HardSwish" not in [o[1] for o in plain.graph.ops]
+    x = torch.rand(1, 3, 96, 160, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        a, b = model.features(x), plain.features(x)
+    assert torch.allclose(a, b, atol=1e-4, rtol=1e-4)
+
+
+@needs_ort
+@pytest.mark.parametrize("hw", [(96, 160), (128, 224)])
+def test_onnx_runtime_matches_the_torch_module(shipped, hw):
+    """Feature, dense heads and the whole raw output (orientation at the peaks included) agree
+    with PyTorch, at sizes where TensorFlow's SAME padding is asymmetric (stride 2 on even
+    sides) and the legacy 2x bilinear upsampling is exercised."""
+    from detector_node.onnx_backend import OnnxCenterNet
+
+    model, _ = shipped
+    x = torch.rand(1, 3, *hw, generator=torch.Generator().manual_seed(2))
+    runner = OnnxCenterNet(model, threads=1)
+    with torch.no_grad():
+        f_ref = model.features(x)
+        d_ref = model.dense(f_ref)
+        raw_ref = model(x)
+    f, d = runner.dense(x)
+    assert f.shape == f_ref.shape and d.shape == d_ref.shape
+    assert torch.allclose(f, f_ref, atol=1e-4, rtol=1e-4)
+    assert torch.allclose(d, d_ref, atol=2e-3, rtol=1e-4)  # box distances are x16 px
+    raw = runner(x)
+    assert torch.allclose(raw, raw_ref, atol=2e-3, rtol=1e-3)
+
+
+def test_runtime_resolution():
+    cpu = torch.device("cpu")
+    centernet, tiny = preset("centernet"), preset("tiny")
+    assert resolve_runtime("torch", centernet, cpu) == "torch"
+    assert resolve_runtime("auto", tiny, cpu) == "torch"
+    expected = "onnxruntime" if onnxruntime_available() else "torch"
+    assert resolve_runtime("auto", centernet, cpu) == expected
+    with pytest.raises(ValueError, match="runtime must be one of"):
+        resolve_runtime("tensorrt", centernet, cpu)
+    with pytest.raises(ValueError, match="needs a CenterNet"):
+        resolve_runtime("onnxruntime", tiny, cpu)
+
+
+@needs_ort
+def test_both_runtimes_give_the_same_detections():
+    rgb = np.random.default_rng(3).integers(0, 255, (375, 1242, 3), dtype=np.uint8)
+    rgb[200:300, 400:600] = (40, 40, 60)  # something box-like
+    a = CnnDetector.from_checkpoint("centernet_kitti", "cpu", 0.05, runtime="onnxruntime")
+    b = CnnDetector.from_checkpoint("centernet_kitti", "cpu", 0.05, runtime="torch")
+    da, db = a.detect(rgb), b.detect(rgb)
+    assert len(da) == len(db)
+    for p, q in zip(da, db, strict=True):
+        assert np.allclose(p.box, q.box, atol=0.05) and abs(p.score - q.score) < 1e-3
+        assert p.orientation_bin == q.orientation_bin
+
+
+def test_roi_top_leaves_the_top_out_and_shifts_the_boxes_back(shared_kitti):
+    from vehicle_common.kitti import read_png
+
+    rgb = read_png(shared_kitti / "tracking/training/image_02/0005/000000.png")
+    full = CnnDetector.from_checkpoint("centernet_kitti", "cpu", 0.3, runtime="torch")
+    assert full.roi_top == 0.25  # the shipped checkpoint's framing
+    top = round(0.25 * rgb.shape[0])
+    cropped = CnnDetector.from_checkpoint(
+        "centernet_kitti", "cpu", 0.3, runtime="torch", roi_top=0.0
+    )
+    a = full.detect(rgb)
+    b = cropped.detect(np.ascontiguousarray(rgb[top:]))
+    assert len(a) == len(b) > 0
+    for p, q in zip(a, b, strict=True):
+        assert np.allclose(p.box, (q.box[0], q.box[1] + top, q.box[2], q.box[3] + top), atol=1e-3)
+        assert p.box[1] >= top - 1e-6
+        assert abs(p.score - q.score) < 1e-6
+
+
+def test_geo_frame_maps_a_cropped_resized_input_onto_the_training_framing():
+    """The orientation head's box features (log aspect, normalised centre) of a box are those
+    it had in training (whole 1242x375 image at 1024x320), whatever the input framing."""
+    det = CnnDetector.from_checkpoint("centernet_kitti", "cpu", runtime="torch")
+    assert det._training_input == (1024, 320)
+    W, H = 1242, 375
+    box = np.array([500.0, 180.0, 620.0, 240.0])  # original px
+    # training framing
+    tx, ty = 1024 / W, 320 / H
+    bt = box * [tx, ty, tx, ty]
+    ref = [
+        math.log((bt[2] - bt[0]) / (bt[3] - bt[1])),
+        (bt[0] + bt[2]) / 2 / 1024 - 0.5,
+        (bt[1] + bt[3]) / 2 / 320 - 0.5,
+    ]
+    # the shipped framing: top 94 rows out, 896x224
+    top = round(0.25 * H)
+    sx, sy = 896 / W, 224 / (H - top)
+    ax, bx, ay, by, aspect = det._geo_frame(W, H, top, (sx, sy))
+    bi = (box - [0, top, 0, top]) * [sx, sy, sx, sy]
+    got = [
+        math.log((bi[2] - bi[0]) / (bi[3] - bi[1])) + aspect,
+        (bi[0] + bi[2]) / 2 * ax + bx - 0.5,
+        (bi[1] + bi[3]) / 2 * ay + by - 0.5,
+    ]
+    assert np.allclose(got, ref, atol=1e-9)
+    # the training framing itself needs no map
+    same = CnnDetector.from_checkpoint(
+        "centernet_kitti", "cpu", runtime="torch", input_width=1024, input_height=320, roi_top=0
+    )
+    assert same._geo_frame(W, H, 0, (tx, ty)) is None
+
+
+def test_set_inference_framing_keeps_weights_and_training_input(tmp_path):
+    out = tmp_path / "c.pt"
+    set_inference_framing("centernet_kitti", out, 1024, 320, 0.0)
+    a, sa = load_checkpoint("centernet_kitti", "cpu")
+    b, sb = load_checkpoint(out, "cpu")
+    assert (b.config.input_width, b.config.input_height, b.config.roi_top) == (1024, 320, 0.0)
+    assert list(sb["training_input"]) == [1024, 320] == list(sa["training_input"])
+    for k, v in a.state_dict().items():
+        assert torch.equal(v, b.state_dict()[k])
+    with pytest.raises(ValueError, match="only CenterNet"):
+        set_inference_framing("tiny_kitti", tmp_path / "t.pt", 832, 256, 0.1)
+    with pytest.raises(ValueError, match="roi_top"):
+        DetectorConfig(roi_top=0.95)
