@@ -257,20 +257,25 @@ class TfjsGraph(nn.Module):
                 return float(t)
         return None
 
-    def _fuse_hard_swish(self) -> None:
-        """Peephole: ``Mul(Mul(c, x), Relu6(Add(x, 3)))`` (MobileNetV3's hard-swish, 4
-        element-wise passes) -> one ``hardswish(x) * 6c`` when the intermediate results are used
-        nowhere else (the outputs are never fused away)."""
-        by_name = {o[0]: o for o in self.ops}
+    def _op_index(self) -> tuple[dict[str, tuple], dict[str, int]]:
+        """({op name: op}, {value name: number of ops reading it})."""
         uses: dict[str, int] = {}
         for _, _, inputs, _ in self.ops:
             for i in inputs:
                 uses[i] = uses.get(i, 0) + 1
+        return {o[0]: o for o in self.ops}, uses
+
+    def _binary_muls(self) -> list[tuple]:
+        return [o for o in self.ops if o[1] == "Mul" and len(o[2]) == 2]
+
+    def _fuse_hard_swish(self) -> None:
+        """Peephole: ``Mul(Mul(c, x), Relu6(Add(x, 3)))`` (MobileNetV3's hard-swish, 4
+        element-wise passes) -> one ``hardswish(x) * 6c`` when the intermediate results are used
+        nowhere else (the outputs are never fused away)."""
+        by_name, uses = self._op_index()
         dropped: set[str] = set()
         fused: dict[str, tuple] = {}
-        for name, op, inputs, _node in self.ops:
-            if op != "Mul" or len(inputs) != 2:
-                continue
+        for name, _op, inputs, _node in self._binary_muls():
             a, r = (by_name.get(i) for i in inputs)
             if a is None or r is None or a[1] != "Mul" or r[1] != "Relu6":
                 a, r = r, a
@@ -296,16 +301,10 @@ class TfjsGraph(nn.Module):
         """Peephole: ``Mul(c, Relu6(Add(y, 3)))`` with c ~ 1/6 (the hard sigmoid of
         MobileNetV3's squeeze-excite gates, 3 element-wise passes) -> ``hardsigmoid(y) * 6c``
         when the intermediate results are used nowhere else."""
-        by_name = {o[0]: o for o in self.ops}
-        uses: dict[str, int] = {}
-        for _, _, inputs, _ in self.ops:
-            for i in inputs:
-                uses[i] = uses.get(i, 0) + 1
+        by_name, uses = self._op_index()
         dropped: set[str] = set()
         fused: dict[str, tuple] = {}
-        for name, op, inputs, _node in self.ops:
-            if op != "Mul" or len(inputs) != 2:
-                continue
+        for name, _op, inputs, _node in self._binary_muls():
             c = [self._scalar(i) for i in inputs]
             r = [by_name.get(i) for i in inputs]
             j = next((k for k in (0, 1) if r[k] is not None and r[k][1] == "Relu6"), None)
