@@ -161,3 +161,24 @@ def test_set_inference_framing_keeps_weights_and_training_input(tmp_path):
         set_inference_framing("tiny_kitti", tmp_path / "t.pt", 832, 256, 0.1)
     with pytest.raises(ValueError, match="roi_top"):
         DetectorConfig(roi_top=0.95)
+
+
+def test_training_frames_are_framed_as_inference_frames_them():
+    """With roi_top the training mix leaves the top of each real frame out before the resize,
+    so a box lands where inference puts it (896x224 below the top 25 %)."""
+    from detector_node.dataset import Sample
+    from detector_node.training_data import AugmentConfig, Source, TrainingMix
+
+    img = np.zeros((375, 1242, 3), np.uint8)
+    box = np.array([[500.0, 180.0, 620.0, 240.0]], np.float32)
+    sample = Sample(img, box, np.array([2]), np.zeros((0, 4), np.float32), (1.0, 1.0), "f")
+    aug = AugmentConfig(
+        flip=False, photometric=False, crop_probability=0.0, paste_probability=0.0, roi_top=0.25
+    )
+    mix = TrainingMix([Source("s", "real", [sample])], 896, 224, aug)
+    out = mix.make(0, 0, np.random.default_rng(0))
+    top = round(0.25 * 375)
+    sx, sy = 896 / 1242, 224 / (375 - top)
+    expected = (box[0] - [0, top, 0, top]) * [sx, sy, sx, sy]
+    assert np.allclose(out.boxes[0], expected, atol=1e-3)
+    assert out.image.shape == (224, 896, 3)

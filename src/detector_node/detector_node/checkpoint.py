@@ -108,14 +108,15 @@ def set_inference_framing(
 ) -> None:
     """Copy a CenterNet checkpoint with another inference framing: network input size and the
     top fraction of the image left out (``DetectorConfig.roi_top``). The weights are unchanged;
-    the input size they were trained at is kept as ``training_input`` (the orientation head's
-    box geometry refers to it: ``CnnDetector._geo_frame``)."""
+    the framing they were trained at is kept as ``training_input`` and ``training_roi_top`` (the
+    orientation head's box geometry refers to it: ``CnnDetector._geo_frame``)."""
     path = resolve_checkpoint(src)
     state = torch.load(path, map_location="cpu", weights_only=True)
     config = DetectorConfig.from_dict(state["config"])
     if config.size != "centernet":
         raise ValueError(f"{path}: only CenterNet checkpoints are fully convolutional here")
     state.setdefault("training_input", [config.input_width, config.input_height])
+    state.setdefault("training_roi_top", config.roi_top)
     new = DetectorConfig.from_dict(
         {
             **config.to_dict(),

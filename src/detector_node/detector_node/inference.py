@@ -160,6 +160,7 @@ class CnnDetector:
         #: the input size the checkpoint was trained at (from_checkpoint keeps it when the
         #: input size is overridden)
         self._training_input = (self.config.input_width, self.config.input_height)
+        self._training_roi_top = self.config.roi_top
         #: the runtime in use: 'torch' or 'onnxruntime'
         self.runtime = resolve_runtime(runtime, self.config, self.device)
         self._network = self.model
@@ -197,6 +198,7 @@ class CnnDetector:
         # changed afterwards keeps it as "training_input")
         trained = (model.config.input_width, model.config.input_height)
         trained = tuple(int(v) for v in state.get("training_input", trained))
+        trained_roi = float(state.get("training_roi_top", model.config.roi_top))
         reference = None
         if input_width or input_height:
             c = model.config
@@ -218,6 +220,7 @@ class CnnDetector:
         detector = cls(model, dev, score_threshold, nms_iou, runtime, threads, roi_top)
         detector._anchor_reference = reference
         detector._training_input = trained
+        detector._training_roi_top = trained_roi
         return detector
 
     def config_for(self, scale: tuple[float, float]) -> DetectorConfig:
@@ -236,15 +239,18 @@ class CnnDetector:
     def _geo_frame(self, width: int, height: int, top: int, scale: tuple[float, float]):
         """The CenterNet orientation head's box-geometry map (centernet.orientation_at) from
         this input (image of ``width`` x ``height`` px, ``top`` rows left out, resized by
-        ``scale``) to its training framing (the whole image at the checkpoint's input size):
-        centre x / width, (centre y + top) / height, aspect ratio at the training's x / y
-        scale. None when the two framings are the same."""
+        ``scale``) to its training framing (the image below its training ``roi_top`` resized
+        to the training input size): centre x / width, (centre y - training top) / the rows
+        below it, aspect ratio at the training's x / y scale. None when the two framings are
+        the same."""
         tw, th = self._training_input
-        if top == 0 and (self.config.input_width, self.config.input_height) == (tw, th):
+        t_top = int(round(self._training_roi_top * height))
+        if top == t_top and (self.config.input_width, self.config.input_height) == (tw, th):
             return None
         sx, sy = scale
-        aspect = math.log((tw / width) / (th / height)) - math.log(sx / sy)
-        return (1.0 / (sx * width), 0.0, 1.0 / (sy * height), top / height, aspect)
+        rows = height - t_top
+        aspect = math.log((tw / width) / (th / rows)) - math.log(sx / sy)
+        return (1.0 / (sx * width), 0.0, 1.0 / (sy * rows), (top - t_top) / rows, aspect)
 
     @torch.no_grad()
     def detect(self, rgb: np.ndarray) -> list[Detection]:

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from .anchors import kmeans_anchors
+from .augmentation import crop_sample, resize_sample
 from .centernet import centernet_loss
 from .checkpoint import load_checkpoint, save_checkpoint
 from .dataset import (
@@ -102,6 +103,19 @@ def anchor_box_sizes(sources: list[Source], config) -> np.ndarray:
             wh.append(np.stack([(b[:, 2] - b[:, 0]) * sx, (b[:, 3] - b[:, 1]) * sy], 1))
     wh = np.concatenate(wh) if wh else np.zeros((0, 2))
     return wh[(wh > 1).all(axis=1)]
+
+
+def _val_sample(ref, config, types):
+    """A validation frame at network resolution, framed as inference frames it (the top
+    ``config.roi_top`` of the image left out)."""
+    if not config.roi_top:
+        return load_sample(ref, config.input_width, config.input_height, types)
+    s = load_full_sample(ref, types)
+    h, w = s.image.shape[:2]
+    top = int(round(config.roi_top * h))
+    return resize_sample(
+        crop_sample(s, 0, top, w, h - top), config.input_width, config.input_height
+    )
 
 
 def _centernet_model(args: argparse.Namespace, config, device):
@@ -213,6 +227,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--input-width", type=int, help="network input width (default: preset's)")
     p.add_argument("--input-height", type=int, help="network input height (default: preset's)")
     p.add_argument(
+        "--roi-top",
+        type=float,
+        default=0.0,
+        help="fraction of each frame's height at the top left out before the resize, in "
+        "training and at inference (stored in the checkpoint; DetectorConfig.roi_top)",
+    )
+    p.add_argument(
         "--anchors",
         type=Path,
         help="anchors JSON from detector_anchors (default: k-means on --train)",
@@ -303,6 +324,7 @@ def _train(args: argparse.Namespace) -> int:
             "depth": args.depth,
             "input_width": args.input_width,
             "input_height": args.input_height,
+            "roi_top": args.roi_top,
             "positive_types": tuple(args.types),
         }.items()
         if v is not None
@@ -328,7 +350,7 @@ def _train(args: argparse.Namespace) -> int:
         + [load_source(x, "synthetic") for x in args.synthetic]
     )
     val_refs = sources_from_args(args.val) if args.val else []
-    val_samples = [load_sample(r, config.input_width, config.input_height, types) for r in val_refs]
+    val_samples = [_val_sample(r, config, types) for r in val_refs]
     n_train = sum(len(s.samples) for s in sources)
     print(
         f"data: {n_train} train frames, {len(val_samples)} val frames, "
@@ -389,6 +411,7 @@ def _train(args: argparse.Namespace) -> int:
             max_scale=args.max_scale,
             paste_probability=args.paste_probability,
             paste_max=args.paste_max,
+            roi_top=config.roi_top,
         ),
     )
     print(mix.summary(), flush=True)

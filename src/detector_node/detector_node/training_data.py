@@ -25,6 +25,7 @@ import numpy as np
 from .augmentation import (
     RowSizeModel,
     collect_car_crops,
+    crop_sample,
     flip_sample,
     paste_cars,
     paste_native_crop,
@@ -64,6 +65,9 @@ class AugmentConfig:
     paste_max: int = 3
     blur_probability: float = 0.25
     noise_probability: float = 0.3
+    #: the checkpoint's region of interest (DetectorConfig.roi_top): the top of each real frame
+    #: is left out before the scale jitter, as inference does before the resize
+    roi_top: float = 0.0
 
 
 def _fully_visible(s: Sample) -> np.ndarray:
@@ -130,6 +134,10 @@ class TrainingMix:
             if self.rows is not None and rng.random() < a.paste_probability:
                 count = int(rng.integers(1, a.paste_max + 1))
                 s = paste_cars(s, self.car_crops, self.rows, rng, count)
+            if a.roi_top > 0:
+                h, w = s.image.shape[:2]
+                top = int(round(a.roi_top * h))
+                s = crop_sample(s, 0, top, w, h - top)
             if rng.random() < a.crop_probability:
                 s = random_crop(s, rng, a.min_scale, a.max_scale)
         if s.image.shape[:2] != (self.height, self.width):
