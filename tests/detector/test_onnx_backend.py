@@ -115,37 +115,36 @@ def test_roi_top_leaves_the_top_out_and_shifts_the_boxes_back(shared_kitti):
         assert abs(p.score - q.score) < 1e-6
 
 
-def test_geo_frame_maps_a_cropped_resized_input_onto_the_training_framing():
+def test_geo_frame_maps_another_framing_onto_the_training_framing(tmp_path):
     """The orientation head's box features (log aspect, normalised centre) of a box are those
-    it had in training (whole 1242x375 image at 1024x320), whatever the input framing."""
-    det = CnnDetector.from_checkpoint("centernet_kitti", "cpu", runtime="torch")
-    assert det._training_input == (1024, 320)
+    it had in training (the shipped head: 1242x375 below the top 25 % at 896x224), whatever the
+    input framing (here the whole image at 1024x320)."""
+    shipped = CnnDetector.from_checkpoint("centernet_kitti", "cpu", runtime="torch")
+    assert shipped._training_input == (896, 224) and shipped._training_roi_top == 0.25
     W, H = 1242, 375
+    t_top = round(0.25 * H)
+    assert shipped._geo_frame(W, H, t_top, (896 / W, 224 / (H - t_top))) is None
+    other = tmp_path / "whole.pt"
+    set_inference_framing("centernet_kitti", other, 1024, 320, 0.0)
+    det = CnnDetector.from_checkpoint(str(other), "cpu", runtime="torch")
+    assert det._training_input == (896, 224) and det._training_roi_top == 0.25
     box = np.array([500.0, 180.0, 620.0, 240.0])  # original px
-    # training framing
-    tx, ty = 1024 / W, 320 / H
-    bt = box * [tx, ty, tx, ty]
+    tx, ty = 896 / W, 224 / (H - t_top)  # training framing
+    bt = (box - [0, t_top, 0, t_top]) * [tx, ty, tx, ty]
     ref = [
         math.log((bt[2] - bt[0]) / (bt[3] - bt[1])),
-        (bt[0] + bt[2]) / 2 / 1024 - 0.5,
-        (bt[1] + bt[3]) / 2 / 320 - 0.5,
+        (bt[0] + bt[2]) / 2 / 896 - 0.5,
+        (bt[1] + bt[3]) / 2 / 224 - 0.5,
     ]
-    # the shipped framing: top 94 rows out, 896x224
-    top = round(0.25 * H)
-    sx, sy = 896 / W, 224 / (H - top)
-    ax, bx, ay, by, aspect = det._geo_frame(W, H, top, (sx, sy))
-    bi = (box - [0, top, 0, top]) * [sx, sy, sx, sy]
+    sx, sy = 1024 / W, 320 / H  # this framing: whole image, 1024x320
+    ax, bx, ay, by, aspect = det._geo_frame(W, H, 0, (sx, sy))
+    bi = box * [sx, sy, sx, sy]
     got = [
         math.log((bi[2] - bi[0]) / (bi[3] - bi[1])) + aspect,
         (bi[0] + bi[2]) / 2 * ax + bx - 0.5,
         (bi[1] + bi[3]) / 2 * ay + by - 0.5,
     ]
     assert np.allclose(got, ref, atol=1e-9)
-    # the training framing itself needs no map
-    same = CnnDetector.from_checkpoint(
-        "centernet_kitti", "cpu", runtime="torch", input_width=1024, input_height=320, roi_top=0
-    )
-    assert same._geo_frame(W, H, 0, (tx, ty)) is None
 
 
 def test_set_inference_framing_keeps_weights_and_training_input(tmp_path):
@@ -154,7 +153,8 @@ def test_set_inference_framing_keeps_weights_and_training_input(tmp_path):
     a, sa = load_checkpoint("centernet_kitti", "cpu")
     b, sb = load_checkpoint(out, "cpu")
     assert (b.config.input_width, b.config.input_height, b.config.roi_top) == (1024, 320, 0.0)
-    assert list(sb["training_input"]) == [1024, 320] == list(sa["training_input"])
+    assert "training_input" not in sa  # trained at its own framing
+    assert list(sb["training_input"]) == [896, 224] and sb["training_roi_top"] == 0.25
     for k, v in a.state_dict().items():
         assert torch.equal(v, b.state_dict()[k])
     with pytest.raises(ValueError, match="only CenterNet"):
