@@ -451,8 +451,11 @@ def cmd_graph(args) -> None:
         if poses is not None
     }
     ground_err = {name: [] for name in v_ground}
-    false_rows, rows, out_of_view = [], 0, 0
+    false_rows, rows, out_of_view, leaving = [], 0, 0, []
     vehicles = ("Car", "Van", "Truck", "Tram")
+    # the image's right border (labels are clipped to the image): the widest labelled box edge
+    right = max((o.bbox[2] for f in run.frames for o in f.gt), default=1241.0)
+    labelled_near: dict[int, int] = {}  # track id -> last frame it was within 3 m of a label
     for f in run.frames:
         cars = [o for o in f.gt if o.type == "Car" and o.location[2] > 0]
         anything = [o for o in f.gt if o.type in vehicles]
@@ -465,8 +468,16 @@ def cmd_graph(args) -> None:
                 continue
             near = len(centres) and np.linalg.norm(centres - o.centre_of_mass, axis=1).min() < 3.0
             overlap = any(_iou2d(o.bbox, b) >= 0.1 for b in boxes)
-            if not near and not overlap:
-                false_rows.append((f.frame, o.track_id, [round(float(v), 1) for v in o.location]))
+            row = (f.frame, o.track_id, [round(float(v), 1) for v in o.location])
+            at_border = o.bbox[0] <= 1.0 or o.bbox[2] >= right - 1.0
+            if near:
+                labelled_near[o.track_id] = f.frame
+            elif not overlap and at_border and f.frame - labelled_near.get(o.track_id, -99) <= 2:
+                # a labelled car leaving the view: KITTI stops labelling it while a sliver of
+                # it is still in the image
+                leaving.append(row)
+            elif not overlap:
+                false_rows.append(row)
         if not cars or not f.tracks:
             continue
         g = np.array([o.centre_of_mass for o in cars])
@@ -494,11 +505,15 @@ def cmd_graph(args) -> None:
         )
     print(
         f"confirmed / coasting rows where no vehicle is (> 3 m from every labelled vehicle and "
-        f"2D IoU < 0.1 with every vehicle or DontCare box): {len(false_rows)}; coasting rows "
-        f"projected outside the image (no 2D box: a car that left the view): {out_of_view}"
+        f"2D IoU < 0.1 with every vehicle or DontCare box): {len(false_rows)}; rows at the "
+        f"image border continuing a track that was on a labelled car 1-2 frames before (the car "
+        f"leaving the view, no longer labelled): {len(leaving)}; coasting rows projected "
+        f"outside the image (no 2D box: a car that left the view): {out_of_view}"
     )
     for fr, tid, loc in false_rows:
         print(f"  frame {fr} track {tid} at {loc} (camera 0, bottom centre)")
+    for fr, tid, loc in leaving:
+        print(f"  leaving the view: frame {fr} track {tid} at {loc}")
 
 
 def _recorded_poses(run) -> list | None:
