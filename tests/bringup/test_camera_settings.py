@@ -23,6 +23,7 @@ def test_kitti_keeps_the_shipped_settings():
         "vehicle_detector.input_width:=832",
         "vehicle_detector.input_height:=256",
         "vehicle_detector.roi_top:=0.0",
+        "stereo_depth.match_rows:=[0, 0]",
         "stereo_depth.num_disparities:=96",
     ]
 
@@ -34,7 +35,7 @@ def test_720p_short_baseline_camera():
     assert (w, h) == (896, 512)
     assert abs((w / 1280) / (h / 720) - 1.0) < 0.05
     assert (
-        camera_overrides(1280, 720, 700.0, 0.12, SHIPPED)[3] == "stereo_depth.num_disparities:=32"
+        camera_overrides(1280, 720, 700.0, 0.12, SHIPPED)[4] == "stereo_depth.num_disparities:=32"
     )
 
 

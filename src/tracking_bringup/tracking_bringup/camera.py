@@ -68,5 +68,6 @@ def camera_overrides(
         f"vehicle_detector.input_width:={w}",
         f"vehicle_detector.input_height:={h}",
         "vehicle_detector.roi_top:=0.0",
+        "stereo_depth.match_rows:=[0, 0]",
         f"stereo_depth.num_disparities:={num_disparities_for(fx, baseline, min_depth)}",
     ]
