@@ -155,3 +155,19 @@ def test_dropping_tracks_keeps_each_bank_with_its_track():
     assert sorted(set(h.owner.tolist())) == [0, 1]
     # the bank of the former track 2 (z 40 m) is now track 1's
     np.testing.assert_allclose(h.bank.x[h.owner == 1][:, 2], 40.0)
+
+
+def test_hypotheses_are_velocities_over_the_ground_even_in_traffic():
+    # established tracks driving at 15 m/s make the single prior's mean (their median) 15 m/s;
+    # the hypotheses stay parked (the static world) and +-5, 10, 15 m/s along the heading
+    kf = BatchedKalmanFilter(0.5, init_velocity="scene", birth_max_speed=15.0)
+    z = np.array([[0.0, 1.0, 20.0], [3.0, 1.0, 30.0], [-3.0, 1.0, 40.0]])
+    kf.add(z, np.repeat(np.eye(3)[None], 3, axis=0))
+    kf.hypotheses.drop(np.arange(3))  # (no bank: not born in the world frame)
+    kf.x[:, 5] = 15.0
+    kf.updates[:] = 3
+    kf.add(np.array([[-3.0, 1.0, 50.0]]), np.eye(3)[None], static_velocity=np.zeros((1, 3)))
+    np.testing.assert_allclose(
+        np.sort(kf.hypotheses.bank.x[:, 5]), [-15, -10, -5, 0, 5, 10, 15], atol=1e-12
+    )
+    assert kf.x[3, 5] == pytest.approx(0.0, abs=1e-9)  # the mixture's mean: symmetric

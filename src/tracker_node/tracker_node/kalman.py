@@ -149,6 +149,10 @@ class BatchedKalmanFilter:
         rows = np.arange(len(self.x), len(self.x) + m)
         self.append(x, P)
         if self.hypotheses is not None and static_velocity is not None and m:
+            # the hypotheses are velocities over the ground: parked = the static world's
+            # velocity (not the established tracks' median, a moving one in traffic)
+            x = x.copy()
+            x[:, 3:] = static_velocity
             self.hypotheses.start(rows, x, P, heading_axis(heading, m))
             self._take_mixture()
 
