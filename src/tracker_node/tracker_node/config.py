@@ -63,6 +63,20 @@ class TrackerConfig:
     init_velocity: str = param("scene", choices=INIT_VELOCITIES)
     # initial position covariance: the detection's covariance (true) or init_position_var I
     init_position_from_detection: bool = param(True)
+    # Kalman, world frame: a new track starts with a bank of velocity hypotheses over the
+    # ground (birth_hypotheses.py, docs/tracker.md): parked, and moving both ways along its
+    # heading at birth_max_speed j / birth_speed_steps, j = 1..steps; 0: off (one prior, the
+    # parked one). [m/s] (graph: 15; chosen on the camera benchmark's tuning sequences)
+    birth_max_speed: float = param(0.0, low=0.0)
+    birth_speed_steps: int = param(3, low=1)  # moving speeds per direction
+    # prior probability of moving (shared equally by the moving hypotheses): the fraction of
+    # labelled cars moving (> 3 m/s over the ground) when first labelled, tuning sequences
+    birth_moving_prior: float = param(0.18, low=0.0, high=1.0, low_open=True, high_open=True)
+    # [(m/s)^2] each hypothesis' velocity variance (z; x, y as known_scene_var)
+    birth_hypothesis_var: float = param(4.0, low=0, low_open=True)
+    # corrections after which a track keeps its most probable hypothesis (before: the
+    # mixture's moments)
+    birth_resolve_updates: int = param(10, low=1)
     max_staleness: int = param(2, low=0)  # [frames] a track unmatched for more is deleted
     decay_rate: float = param(0.8, low=0.0, high=1.0)  # confidence factor per unmatched frame
     # coasting tracks are reported while conf >= this

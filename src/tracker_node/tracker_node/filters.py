@@ -1,7 +1,7 @@
 """The motion-filter interface, the unfiltered baseline, and the factory selecting a filter.
 
 Every filter is batched over the tracks (row i = the tracker's i-th track) and offers:
-``add(z, R, static_velocity=None)``, ``restart_velocity(rows, static_velocity)``,
+``add(z, R, static_velocity=None, heading=None)``, ``restart_velocity(rows, static_velocity)``,
 ``keep(mask)``, ``predict(dt)``, ``move_frame(R, t)`` (the camera's own motion: every track
 expressed in the new camera frame, :mod:`.ego_motion`), ``shift_velocity(dv)`` (a change of
 velocity reference), ``set_process_noise(q)``, ``update(rows, z, R)`` and the arrays
@@ -26,7 +26,7 @@ class MotionFilter(Protocol):
     name: str
 
     def __len__(self) -> int: ...
-    def add(self, z: np.ndarray, R: np.ndarray, static_velocity=None) -> None: ...
+    def add(self, z: np.ndarray, R: np.ndarray, static_velocity=None, heading=None) -> None: ...
     def keep(self, mask: np.ndarray) -> None: ...
     def restart_velocity(self, rows: np.ndarray, static_velocity: np.ndarray) -> None: ...
     def predict(self, dt: float) -> None: ...
@@ -66,9 +66,9 @@ class PassThroughFilter:
     def __len__(self) -> int:
         return len(self._pos)
 
-    def add(self, z: np.ndarray, R: np.ndarray, static_velocity=None) -> None:
+    def add(self, z: np.ndarray, R: np.ndarray, static_velocity=None, heading=None) -> None:
         """Start tracks at ``z``; the velocity (zero) is the finite difference from the next
-        detection on, so ``static_velocity`` (a prior) is not used."""
+        detection on, so ``static_velocity`` and ``heading`` (a prior) are not used."""
         m = len(z)
         self._pos = np.concatenate([self._pos, z])
         self._vel = np.concatenate([self._vel, np.zeros((m, 3))])
@@ -141,6 +141,11 @@ def make_filter(cfg: TrackerConfig) -> MotionFilter:
             cfg.init_velocity_var,
             cfg.init_velocity,
             cfg.init_position_from_detection,
+            birth_max_speed=cfg.birth_max_speed,
+            birth_speed_steps=cfg.birth_speed_steps,
+            birth_moving_prior=cfg.birth_moving_prior,
+            birth_hypothesis_var=cfg.birth_hypothesis_var,
+            birth_resolve_updates=cfg.birth_resolve_updates,
         )
     if cfg.filter == "particle":
         return BatchedParticleFilter(

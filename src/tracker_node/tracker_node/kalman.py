@@ -15,14 +15,24 @@ detection's own covariance R (a stereo detection at 40 m is uncertain by metres 
 unknown, the per-axis prior :data:`.scene_motion.UNKNOWN_SCENE_VELOCITY_VAR`). The update uses
 ``P - K H P``
 (filterpy uses the Joseph form; equal for the optimal gain, checked by the tests).
+
+With ``birth_max_speed > 0``, a track born in the world frame (``static_velocity`` given)
+starts with a bank of velocity hypotheses (parked, moving forward / backward along its heading)
+until it has ``birth_resolve_updates`` corrections (:mod:`.birth_hypotheses`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .birth_hypotheses import BirthHypotheses, heading_axis
 from .ego_motion import rotate_covariances
-from .scene_motion import reset_velocity_covariance, restarted_velocity_prior, velocity_prior
+from .scene_motion import (
+    known_scene_var,
+    reset_velocity_covariance,
+    restarted_velocity_prior,
+    velocity_prior,
+)
 
 _I3 = np.eye(3)
 
@@ -79,6 +89,11 @@ class BatchedKalmanFilter:
         init_velocity_var: float = 50.0,
         init_velocity: str = "zero",
         init_position_from_detection: bool = False,
+        birth_max_speed: float = 0.0,
+        birth_speed_steps: int = 3,
+        birth_moving_prior: float = 0.18,
+        birth_hypothesis_var: float = 4.0,
+        birth_resolve_updates: int = 10,
     ):
         self.q = float(q)
         self.P0 = np.diag([init_position_var] * 3 + [init_velocity_var] * 3).astype(float)
@@ -89,15 +104,33 @@ class BatchedKalmanFilter:
         self.updates = np.zeros(0, dtype=int)  # detections each track was corrected with
         self._model_dt: float | None = None
         self._model_cache: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.hypotheses = None  # velocity hypotheses of young tracks (birth_max_speed > 0)
+        if birth_max_speed > 0:
+            self.hypotheses = BirthHypotheses(
+                BatchedKalmanFilter(q),
+                birth_max_speed,
+                birth_speed_steps,
+                birth_moving_prior,
+                known_scene_var(birth_hypothesis_var),
+                birth_resolve_updates,
+            )
 
     def __len__(self) -> int:
         return len(self.x)
 
-    def add(self, z: np.ndarray, R: np.ndarray, static_velocity: np.ndarray | None = None) -> None:
+    def add(
+        self,
+        z: np.ndarray,
+        R: np.ndarray,
+        static_velocity: np.ndarray | None = None,
+        heading: np.ndarray | None = None,
+    ) -> None:
         """Start tracks at positions ``z`` (M, 3) with covariances ``R`` (M, 3, 3) (used as the
         initial position covariance with ``init_position_from_detection``), velocity per
         ``init_velocity`` (``static_velocity`` (M, 3): the apparent velocity of static points
-        at ``z`` when the camera's motion is known, see :func:`.scene_motion.velocity_prior`)."""
+        at ``z`` when the camera's motion is known, see :func:`.scene_motion.velocity_prior`).
+        ``heading`` (M,): the detections' yaw (NaN: unknown), the axis of the moving velocity
+        hypotheses of tracks born in the world frame (:mod:`.birth_hypotheses`)."""
         m = len(z)
         x = np.zeros((m, 6))
         x[:, :3] = z
@@ -113,9 +146,27 @@ class BatchedKalmanFilter:
         P[:, 3:, 3:] = np.diag(v_var)
         if self.init_position_from_detection and m:
             P[:, :3, :3] = R
+        rows = np.arange(len(self.x), len(self.x) + m)
+        self.append(x, P)
+        if self.hypotheses is not None and static_velocity is not None and m:
+            # the hypotheses are velocities over the ground: parked = the static world's
+            # velocity (not the established tracks' median, a moving one in traffic)
+            x = x.copy()
+            x[:, 3:] = static_velocity
+            self.hypotheses.start(rows, x, P, heading_axis(heading, m))
+            self._take_mixture()
+
+    def append(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Append rows with states ``x`` (M, 6) and covariances ``P`` (M, 6, 6)."""
         self.x = np.concatenate([self.x, x])
         self.P = np.concatenate([self.P, P])
-        self.updates = np.concatenate([self.updates, np.zeros(m, dtype=int)])
+        self.updates = np.concatenate([self.updates, np.zeros(len(x), dtype=int)])
+
+    def _take_mixture(self) -> None:
+        """Tracks with a hypothesis bank take its mixture's moments."""
+        rows = self.hypotheses.owners()
+        if len(rows):
+            self.x[rows], self.P[rows] = self.hypotheses.mixture(rows)
 
     def restart_velocity(self, rows: np.ndarray, static_velocity: np.ndarray) -> None:
         """Tracks ``rows``, not yet corrected by a second detection (their velocity is still
@@ -128,11 +179,15 @@ class BatchedKalmanFilter:
         )
         if prior is None:
             return
+        if self.hypotheses is not None:
+            self.hypotheses.drop(rows)
         self.x[rows, 3:], v_var = prior
         reset_velocity_covariance(self.P, rows, v_var)
 
     def keep(self, mask: np.ndarray) -> None:
         """Keep only the rows where ``mask`` is true."""
+        if self.hypotheses is not None:
+            self.hypotheses.keep(mask)
         self.x = self.x[mask]
         self.P = self.P[mask]
         self.updates = self.updates[mask]
@@ -156,11 +211,16 @@ class BatchedKalmanFilter:
         np.matmul(P, FT, out=P)
         P += Q
         self.P = P
+        if self.hypotheses is not None and len(self.hypotheses):
+            self.hypotheses.bank.predict(dt)
+            self._take_mixture()
 
     def set_process_noise(self, q: float) -> None:
         """Use white-acceleration density ``q`` from the next prediction on."""
         self.q = float(q)
         self._model_dt = None
+        if self.hypotheses is not None:
+            self.hypotheses.bank.set_process_noise(q)
 
     def move_frame(self, R: np.ndarray, t: np.ndarray) -> None:
         """Express every track in a new camera frame, ``X_new = R X + t`` (the camera's own
@@ -171,11 +231,16 @@ class BatchedKalmanFilter:
         self.x[:, :3] = self.x[:, :3] @ R.T + t
         self.x[:, 3:] = self.x[:, 3:] @ R.T
         self.P = rotate_covariances(self.P, R)
+        if self.hypotheses is not None and len(self.hypotheses):
+            self.hypotheses.bank.move_frame(R, t)
 
     def shift_velocity(self, dv: np.ndarray) -> None:
         """Subtract ``dv`` (N, 3) from every track's velocity (a change of reference: relative
         to the camera -> over the ground, :mod:`.ego_motion`); covariances unchanged."""
         self.x[:, 3:] -= dv
+        if self.hypotheses is not None and len(self.hypotheses):
+            dv = np.broadcast_to(dv, self.x[:, 3:].shape)
+            self.hypotheses.bank.x[:, 3:] -= dv[self.hypotheses.owner]
 
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         """Correct tracks ``rows`` (M,) with measured positions ``z`` (M, 3), covariances
@@ -192,6 +257,19 @@ class BatchedKalmanFilter:
         self.x[rows] = x
         self.P[rows] = P
         self.updates[rows] += 1
+        if self.hypotheses is not None and len(self.hypotheses):
+            self._update_hypotheses(rows, z, R)
+
+    def _update_hypotheses(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
+        """Correct the hypothesis banks of ``rows``; tracks with ``resolve_updates``
+        corrections take their most probable hypothesis, the others their mixture."""
+        h = self.hypotheses
+        h.update(rows, z, R)
+        owners = h.owners()
+        done = owners[self.updates[owners] >= h.resolve_updates]
+        if len(done):
+            self.x[done], self.P[done] = h.resolve(done)
+        self._take_mixture()
 
     @property
     def position(self) -> np.ndarray:

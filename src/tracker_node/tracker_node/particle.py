@@ -129,7 +129,9 @@ class BatchedParticleFilter:
         e = self.rng.normal(size=(m, self.n, 3))
         return z[:, None, :] + np.matmul(e, L.transpose(0, 2, 1))
 
-    def add(self, z: np.ndarray, R: np.ndarray, static_velocity: np.ndarray | None = None) -> None:
+    def add(self, z: np.ndarray, R: np.ndarray, static_velocity=None, heading=None) -> None:
+        """Start tracks at ``z`` with the velocity prior of :func:`.scene_motion.velocity_prior`
+        (``heading``: not used; the Kalman filter's birth hypotheses only)."""
         m = len(z)
         if not m:
             return

@@ -306,9 +306,9 @@ class Tracker:
             return
         # the static scene's velocity: zero over the ground (world frame), else unknown
         static_v = np.zeros((k, 3)) if self.world_frame else None
-        self.filter.add(dets.position[idx], R[idx], static_v)
-        size = dets.size[idx]
         yaw = det_yaw[idx]
+        self.filter.add(dets.position[idx], R[idx], static_v, heading=yaw)
+        size = dets.size[idx]
         self.tracks.append(
             ids=np.arange(self.next_id, self.next_id + k),
             hits=np.ones(k),
