@@ -1,7 +1,7 @@
 """The whole graph at camera rate and in lockstep: frames tracked, latency, CPU per node.
 
 Usage: python bench/bench_graph.py [--synthetic-frames 100] [--no-real] [--windows 1,2]
-       [-p NODE.PARAM:=VALUE ...] [--json FILE]
+       [-p NODE.PARAM:=VALUE ...] [--json FILE] [--profile]
 
 Runs the graph of the demo (player, CNN detector, stereo depth, tracker, recorder; separate
 processes, the shipped parameter file) on real KITTI tracking 0005 (../shared/kitti, 16 frames)
@@ -17,6 +17,8 @@ and on a synthetic sequence (rendered once into output/bench_graph/synthetic):
   throughput in frames/s (first /clock to last tracks).
 
 Prints one table; ``uptime``'s load average is printed with it (the machine may be shared).
+``--profile`` samples every node process with py-spy during the 10 Hz runs and prints, per
+process, the functions its CPU time goes to.
 """
 
 from __future__ import annotations
@@ -99,8 +101,67 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def run_case(root: Path, sequence: str, lockstep: bool, window: int, overrides, logs: Path):
-    """One run of the graph; returns its figures."""
+def _start_profilers(pids: dict[str, int], out: Path, rate: int = 200) -> list:
+    """``py-spy record`` on every node process (on-CPU samples of its Python threads, raw
+    collapsed stacks into ``out/<node>.txt``); stops when the process exits."""
+    import shutil
+    import subprocess
+
+    exe = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
+    if not Path(exe).is_file():
+        print("[bench] --profile: py-spy not installed (pip install py-spy)", file=sys.stderr)
+        return []
+    out.mkdir(parents=True, exist_ok=True)
+    procs = []
+    for name, pid in pids.items():
+        cmd = [exe, "record", "--pid", str(pid), "--rate", str(rate), "--format", "raw"]
+        cmd += ["--output", str(out / f"{name}.txt"), "--nonblocking", "--threads"]
+        with open(out / f"{name}.log", "w") as log:  # the child keeps its own descriptor
+            procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log))
+    return procs
+
+
+def profile_summary(folder: Path, rate: int = 200, top: int = 6) -> str:
+    """Per node: CPU seconds sampled, split by thread, and the functions with the most self
+    time (the innermost Python frame of each sample: time in a C extension such as OpenCV,
+    ONNX Runtime or numpy is booked on the Python line that called it)."""
+    lines = []
+    for f in sorted(folder.glob("*.txt")):
+        self_time: dict[str, int] = {}
+        threads: dict[str, int] = {}
+        total = 0
+        for row in f.read_text().splitlines():
+            stack, _, count = row.rpartition(" ")
+            if not stack or not count.isdigit():
+                continue
+            n = int(count)
+            frames = stack.split(";")
+            total += n
+            thread = frames[0].split(" (")[0] if frames[0].startswith(("thread", "process")) else ""
+            threads[thread] = threads.get(thread, 0) + n
+            leaf = frames[-1]
+            fn, _, where = leaf.partition(" (")
+            key = f"{fn} ({Path(where.split(':')[0]).name})" if where else fn
+            self_time[key] = self_time.get(key, 0) + n
+        if not total:
+            continue
+        lines.append(f"  {f.stem}: {total / rate:.2f} CPU s sampled")
+        for k, n in sorted(self_time.items(), key=lambda kv: -kv[1])[:top]:
+            lines.append(f"    {100 * n / total:5.1f} %  {k}")
+    return "\n".join(lines)
+
+
+def run_case(
+    root: Path,
+    sequence: str,
+    lockstep: bool,
+    window: int,
+    overrides,
+    logs: Path,
+    profile: Path | None = None,
+):
+    """One run of the graph; returns its figures (with ``profile``: py-spy samples of every
+    node process over the run, in that folder)."""
     probe = Probe()
     params = [
         f"kitti_player.dataset_root:={root}",
@@ -124,6 +185,7 @@ def run_case(root: Path, sequence: str, lockstep: bool, window: int, overrides, 
             launcher.spin_reports(0.05)
         cpu0, t_cpu0 = {n: _cpu_seconds(p) for n, p in pids.items()}, time.monotonic()
         cpu1 = dict(cpu0)
+        profilers = _start_profilers(pids, profile) if profile is not None else []
 
         def sample():  # the last reading of each process (the player exits at the end)
             for n, p in pids.items():
@@ -147,6 +209,11 @@ def run_case(root: Path, sequence: str, lockstep: bool, window: int, overrides, 
         launcher.shutdown()
         time.sleep(0.3)
         probe.close()
+        for prof in locals().get("profilers", []):
+            try:
+                prof.wait(timeout=20)
+            except Exception:  # noqa: BLE001 - a profiler that hangs is killed, not fatal
+                prof.kill()
     return _figures(probe.times, launcher.reports, cpu0, cpu1, t_cpu1 - t_cpu0)
 
 
@@ -331,6 +398,11 @@ def main(argv=None) -> int:
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NODE.PARAM:=VALUE")
     parser.add_argument("--json", help="write the figures to this file")
     parser.add_argument("--no-offline", action="store_true", help="skip the per-stage baseline")
+    parser.add_argument(
+        "--profile",
+        action="store_true",
+        help="py-spy every node process in the 10 Hz runs and print where its CPU time goes",
+    )
     args = parser.parse_args(argv)
     apply_graph_environment()
     datasets = []
@@ -351,13 +423,16 @@ def main(argv=None) -> int:
         for label, root, seq in datasets:
             print(f"[bench] offline stage times, {label} ...", file=sys.stderr, flush=True)
             offline[label] = offline_stage_times(root, seq)
-    rows, stamp = [], time.strftime("%Y%m%d_%H%M%S")
+    rows, stamp, profiles = [], time.strftime("%Y%m%d_%H%M%S"), []
     for label, root, seq in datasets:
         for mode, lockstep, window in modes:
             logs = OUT / "runs" / stamp / f"{label.replace(' ', '_')}_{mode.replace(' ', '')}"
             print(f"[bench] {label}, {mode} ...", file=sys.stderr, flush=True)
-            figures = run_case(root, seq, lockstep, window, args.param, logs)
+            prof = logs / "profile" if args.profile and not lockstep else None
+            figures = run_case(root, seq, lockstep, window, args.param, logs, prof)
             rows.append((label, mode, figures))
+            if prof is not None:
+                profiles.append((label, mode, prof))
     load = Path("/proc/loadavg").read_text().split()[:3]
     print(f"machine: {os.cpu_count()} CPUs, load average {' '.join(load)} (1/5/15 min)")
     if args.param:
@@ -376,6 +451,9 @@ def main(argv=None) -> int:
                 f"{k} {g:.0f} / {a:.0f} ms = {g / a:.2f}x" for k, (g, a) in ratios.items()
             )
             print(f"  {data:<16} {mode:<11} {cells}")
+    for data, mode, folder in profiles:
+        print(f"where each process's CPU time goes ({data}, {mode}; py-spy, {folder}):")
+        print(profile_summary(folder))
     if args.json:
         out = {"offline_ms": offline, "load": load, "parameters": args.param}
         out["runs"] = [{"data": d, "mode": m, **f} for d, m, f in rows]

@@ -100,6 +100,12 @@ class VehicleDetectorNode(Node):
                 f"{100 * self.cnn.roi_top:.0f} %, device {self.cnn.device}, runtime "
                 f"{self.cnn.runtime}"
             )
+            if c.size == "centernet" and self.cnn.runtime == "torch" and p.runtime == "auto":
+                self.get_logger().warning(
+                    "onnx / onnxruntime not installed: the CenterNet runs on PyTorch, about 3x "
+                    "slower (pip install onnx==1.23.1 onnxruntime==1.30.0; scripts/setup.sh "
+                    "installs them)"
+                )
             # the first inference's set-up cost is paid here, before the graph is ready
             self.cnn.detect(np.zeros((c.input_height, c.input_width, 3), np.uint8))
             # latest-frame policy: the newest image is detected, an image still waiting when a
