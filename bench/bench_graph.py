@@ -141,11 +141,14 @@ def profile_summary(folder: Path, rate: int = 200, top: int = 6) -> str:
             threads[thread] = threads.get(thread, 0) + n
             leaf = frames[-1]
             fn, _, where = leaf.partition(" (")
-            key = f"{fn} ({Path(where.split(':')[0]).name})" if where else fn
+            if len(frames) == 1 and thread:  # a sample without a Python frame
+                key = "(native code, no Python frame)"
+            else:
+                key = f"{fn} ({Path(where.split(':')[0]).name})" if where else fn
             self_time[key] = self_time.get(key, 0) + n
         if not total:
             continue
-        lines.append(f"  {f.stem}: {total / rate:.2f} CPU s sampled")
+        lines.append(f"  {f.stem}: {total} samples ({total / rate:.2f} thread-s, all threads)")
         for k, n in sorted(self_time.items(), key=lambda kv: -kv[1])[:top]:
             lines.append(f"    {100 * n / total:5.1f} %  {k}")
     return "\n".join(lines)
