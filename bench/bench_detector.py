@@ -13,8 +13,11 @@ Prints, for the shipped (or a given) checkpoint:
   modulo 180 deg; the bin centre for checkpoints without the angle head) over the same pairs;
 - the median inference time (preprocessing + network + decoding) on a 1242x375 frame of the
   checkpoint and of the previous model ``tiny_kitti.pt`` (and with --with-full the paper's full
-  configuration), runs interleaved in one process, threads = 1 (the graph's detector setting),
-  the CenterNet on ONNX Runtime when installed (``--runtime``) and on PyTorch beside it, 3
+  configuration) on the 16 left images of real tracking 0005 (a random-noise frame without
+  ../shared or with --timing-frames random), runs interleaved in one process, threads = 1 (the
+  graph's detector setting),
+  the CenterNet on ONNX Runtime when installed (``--runtime``; with --compare-torch on PyTorch
+  beside it), 3
   warm-up runs, the ratio to tiny_kitti and the load average before and after.
 
 Usage: python bench/bench_detector.py [--checkpoint PT|NAME] [--synthetic ROOT:SEQ] [--threads 2]
@@ -145,19 +148,36 @@ def angle_errors(gt: dict, pred: dict) -> np.ndarray:
     return np.array(errs)
 
 
-def time_models(models: dict, runs: int = 20, warmup: int = 3) -> dict[str, float]:
+def timing_frames(kind: str = "real") -> tuple[list[np.ndarray], str]:
+    """The frames the timing runs cycle through: the 16 left images of real tracking 0005
+    (1242x375) when ``kind`` is 'real' and they are there, else one random-noise 1242x375 frame
+    (whose many weak heat-map peaks make the decoding slower than on a real frame)."""
+    folder = SHARED_KITTI / "tracking" / "training" / "image_02" / "0005"
+    if kind == "real" and folder.is_dir():
+        frames = [read_png(f) for f in sorted(folder.glob("*.png"))]
+        if frames:
+            return frames, f"the {len(frames)} left images of real tracking 0005"
+    rgb = np.random.default_rng(0).integers(0, 255, (375, 1242, 3), dtype=np.uint8)
+    return [rgb], "a random-noise frame"
+
+
+def time_models(
+    models: dict, runs: int = 20, warmup: int = 3, frames: list[np.ndarray] | None = None
+) -> dict[str, float]:
     """Median seconds per 1242x375 frame (preprocessing + network + decoding) of each model,
-    the runs interleaved (model A, model B, A, B, ...) so that they share the machine's load."""
+    the runs interleaved (model A, model B, A, B, ...) so that they share the machine's load;
+    run i uses frame i of ``frames`` (cycled; default a random-noise frame)."""
     dets = {
         k: m if isinstance(m, CnnDetector) else CnnDetector(m, "cpu", score_threshold=0.3)
         for k, m in models.items()
     }
-    rgb = np.random.default_rng(0).integers(0, 255, (375, 1242, 3), dtype=np.uint8)
-    for _ in range(warmup):
+    frames = frames or timing_frames("random")[0]
+    for i in range(warmup):
         for det in dets.values():
-            det.detect(rgb)
+            det.detect(frames[i % len(frames)])
     times: dict[str, list[float]] = {k: [] for k in dets}
-    for _ in range(runs):
+    for i in range(runs):
+        rgb = frames[i % len(frames)]
         for k, det in dets.items():
             t0 = time.perf_counter()
             det.detect(rgb)
@@ -190,6 +210,18 @@ def main() -> None:
     p.add_argument("--input-width", type=int, default=0, help="override (0 = checkpoint's)")
     p.add_argument("--input-height", type=int, default=0, help="override (0 = checkpoint's)")
     p.add_argument("--runs", type=int, default=20, help="timed runs per model")
+    p.add_argument(
+        "--compare-torch",
+        action="store_true",
+        help="also time the checkpoint on PyTorch (interleaved: its 100 ms runs slow the others "
+        "down by a millisecond or two, through the caches)",
+    )
+    p.add_argument(
+        "--timing-frames",
+        choices=("real", "random"),
+        default="real",
+        help="time on real 0005 frames (when ../shared/kitti is there) or a random-noise frame",
+    )
     p.add_argument(
         "--with-full", action="store_true", help="also time the paper's full configuration"
     )
@@ -235,19 +267,20 @@ def main() -> None:
             label = f"held-out synthetic (seed {HELDOUT_SEED})"
             results["synthetic"] = evaluate(det, [spec], label)
     if not args.skip_timing:
+        frames, what = timing_frames(args.timing_frames)
         print(
             f"\n== inference time per 1242x375 frame (median of {args.runs}, runs interleaved, "
-            f"threads {args.threads}); load average before: "
+            f"threads {args.threads}, on {what}); load average before: "
             f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}"
         )
         models = {f"checkpoint ({det.runtime})": det}
-        if det.runtime != "torch":
+        if det.runtime != "torch" and args.compare_torch:
             models["checkpoint (torch)"] = CnnDetector(det.model, "cpu", 0.3, runtime="torch")
         base, _ = load_checkpoint(BASELINE, "cpu")
         models["baseline tiny_kitti"] = base
         if args.with_full:
             models["full (1152x352, random weights)"] = YoloV2Passthrough(preset("full")).eval()
-        t = time_models(models, runs=args.runs)
+        t = time_models(models, runs=args.runs, frames=frames)
         t["checkpoint"] = t[f"checkpoint ({det.runtime})"]
         for k, v in t.items():
             if k == "checkpoint":

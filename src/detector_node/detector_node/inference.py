@@ -263,7 +263,10 @@ class CnnDetector:
         img, scale = resize_image(rgb[top:], self.config.input_width, self.config.input_height)
         if hasattr(self.model, "geo_frame"):
             self.model.geo_frame = self._geo_frame(rgb.shape[1], rgb.shape[0], top, scale)
-        raw = self._network(to_tensor([img], self.device))
+        if self.runtime == "onnxruntime":
+            raw = self._network.from_image(img)
+        else:
+            raw = self._network(to_tensor([img], self.device))
         config = self.config_for(scale)
         dets = decode_output(raw, config, self.score_threshold, self.nms_iou, scale)[0]
         if top:

@@ -82,13 +82,15 @@ def _pads(h: int, w: int, k: tuple[int, int], s: tuple[int, int], d: tuple[int, 
     return [ph[0], pw[0], ph[1], pw[1]], (-(-h // s[0]), -(-w // s[1]))
 
 
-def centernet_to_onnx(model, height: int, width: int) -> bytes:
+def centernet_to_onnx(model, height: int, width: int, image_input: bool = False) -> bytes:
     """Serialized ONNX model of ``model``'s dense part at input (1, 3, height, width).
 
-    Input ``image``: RGB in [0, 1], float32 NCHW. Outputs ``feature`` (1, 128, H/4, W/4): the
-    graph's head feature; ``dense`` (1, 5, H/4, W/4): heat logit and (l, t, r, b) [input px],
-    as :meth:`CenterNetDetector.dense`. Raises :class:`~detector_node.tfjs_graph.TfjsGraphError`
-    for an op it cannot write."""
+    Input ``image``: RGB in [0, 1], float32 NCHW; with ``image_input`` the image itself, RGB
+    uint8 (1, height, width, 3) as the resize gives it (transposed and cast inside the graph:
+    no conversion pass in Python, no scaling to [0, 1] and back). Outputs ``feature``
+    (1, 128, H/4, W/4): the graph's head feature; ``dense`` (1, 5, H/4, W/4): heat logit and
+    (l, t, r, b) [input px], as :meth:`CenterNetDetector.dense`. Raises
+    :class:`~detector_node.tfjs_graph.TfjsGraphError` for an op it cannot write."""
     from onnx import TensorProto, helper
 
     from .centernet import FEATURE
@@ -98,7 +100,11 @@ def centernet_to_onnx(model, height: int, width: int) -> bytes:
     scales = g._resize_scales()
     # value name -> (onnx name, (H, W))
     env: dict[str, tuple[str, tuple[int, int]]] = {}
-    x = wr.op("Mul", [INPUT, wr.const(np.array(255.0, np.float32))], "scaled")
+    if image_input:
+        x = wr.op("Transpose", [INPUT], "nchw", perm=[0, 3, 1, 2])
+        x = wr.op("Cast", [x], "float", to=TensorProto.FLOAT)
+    else:
+        x = wr.op("Mul", [INPUT, wr.const(np.array(255.0, np.float32))], "scaled")
     env[g.input_name] = (x, (height, width))
 
     def val(name: str) -> tuple[str, tuple[int, int] | None]:
@@ -259,10 +265,14 @@ def centernet_to_onnx(model, height: int, width: int) -> bytes:
         heads.append(y)
     wr.nodes.append(helper.make_node("Concat", heads, [DENSE_OUT], axis=1))
     gh, gw = -(-height // 4), -(-width // 4)
+    if image_input:
+        inp = helper.make_tensor_value_info(INPUT, TensorProto.UINT8, [1, height, width, 3])
+    else:
+        inp = helper.make_tensor_value_info(INPUT, TensorProto.FLOAT, [1, 3, height, width])
     graph = helper.make_graph(
         wr.nodes,
         "centernet_dense",
-        [helper.make_tensor_value_info(INPUT, TensorProto.FLOAT, [1, 3, height, width])],
+        [inp],
         [
             helper.make_tensor_value_info(FEATURE_OUT, TensorProto.FLOAT, [1, 128, gh, gw]),
             helper.make_tensor_value_info(DENSE_OUT, TensorProto.FLOAT, [1, 5, gh, gw]),
@@ -304,7 +314,8 @@ class OnnxCenterNet:
     """The CenterNet's dense part on ONNX Runtime, the sparse part on the PyTorch module.
 
     ``runner(x)`` takes (1, 3, H, W) RGB in [0, 1] (a torch tensor) and returns the raw output of
-    ``model(x)``. One ONNX Runtime session per input size, built on first use with
+    ``model(x)``; ``runner.from_image(rgb)`` the same from a uint8 image (the detector's path).
+    One ONNX Runtime session per input size, built on first use with
     ``threads`` intra-op threads (default: torch's current count, i.e. the node's
     ``num_threads``)."""
 
@@ -315,8 +326,10 @@ class OnnxCenterNet:
         self.threads = threads or torch.get_num_threads()
         self._sessions: dict[tuple[int, int], object] = {}
 
-    def session(self, height: int, width: int):
-        key = (height, width)
+    def session(self, height: int, width: int, image_input: bool = False):
+        """The session for this input size (``image_input``: uint8 HWC images, see
+        :func:`centernet_to_onnx`)."""
+        key = (height, width, image_input)
         if key not in self._sessions:
             import onnxruntime as ort
 
@@ -327,7 +340,7 @@ class OnnxCenterNet:
             so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
             so.log_severity_level = 3
             self._sessions[key] = ort.InferenceSession(
-                centernet_to_onnx(self.model, height, width),
+                centernet_to_onnx(self.model, height, width, image_input),
                 so,
                 providers=["CPUExecutionProvider"],
             )
@@ -345,3 +358,12 @@ class OnnxCenterNet:
     def __call__(self, x: torch.Tensor) -> torch.Tensor:
         f, d = self.dense(x)
         return self.model.raw_from_features(f, d)
+
+    @torch.no_grad()
+    def from_image(self, rgb: np.ndarray) -> torch.Tensor:
+        """Raw output of one RGB uint8 image (H, W, 3) already at the network's input size:
+        the same as ``self(to_tensor([rgb]))`` without the conversion to float in Python."""
+        h, w = rgb.shape[:2]
+        s = self.session(h, w, image_input=True)
+        f, d = s.run(None, {INPUT: np.ascontiguousarray(rgb, np.uint8)[None]})
+        return self.model.raw_from_features(torch.from_numpy(f), torch.from_numpy(d))
