@@ -181,6 +181,7 @@ def run_case(
     launcher = GraphLauncher(processes, logs, ready_timeout=180)
     cpu0, cpu1 = {}, {}
     t_cpu0 = t_cpu1 = 0.0
+    profilers: list = []
     try:
         launcher.start()
         pids = {n: r.proc.pid for n, r in launcher.running.items()}
@@ -212,7 +213,7 @@ def run_case(
         launcher.shutdown()
         time.sleep(0.3)
         probe.close()
-        for prof in locals().get("profilers", []):
+        for prof in profilers:
             try:
                 prof.wait(timeout=20)
             except Exception:  # noqa: BLE001 - a profiler that hangs is killed, not fatal

@@ -87,6 +87,16 @@ def crop_sample(
     return select_boxes(cropped, keep)
 
 
+def crop_roi_top(sample: Sample, roi_top: float) -> Sample:
+    """The frame below its top ``roi_top`` (fraction of its height), as inference frames it
+    (:meth:`detector_node.inference.CnnDetector.detect`); the sample itself when 0."""
+    if roi_top <= 0:
+        return sample
+    h, w = sample.image.shape[:2]
+    top = int(round(roi_top * h))
+    return crop_sample(sample, 0, top, w, h - top)
+
+
 def random_crop(
     sample: Sample,
     rng: np.random.Generator,

@@ -110,11 +110,12 @@ def set_inference_framing(
     top fraction of the image left out (``DetectorConfig.roi_top``). The weights are unchanged;
     the framing they were trained at is kept as ``training_input`` and ``training_roi_top`` (the
     orientation head's box geometry refers to it: ``CnnDetector._geo_frame``)."""
-    path = resolve_checkpoint(src)
-    state = torch.load(path, map_location="cpu", weights_only=True)
-    config = DetectorConfig.from_dict(state["config"])
+    model, state = load_checkpoint(src)  # the same checks and one-line errors
+    config = model.config
     if config.size != "centernet":
-        raise ValueError(f"{path}: only CenterNet checkpoints are fully convolutional here")
+        raise ValueError(
+            f"{resolve_checkpoint(src)}: only CenterNet checkpoints are fully convolutional here"
+        )
     state.setdefault("training_input", [config.input_width, config.input_height])
     state.setdefault("training_roi_top", config.roi_top)
     new = DetectorConfig.from_dict(

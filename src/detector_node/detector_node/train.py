@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from .anchors import kmeans_anchors
-from .augmentation import crop_sample, resize_sample
+from .augmentation import crop_roi_top, resize_sample
 from .centernet import centernet_loss
 from .checkpoint import load_checkpoint, save_checkpoint
 from .dataset import (
@@ -110,12 +110,8 @@ def _val_sample(ref, config, types):
     ``config.roi_top`` of the image left out)."""
     if not config.roi_top:
         return load_sample(ref, config.input_width, config.input_height, types)
-    s = load_full_sample(ref, types)
-    h, w = s.image.shape[:2]
-    top = int(round(config.roi_top * h))
-    return resize_sample(
-        crop_sample(s, 0, top, w, h - top), config.input_width, config.input_height
-    )
+    framed = crop_roi_top(load_full_sample(ref, types), config.roi_top)
+    return resize_sample(framed, config.input_width, config.input_height)
 
 
 def _centernet_model(args: argparse.Namespace, config, device):

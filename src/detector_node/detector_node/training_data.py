@@ -25,7 +25,7 @@ import numpy as np
 from .augmentation import (
     RowSizeModel,
     collect_car_crops,
-    crop_sample,
+    crop_roi_top,
     flip_sample,
     paste_cars,
     paste_native_crop,
@@ -134,10 +134,7 @@ class TrainingMix:
             if self.rows is not None and rng.random() < a.paste_probability:
                 count = int(rng.integers(1, a.paste_max + 1))
                 s = paste_cars(s, self.car_crops, self.rows, rng, count)
-            if a.roi_top > 0:
-                h, w = s.image.shape[:2]
-                top = int(round(a.roi_top * h))
-                s = crop_sample(s, 0, top, w, h - top)
+            s = crop_roi_top(s, a.roi_top)
             if rng.random() < a.crop_probability:
                 s = random_crop(s, rng, a.min_scale, a.max_scale)
         if s.image.shape[:2] != (self.height, self.width):

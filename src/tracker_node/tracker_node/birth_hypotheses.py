@@ -12,7 +12,8 @@ Here a track born in the world frame carries, while it is young, a small bank of
 Applications to Tracking and Navigation", 2001, ch. 11; filterpy's ``IMMEstimator`` holds its
 bank the same way, here without mode switching): the track's position prior, velocity means
 
-    v0 (parked: the prior of the single filter's mean),
+    v0 (parked: the static world's velocity, not the established tracks' median, which is a
+        moving one in traffic),
     v0 +- s_j a,   s_j = j / n * birth_max_speed,  j = 1..n  (n = ``birth_speed_steps``)
 
 with ``a`` the car's heading axis in the camera's x-z plane (from the detection's yaw, its
