@@ -81,6 +81,16 @@ class NodeHealth:
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self._pub.publish(msg)
 
+    def publish_final(self, timeout_s: float = 1.0) -> None:
+        """Publish the report one last time and wait (at most ``timeout_s``) until every
+        matched subscriber acknowledged it: the process exits right after, and a report still
+        in the writer's queue then would be lost (a launcher kept the previous one, with a
+        frame pending, although the node had accounted for it)."""
+        from rclpy.duration import Duration
+
+        self.publish()
+        self._pub.wait_for_all_acked(Duration(nanoseconds=int(timeout_s * 1e9)))
+
     def exit_line(self) -> str:
         """Log and return the node's exit line."""
         line = self.counter.snapshot().summary()
@@ -150,7 +160,7 @@ def spin_until_stopped(
         for fn in on_stop:
             fn()
         if health is not None:
-            health.publish()
+            health.publish_final()
             health.exit_line()
     finally:
         executor.remove_node(node)
