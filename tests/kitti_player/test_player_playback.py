@@ -195,3 +195,41 @@ def test_frame_prefetcher_reads_ahead_and_falls_back():
         pre.get(9)
     pre.close()
     assert sorted(reads) == [1, 2, 3]
+
+
+def test_frame_prefetcher_preloads_within_budget_and_keeps_errors_at_their_frame():
+    import threading
+
+    from kitti_player_node.playback import FramePrefetcher
+
+    reads = []
+
+    def read(frame):
+        if frame == 4:
+            raise OSError("frame 4: unreadable")
+        reads.append((frame, threading.current_thread().name))
+        return np.full((2, 3), frame, np.uint8), np.zeros((2, 3), np.uint8)  # 12 bytes a pair
+
+    pre = FramePrefetcher(read)
+    pre.preload([0, 1, 2, 1, 3], budget_bytes=48)  # 4 distinct frames x 12 bytes: fits
+    assert pre.get(2)[0][0, 0] == 2  # waits for the preload
+    assert pre.preloaded and pre.preload_result() == (4, 48)
+    assert all(name.startswith("prefetch") for _, name in reads) and len(reads) == 4
+    pre.prefetch(3)  # held: nothing read again
+    assert pre.get(3)[0][0, 0] == 3 and pre.get(0)[0][0, 0] == 0 and len(reads) == 4
+    pre.close()
+
+    reads.clear()
+    small = FramePrefetcher(read)
+    small.preload([0, 1, 2, 3], budget_bytes=47)  # does not fit: nothing held
+    assert small.preload_result() == (0, 0) and small.get(1)[0][0, 0] == 1
+    small.close()
+
+    broken = FramePrefetcher(read)
+    broken.preload([3, 4, 5], budget_bytes=10**6)  # stops at the unreadable frame
+    assert broken.preload_result() == (1, 12)
+    assert broken.get(3)[0][0, 0] == 3
+    with pytest.raises(OSError, match="frame 4"):
+        broken.get(4)
+    assert broken.get(5)[0][0, 0] == 5  # read when asked for
+    broken.close()

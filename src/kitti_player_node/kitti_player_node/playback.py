@@ -233,19 +233,59 @@ class FramePrefetcher:
     that reading (PNG decoding, ~20 ms per KITTI pair) is off the critical path.
 
     ``get(frame)`` returns ``read(frame)``, from the prefetch when it was for that frame;
-    ``prefetch(frame)`` starts reading one (None: nothing). Errors surface in ``get``."""
+    ``prefetch(frame)`` starts reading one (None: nothing). Errors surface in ``get``.
+
+    ``preload(frames, budget_bytes)`` reads whole sequences into memory before playback, as a
+    camera hands over decoded frames: the decoding then takes no CPU from the graph while it
+    runs. In the background thread; ``preloaded`` says when it is over. It reads the first
+    frame, estimates the sequence's size from it and stops (prefetching as before) when the
+    frames would take more than ``budget_bytes``; a frame that cannot be read ends the preload
+    and its error surfaces in ``get`` of that frame, as without preloading."""
 
     def __init__(self, read: Callable[[int], object]):
         self._read = read
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="prefetch")
         self._pending: tuple[int, Future] | None = None
+        self._cache: dict[int, object] = {}
+        self._preload: Future | None = None
+
+    def preload(self, frames: list[int], budget_bytes: int) -> None:
+        self._preload = self._pool.submit(self._read_all, list(dict.fromkeys(frames)), budget_bytes)
+
+    def _read_all(self, frames: list[int], budget_bytes: int) -> tuple[int, int]:
+        """Reads ``frames`` into the cache; returns (frames held, bytes held)."""
+        held = 0
+        for i, frame in enumerate(frames):
+            try:
+                data = self._read(frame)
+            except Exception:  # noqa: BLE001 - read again (and raised) by get()
+                break
+            size = _nbytes(data)
+            if i == 0 and size * len(frames) > budget_bytes:
+                return 0, 0
+            self._cache[frame] = data
+            held += size
+        return len(self._cache), held
+
+    @property
+    def preloaded(self) -> bool:
+        """True when no preload is running (over, stopped or never started)."""
+        return self._preload is None or self._preload.done()
+
+    def preload_result(self) -> tuple[int, int]:
+        """(frames, bytes) held in memory once the preload is over ((0, 0) without one)."""
+        return self._preload.result() if self._preload is not None else (0, 0)
 
     def prefetch(self, frame: int | None) -> None:
-        if frame is None or (self._pending and self._pending[0] == frame):
+        if frame is None or frame in self._cache or (self._pending and self._pending[0] == frame):
             return
         self._pending = (frame, self._pool.submit(self._read, frame))
 
     def get(self, frame: int):
+        if self._preload is not None and not self._preload.done():
+            self._preload.result()
+        if frame in self._cache:
+            return self._cache[frame]
         pending, self._pending = self._pending, None
         if pending is not None and pending[0] == frame:
             return pending[1].result()
@@ -253,3 +293,10 @@ class FramePrefetcher:
 
     def close(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _nbytes(data) -> int:
+    """Bytes of an array or of a tuple of arrays (a stereo pair)."""
+    if isinstance(data, (tuple, list)):
+        return sum(_nbytes(d) for d in data)
+    return int(getattr(data, "nbytes", 0))
