@@ -182,3 +182,22 @@ def test_training_frames_are_framed_as_inference_frames_them():
     expected = (box[0] - [0, top, 0, top]) * [sx, sy, sx, sy]
     assert np.allclose(out.boxes[0], expected, atol=1e-3)
     assert out.image.shape == (224, 896, 3)
+
+
+def test_heat_map_peaks_without_autograd_match_max_pooling():
+    """The detector's peak search (a 3x3 dilation on CPU) finds the cells max pooling finds,
+    plateaus and map edges included, with the same scores."""
+    import torch
+    from detector_node.centernet import HEAT, peaks
+
+    g = torch.Generator().manual_seed(3)
+    raw = torch.randn(2, 14, 20, 36, generator=g)
+    raw[0, HEAT, 5:7, 8:10] = 4.0  # a plateau: every cell of it is a peak
+    raw[1, HEAT, 0, 0] = 5.0  # a corner
+    raw[1, HEAT, -1, 17] = 5.0  # an edge
+    fast_scores, fast_idx = peaks(raw, 60)
+    slow_scores, slow_idx = peaks(raw.clone().requires_grad_(True), 60)  # max_pool2d
+    assert torch.equal(fast_scores, slow_scores.detach())
+    assert torch.equal(fast_idx, slow_idx)
+    assert {5 * 36 + 8, 5 * 36 + 9, 6 * 36 + 8, 6 * 36 + 9} <= set(fast_idx[0].tolist())
+    assert {0, 19 * 36 + 17} <= set(fast_idx[1].tolist())

@@ -15,7 +15,12 @@ TensorFlow's semantics map onto single ONNX ops that ONNX Runtime fuses and runs
   asymmetric ``pads`` (PyTorch has no asymmetric padding: it needs a separate pad, a copy);
 - legacy ``ResizeBilinear`` (no half-pixel centres, no corner alignment: output pixel i samples
   input i * in / out, clamped) is ONNX ``Resize`` linear with ``asymmetric`` coordinates;
-- MobileNetV3's hard-swish is ``HardSwish`` (times the graph's scale when it is not 1).
+- MobileNetV3's hard-swish is ``HardSwish``. The graph's float16 constants give it a scale of
+  0.99976 (6 x fp16(1/6)), not 1; a ``Mul`` for it would split every block's blocked-layout
+  run with two reorders. The scale is instead carried forward through the ops it commutes with
+  (average and max pooling, ReLU, resize, products, sums and concatenations of equally scaled
+  values) and folded into the weights of the next convolution; it is applied as a ``Mul`` only
+  where it cannot be (a non-linearity, a sum with an unscaled value, a graph output).
 
 Shapes are static: one graph per input size (the detector's input size is fixed per run).
 Parity with the PyTorch module is tested (``tests/detector/test_onnx_backend.py``).
@@ -123,8 +128,33 @@ def centernet_to_onnx(model, height: int, width: int, image_input: bool = False)
         shapes = [env[i][1] for i in inputs if i in env]
         return max(shapes)
 
+    # value name -> scalar factor not yet applied to env's tensor (see the module docstring)
+    pending: dict[str, float] = {}
+
+    def applied(name: str) -> None:
+        """Apply a pending factor of ``name`` with a Mul (once: env then holds the product)."""
+        if name in pending:
+            y, hw = env[name]
+            k = wr.const(np.array(pending.pop(name), np.float32))
+            env[name] = (wr.op("Mul", [y, k], "scale"), hw)
+
+    def common_factor(names: list[str]) -> float:
+        """The factor pending on every one of ``names`` when they share it (constants count
+        as unscaled); else applies the factors and returns 1."""
+        factors = {pending.get(i, 1.0) for i in names}
+        if len(factors) == 1:
+            return factors.pop()
+        for i in names:
+            applied(i)
+        return 1.0
+
+    def carry(name: str, factor: float) -> None:
+        if factor != 1.0:
+            pending[name] = factor
+
     for name, op, inputs, node in g.ops:
         if op in tg._CONVS:
+            factor = pending.get(inputs[0], 1.0)  # folded into the weights below
             xin, (h, w) = env[inputs[0]]
             wt = g._value({}, inputs[1])
             s = tg._attr(node, "strides", [1, 1, 1, 1])[1:3]
@@ -135,7 +165,10 @@ def centernet_to_onnx(model, height: int, width: int, image_input: bool = False)
                 raise tg.TfjsGraphError(f"node {name}: padding {padding} not supported")
             pads, out_hw = _pads(h, w, k, tuple(s), tuple(d), padding == "SAME")
             fused = tg._attr(node, "fused_ops", []) if "Fused" in op else []
-            ins = [xin, val(inputs[1])[0]]
+            if factor != 1.0:
+                ins = [xin, wr.const(wt.float() * factor, "w")]
+            else:
+                ins = [xin, val(inputs[1])[0]]
             if fused and fused[0] == "BiasAdd":
                 ins.append(val(inputs[2])[0])
                 fused = fused[1:]
@@ -161,32 +194,45 @@ def centernet_to_onnx(model, height: int, width: int, image_input: bool = False)
                     raise tg.TfjsGraphError(f"node {name}: fused activation {f} not supported")
             env[name] = (y, out_hw)
         elif op == "_HardSwish":
+            applied(inputs[0])
             xin, hw = env[inputs[0]]
             if HARD_SWISH == "HardSwish":
                 y = wr.op("HardSwish", [xin], "hswish")
             else:
                 gate = wr.op("HardSigmoid", [xin], "hsig", alpha=1.0 / 6.0, beta=0.5)
                 y = wr.op("Mul", [xin, gate], "hswish")
-            if node["scale"] != 1.0:
-                y = wr.op("Mul", [y, wr.const(np.array(node["scale"], np.float32))], "hscale")
             env[name] = (y, hw)
+            carry(name, float(node["scale"]))
         elif op == "_HardSigmoid":
+            applied(inputs[0])
             xin, hw = env[inputs[0]]
             y = wr.op("HardSigmoid", [xin], "hsig", alpha=1.0 / 6.0, beta=0.5)
-            if node["scale"] != 1.0:
-                y = wr.op("Mul", [y, wr.const(np.array(node["scale"], np.float32))], "hsscale")
             env[name] = (y, hw)
-        elif op in ("Relu", "Sigmoid", "Identity"):
+            carry(name, float(node["scale"]))
+        elif op in ("Relu", "Identity"):  # commute with a positive factor
+            if pending.get(inputs[0], 1.0) < 0:
+                applied(inputs[0])
+            xin, hw = env[inputs[0]]
+            env[name] = (wr.op(op, [xin], op.lower()), hw)
+            carry(name, pending.get(inputs[0], 1.0))
+        elif op == "Sigmoid":
+            applied(inputs[0])
             xin, hw = env[inputs[0]]
             env[name] = (wr.op(op, [xin], op.lower()), hw)
         elif op == "Relu6":
+            applied(inputs[0])
             xin, hw = env[inputs[0]]
             y = wr.op("Clip", [xin, wr.const(np.float32(0)), wr.const(np.float32(6))], "relu6")
             env[name] = (y, hw)
         elif op in tg._BINARY:
             onnx_op = {"Add": "Add", "AddV2": "Add", "Sub": "Sub", "Mul": "Mul"}[op]
+            if onnx_op == "Mul":
+                factor = pending.get(inputs[0], 1.0) * pending.get(inputs[1], 1.0)
+            else:
+                factor = common_factor(list(inputs[:2]))
             a, b = val(inputs[0])[0], val(inputs[1])[0]
             env[name] = (wr.op(onnx_op, [a, b], onnx_op.lower()), hw_of(inputs))
+            carry(name, factor)
         elif op == "Mean":
             axes = sorted(int(a) % 4 for a in np.atleast_1d(g._value({}, inputs[1]).cpu()))
             if axes != [1, 2]:
@@ -196,13 +242,18 @@ def centernet_to_onnx(model, height: int, width: int, image_input: bool = False)
             else:
                 y = wr.op("ReduceMean", [env[inputs[0]][0]], "mean", axes=[2, 3], keepdims=0)
             env[name] = (y, (1, 1))
+            carry(name, pending.get(inputs[0], 1.0))
         elif op == "ConcatV2":
             axis = int(g._value({}, inputs[-1]))
             if axis not in (3, -1):
                 raise tg.TfjsGraphError(f"node {name}: concat on axis {axis} not supported")
+            factor = common_factor(list(inputs[:-1]))
             parts = [val(i)[0] for i in inputs[:-1]]
             env[name] = (wr.op("Concat", parts, "concat", axis=1), hw_of(inputs[:-1]))
+            carry(name, factor)
         elif op == "MaxPool":
+            if pending.get(inputs[0], 1.0) < 0:
+                applied(inputs[0])
             xin, (h, w) = env[inputs[0]]
             k = tg._attr(node, "ksize")[1:3]
             s = tg._attr(node, "strides")[1:3]
@@ -211,6 +262,7 @@ def centernet_to_onnx(model, height: int, width: int, image_input: bool = False)
             )
             y = wr.op("MaxPool", [xin], "maxpool", kernel_shape=k, strides=s, pads=pads)
             env[name] = (y, out_hw)
+            carry(name, pending.get(inputs[0], 1.0))
         elif op == "ResizeBilinear":
             if tg._attr(node, "align_corners", False) or tg._attr(
                 node, "half_pixel_centers", False
@@ -231,9 +283,11 @@ def centernet_to_onnx(model, height: int, width: int, image_input: bool = False)
                 coordinate_transformation_mode="asymmetric",
             )
             env[name] = (y, out_hw)
+            carry(name, pending.get(inputs[0], 1.0))
         else:
             raise tg.TfjsGraphError(f"node {name}: op {op} not supported")
 
+    applied(FEATURE)
     feature, _ = env[FEATURE]
     for n in wr.nodes:  # the feature is an output under its own name (no copy)
         n.input[:] = [FEATURE_OUT if i == feature else i for i in n.input]
