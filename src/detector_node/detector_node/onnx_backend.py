@@ -304,18 +304,17 @@ def centernet_to_onnx(model, height: int, width: int, image_input: bool = False)
             pads=[1, 1, 1, 1],
             group=int(dw.shape[0]),
         )
+        k = scale.float() if scale is not None else 1.0  # folded into the weights and bias
         y = wr.op(
             "Conv",
             [
                 y,
-                wr.const(head.pointwise.weight.float(), "pw"),
-                wr.const(head.pointwise.bias.float()),
+                wr.const(head.pointwise.weight.float() * k, "pw"),
+                wr.const(head.pointwise.bias.float() * k),
             ],
             "head_pw",
             kernel_shape=[1, 1],
         )
-        if scale is not None:
-            y = wr.op("Mul", [y, wr.const(scale.float().reshape(()), "box_scale")], "box_scaled")
         heads.append(y)
     wr.nodes.append(helper.make_node("Concat", heads, [DENSE_OUT], axis=1))
     gh, gw = -(-height // 4), -(-width // 4)
