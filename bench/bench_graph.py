@@ -260,9 +260,12 @@ def _figures(times, reports, cpu0, cpu1, wall) -> dict:
     }
 
 
-def offline_stage_times(root: Path, sequence: str, repeats: int = 5) -> dict[str, float]:
+def offline_stage_times(
+    root: Path, sequence: str, repeats: int = 5, overrides: list[str] = ()
+) -> dict[str, float]:
     """Median ms per frame of each stage run alone in this process (same core functions and
-    thread counts as the graph's nodes), the baseline the graph's latency is compared with."""
+    thread counts as the graph's nodes, ``-p NODE.num_threads:=N`` overrides included), the
+    baseline the graph's latency is compared with."""
     import cv2
     import torch
     from detector_node.inference import CnnDetector
@@ -282,8 +285,20 @@ def offline_stage_times(root: Path, sequence: str, repeats: int = 5) -> dict[str
     seq = TrackingSequence.open(root, sequence)
     frames = seq.frame_ids[:repeats]
     left, right = seq.read_stereo(frames[0])
-    det_threads = int(graph.parameter_value(PARAMS_FILE, [], graph.DETECTOR.name, "num_threads", 2))
-    cv_threads = int(graph.parameter_value(PARAMS_FILE, [], graph.STEREO.name, "num_threads", 2))
+
+    def node_overrides(node: str) -> list[str]:
+        return [o.partition(".")[2] for o in overrides if o.startswith(node + ".")]
+
+    det_threads = int(
+        graph.parameter_value(
+            PARAMS_FILE, node_overrides(graph.DETECTOR.name), graph.DETECTOR.name, "num_threads", 2
+        )
+    )
+    cv_threads = int(
+        graph.parameter_value(
+            PARAMS_FILE, node_overrides(graph.STEREO.name), graph.STEREO.name, "num_threads", 2
+        )
+    )
 
     def median_ms(fn) -> float:
         fn()  # warm-up
@@ -426,7 +441,7 @@ def main(argv=None) -> int:
     if not args.no_offline:
         for label, root, seq in datasets:
             print(f"[bench] offline stage times, {label} ...", file=sys.stderr, flush=True)
-            offline[label] = offline_stage_times(root, seq)
+            offline[label] = offline_stage_times(root, seq, overrides=args.param)
     rows, stamp, profiles = [], time.strftime("%Y%m%d_%H%M%S"), []
     for label, root, seq in datasets:
         for mode, lockstep, window in modes:
