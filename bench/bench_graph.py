@@ -315,7 +315,9 @@ def offline_stage_times(
     params = DisparityParams()  # the node's defaults = the parameter file's
     geometry = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
     ranging = RangingSetup.from_params(RangingParams())
-    boxes = [o.bbox for o in seq.objects(frames[0]) if o.type in ("Car", "Van")]
+    # what the graph ranges: the CNN's boxes (more than the labelled cars: far and partly
+    # seen ones too)
+    boxes = [d.box for d in detector.detect(seq.read_stereo(frames[1])[0])]
     disp0 = compute_disparity(*seq.read_stereo(frames[0]), params)
     left1, right1 = seq.read_stereo(frames[1])
     disp1 = compute_disparity(left1, right1, params)

@@ -288,6 +288,8 @@ class StereoDepthNode(Node):
         kind, a, b = item
         if kind == "pair":
             self._process_pair(a, b)
+        elif kind == "outputs":
+            self._publish_frame_outputs(a, b)
         else:
             self._add_to_frame_sync(a, kind, b)
 
@@ -347,22 +349,24 @@ class StereoDepthNode(Node):
         self._finish_odometry(frame, odometry, gray)
         if frame.disparity is not None:
             self.frames_processed += 1
-            if self.publish_disparity:
-                self.pub_disparity.publish(
-                    disparity_message(
-                        frame.disparity, frame.geometry, self.disparity_params, frame.header
-                    )
-                )
-            if self.pub_points is not None:
-                pts, rgb = decimated_points(
-                    frame.disparity,
-                    frame.geometry,
-                    self.points_decimation,
-                    left if self.points_rgb else None,
-                    self.points_max_depth,
-                )
-                self.pub_points.publish(build_point_cloud(pts, rgb, left_msg.header))
         self._add_to_frame_sync(stamp_ns(left_msg.header), "frame", frame)
+        if frame.disparity is not None and (self.publish_disparity or self.pub_points is not None):
+            # off the ranging path: queued behind a detection array that is already waiting
+            self.worker.submit(("outputs", frame, left if self.points_rgb else None), frame=False)
+
+    def _publish_frame_outputs(self, frame: _Frame, left: np.ndarray | None) -> None:
+        """The pair's disparity image and point cloud (when enabled), after its ranging."""
+        if self.publish_disparity:
+            self.pub_disparity.publish(
+                disparity_message(
+                    frame.disparity, frame.geometry, self.disparity_params, frame.header
+                )
+            )
+        if self.pub_points is not None:
+            pts, rgb = decimated_points(
+                frame.disparity, frame.geometry, self.points_decimation, left, self.points_max_depth
+            )
+            self.pub_points.publish(build_point_cloud(pts, rgb, frame.header))
 
     def _publish_empty(self, det_msg) -> None:
         """An empty 3D array for a detection array that cannot be ranged."""
