@@ -251,6 +251,8 @@ def _figures(times, reports, cpu0, cpu1, wall) -> dict:
                 "in": r.counts.received,
                 "out": r.counts.published,
                 "dropped": r.counts.dropped,
+                # the node's worker per frame (median over its last 100 frames): wall, CPU
+                "processing_ms": list(r.processing_ms) if r.processing_ms else None,
             }
             for n, r in reports.items()
         },
@@ -358,6 +360,25 @@ def stage_ratios(figures: dict, alone: dict[str, float]) -> dict[str, tuple[floa
         "image -> 3D": (to_3d, path),
         "image -> tracks": (figures["latency_ms"]["p50"], path),
     }
+
+
+def node_work(figures: dict, alone: dict[str, float]) -> dict[str, tuple[float, float, float]]:
+    """Per compute node: (wall, CPU) ms its worker spent per frame in the graph and the same
+    work alone. detector: the CNN on a converted image; stereo_depth: a pair's conversion,
+    disparity map and the wait for its odometry (run beside it in another thread, whose CPU
+    time is not in the worker's), alone: the disparity map. CPU counts the worker thread only
+    (OpenCV's own threads are not in it)."""
+    det = next(v for k, v in alone.items() if k.startswith("detect"))
+    disp = next(v for k, v in alone.items() if k.startswith("disparity"))
+    out = {}
+    for node, label, ref in (
+        (graph.DETECTOR.name, "detect", det),
+        (graph.STEREO.name, "stereo pair", disp),
+    ):
+        work = figures["nodes"].get(node, {}).get("processing_ms")
+        if work:
+            out[label] = (work[0], work[1], ref)
+    return out
 
 
 def _image_from_bytes(rgb: np.ndarray):
@@ -470,6 +491,16 @@ def main(argv=None) -> int:
             ratios = stage_ratios(f, offline[data])
             cells = ", ".join(
                 f"{k} {g:.0f} / {a:.0f} ms = {g / a:.2f}x" for k, (g, a) in ratios.items()
+            )
+            print(f"  {data:<16} {mode:<11} {cells}")
+        print(
+            "each compute node's own work per frame in the graph (its /diagnostics report: "
+            "median wall / CPU ms of its worker thread) against the same work alone:"
+        )
+        for data, mode, f in rows:
+            cells = ", ".join(
+                f"{k} {w:.0f} / {c:.0f} ms vs {a:.0f} = {w / a:.2f}x wall, {c / a:.2f}x CPU"
+                for k, (w, c, a) in node_work(f, offline[data]).items()
             )
             print(f"  {data:<16} {mode:<11} {cells}")
     for data, mode, folder in profiles:

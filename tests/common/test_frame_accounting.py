@@ -150,3 +150,33 @@ def test_max_waiting_keeps_that_many_newest_frames():
     assert done == [0, 1, 2, 3, 5, 6] and skipped == [4]
     with pytest.raises(ValueError, match="max_waiting"):
         LatestFrameWorker(process, max_waiting=0)
+
+
+def test_worker_times_the_frames_it_processes_wall_and_cpu():
+    """The worker books each processed frame's wall and thread-CPU time on the counter (not the
+    skipped frames, not the other items); the report carries the medians."""
+    counter = FrameCounter()
+    assert counter.processing_ms() is None
+
+    def process(item):
+        if item == "sleep":
+            time.sleep(0.03)  # waits: wall time, no CPU
+        elif item == "spin":
+            t = time.thread_time()
+            while time.thread_time() - t < 0.03:  # computes: wall and CPU
+                pass
+
+    worker = LatestFrameWorker(process, counter, max_waiting=10)
+    for item in ("sleep", "spin", "sleep"):
+        worker.submit(item)
+    worker.submit("not a frame", frame=False)
+    worker.stop()
+    wall, cpu = counter.processing_ms()
+    assert 29 <= wall < 80  # median of 30 / 30 / 30 ms (+ scheduling)
+    assert cpu < 10  # median of ~0 / 30 / ~0 ms: the sleeping frames took no CPU
+    report = NodeReport("detector", FrameCounts(3, 3, 0), processing_ms=(wall, cpu))
+    back = NodeReport.from_values("/detector", report.values())
+    assert back.processing_ms == pytest.approx((wall, cpu), abs=0.01)
+    assert NodeReport.from_values("x", NodeReport("x").values()).processing_ms is None
+    with pytest.raises(ValueError, match="report of x"):
+        NodeReport.from_values("x", [("processing_ms_p50", "1.0")])  # the CPU figure missing

@@ -199,6 +199,7 @@ class StereoDepthNode(Node):
             on_error=self._work_failed,
             skip=self._skip_pair,
             max_waiting=p.frame_queue,
+            timing=self.frames,  # frames are counted on the detection arrays, timed on pairs
         )
 
         self.pub_disparity = self.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)

@@ -5,7 +5,9 @@ grow (latency grows with it) nor lose frames silently (a DDS KEEP_LAST queue ove
 sample and nobody knows): it processes the newest frame and counts every frame it skips.
 
 - :class:`FrameCounter`: frames in / out / dropped of one node (thread-safe), the figures a node
-  reports on ``/diagnostics`` and in its exit line.
+  reports on ``/diagnostics`` and in its exit line, and the time its worker spent on each of
+  the last frames (wall and CPU of the worker thread: the stage's own time in the graph, to set
+  beside the same work alone).
 - :class:`LatestFrameWorker`: a thread that processes what the receiving callbacks submit, in
   order, so that they return at once; a frame that is superseded by a newer one before its turn
   is skipped and counted as dropped. ``stop()`` finishes what is in hand and waiting (drain),
@@ -14,8 +16,10 @@ sample and nobody knows): it processes the newest frame and counts every frame i
 
 from __future__ import annotations
 
+import statistics
 import sys
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -44,11 +48,15 @@ class FrameCounter:
     """Frames in / out / dropped of one node. Every frame counted in must end up counted out or
     dropped, so that ``pending`` is what the node still holds."""
 
+    #: frames whose processing time is kept (the median reported is over these)
+    TIMED_FRAMES = 100
+
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._received = 0
         self._published = 0
         self._dropped = 0
+        self._times: deque[tuple[float, float]] = deque(maxlen=self.TIMED_FRAMES)
 
     def received(self, n: int = 1) -> None:
         with self._lock:
@@ -66,6 +74,24 @@ class FrameCounter:
         with self._lock:
             return FrameCounts(self._received, self._published, self._dropped)
 
+    def processed(self, wall_s: float, cpu_s: float) -> None:
+        """One frame's processing took ``wall_s`` seconds, ``cpu_s`` of them on a CPU (the
+        processing thread's CPU time; a library's own threads are not counted)."""
+        with self._lock:
+            self._times.append((wall_s, cpu_s))
+
+    def processing_ms(self) -> tuple[float, float] | None:
+        """Median (wall, CPU) milliseconds per frame over the last :attr:`TIMED_FRAMES`
+        processed frames; None before the first."""
+        with self._lock:
+            times = list(self._times)
+        if not times:
+            return None
+        return (
+            1e3 * statistics.median(t[0] for t in times),
+            1e3 * statistics.median(t[1] for t in times),
+        )
+
 
 class LatestFrameWorker:
     """Processes submitted items in order in its own thread, skipping stale frames.
@@ -77,7 +103,8 @@ class LatestFrameWorker:
     default of 1, the newest frame is processed and the queue of frames never grows beyond one;
     lockstep playback with K frames in flight uses ``max_waiting = K`` and never skips. An
     exception in ``process`` goes to ``on_error(exc, item)`` (default: one line on stderr) and
-    the worker goes on.
+    the worker goes on. Each processed frame's wall and thread-CPU time is booked on
+    ``timing`` (default: ``counter``).
     """
 
     def __init__(
@@ -88,6 +115,7 @@ class LatestFrameWorker:
         on_error: Callable[[BaseException, Any], None] | None = None,
         skip: Callable[[Any], None] | None = None,
         max_waiting: int = 1,
+        timing: FrameCounter | None = None,
     ) -> None:
         if max_waiting < 1:
             raise ValueError(f"max_waiting {max_waiting} must be >= 1")
@@ -96,6 +124,7 @@ class LatestFrameWorker:
         self._skip = skip
         self._on_error = on_error or _print_error
         self.counter = counter
+        self._timing = timing or counter  # books each processed frame's wall / CPU time
         self._cond = threading.Condition()
         self._queue: deque[tuple[Any, bool]] = deque()
         self._frames_waiting = 0
@@ -116,20 +145,20 @@ class LatestFrameWorker:
         with self._cond:
             return self._busy or bool(self._queue)
 
-    def _next(self) -> tuple[bool, Any, bool]:
-        """(ok, item, stale) of the next item; ok is False once closed and empty."""
+    def _next(self) -> tuple[bool, Any, bool, bool]:
+        """(ok, item, is a frame, stale) of the next item; ok is False once closed and empty."""
         with self._cond:
             self._cond.wait_for(lambda: self._queue or self._closed)
             if not self._queue:
-                return False, None, False
+                return False, None, False, False
             item, frame = self._queue.popleft()
             self._frames_waiting -= frame
             self._busy = True
-            return True, item, frame and self._frames_waiting >= self.max_waiting
+            return True, item, frame, frame and self._frames_waiting >= self.max_waiting
 
     def _run(self) -> None:
         while True:
-            ok, item, stale = self._next()
+            ok, item, frame, stale = self._next()
             if not ok:
                 return
             try:
@@ -139,7 +168,10 @@ class LatestFrameWorker:
                     if self._skip is not None:
                         self._skip(item)
                 else:
+                    t0, c0 = time.perf_counter(), time.thread_time()
                     self._process(item)
+                    if frame and self._timing is not None:
+                        self._timing.processed(time.perf_counter() - t0, time.thread_time() - c0)
             except Exception as exc:  # noqa: BLE001 (reported, the worker keeps running)
                 self._on_error(exc, item)
             finally:

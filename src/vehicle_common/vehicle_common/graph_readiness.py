@@ -40,13 +40,16 @@ def format_topic_counts(counts: Mapping[str, int]) -> str:
 
 @dataclass(frozen=True)
 class NodeReport:
-    """What one node reports: frame counts, whether a frame is in process, and per published
-    topic the number of matched subscriptions."""
+    """What one node reports: frame counts, whether a frame is in process, per published
+    topic the number of matched subscriptions, and the median (wall, CPU) milliseconds its
+    worker spent per frame (``processing_ms``; None for a node without a frame worker or
+    before its first frame)."""
 
     node: str
     counts: FrameCounts = FrameCounts()
     busy: bool = False
     matched: dict[str, int] = field(default_factory=dict)
+    processing_ms: tuple[float, float] | None = None
 
     @property
     def idle(self) -> bool:
@@ -62,6 +65,11 @@ class NodeReport:
             ("frames_dropped", str(c.dropped)),
             ("busy", "1" if self.busy else "0"),
         ]
+        if self.processing_ms is not None:
+            out += [
+                ("processing_ms_p50", f"{self.processing_ms[0]:.2f}"),
+                ("processing_cpu_ms_p50", f"{self.processing_ms[1]:.2f}"),
+            ]
         return out + [(_MATCHED + t, str(n)) for t, n in sorted(self.matched.items())]
 
     @classmethod
@@ -75,9 +83,12 @@ class NodeReport:
                 int(kv.get("frames_dropped", 0)),
             )
             matched = {k[len(_MATCHED) :]: int(v) for k, v in kv.items() if k.startswith(_MATCHED)}
-        except ValueError as exc:
+            timing = None
+            if "processing_ms_p50" in kv:
+                timing = (float(kv["processing_ms_p50"]), float(kv["processing_cpu_ms_p50"]))
+        except (ValueError, KeyError) as exc:
             raise ValueError(f"report of {node}: {exc}") from None
-        return cls(node.lstrip("/"), counts, kv.get("busy") == "1", matched)
+        return cls(node.lstrip("/"), counts, kv.get("busy") == "1", matched, timing)
 
 
 def unready_topics(

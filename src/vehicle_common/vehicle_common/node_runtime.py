@@ -54,7 +54,13 @@ class NodeHealth:
             for p in self.node.publishers
             if p.topic_name not in _IGNORED_TOPICS
         }
-        return NodeReport(self.node.get_name(), self.counter.snapshot(), self._busy(), matched)
+        return NodeReport(
+            self.node.get_name(),
+            self.counter.snapshot(),
+            self._busy(),
+            matched,
+            self.counter.processing_ms(),
+        )
 
     def _check(self) -> None:
         report = self.report()
