@@ -300,6 +300,35 @@ def test_centernet_targets_peak_distances_and_orientation():
     assert bins.tolist() == [-1]  # unknown alpha: no orientation target
 
 
+
+def test_centernet_orientation_loss_takes_the_balancing_bin_weights():
+    """``--balance-orientation`` reaches the CenterNet's bin cross-entropy (it once reached only
+    the paper network's loss): equal weights change nothing, skewed ones change the bin term as
+    a weighted mean of the boxes' terms."""
+    import torch
+    import torch.nn.functional as F
+    from detector_node.centernet import NUM_BINS, centernet_loss
+
+    boxes = [np.array([[40.0, 20.0, 80.0, 60.0], [120.0, 30.0, 160.0, 70.0]], np.float32)]
+    alphas = [np.array([0.02, math.pi / 2 + 0.01], np.float32)]  # bins 0 and 2
+    dontcare = [np.zeros((0, 4), np.float32)]
+    raw = torch.zeros(1, 5, 20, 64)
+    head = torch.tensor([[2.0, 0.0, 0.0, 0.0, 0, 0, 0, 0, 0], [2.0, 0.0, 0.0, 0.0, 0, 0, 0, 0, 0]])
+
+    def orientation(batch, gt):
+        return head[: len(batch)]
+
+    def bin_term(bin_weights):
+        _, terms = centernet_loss(raw, boxes, alphas, dontcare, None, orientation, bin_weights)
+        return terms["bin"]
+
+    ce = F.cross_entropy(head[:, :NUM_BINS], torch.tensor([0, 2]), reduction="none")
+    assert bin_term(None) == pytest.approx(float(ce.mean()), rel=1e-5)
+    assert bin_term((1.0, 1.0, 1.0, 1.0)) == pytest.approx(bin_term(None), rel=1e-6)
+    weighted = float((ce[0] * 1.0 + ce[1] * 3.0) / 4.0)
+    assert bin_term((1.0, 1.0, 3.0, 1.0)) == pytest.approx(weighted, rel=1e-5)
+    assert bin_term((1.0, 1.0, 3.0, 1.0)) > bin_term(None)
+
 def test_old_checkpoint_loads_by_name_with_bin_centre_and_no_variance():
     from detector_node.checkpoint import SHIPPED_CHECKPOINT
     from detector_node.inference import CnnDetector, Detection

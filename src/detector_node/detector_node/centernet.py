@@ -370,7 +370,13 @@ def ltrb_iou(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 def centernet_loss(
-    raw, samples_boxes, samples_alphas, samples_dontcare, weights=None, orientation=None
+    raw,
+    samples_boxes,
+    samples_alphas,
+    samples_dontcare,
+    weights=None,
+    orientation=None,
+    bin_weights=None,
 ):
     """CenterNet loss of a batch and its terms: penalty-reduced focal loss on the heat map
     (alpha 2, beta 4; negatives inside DontCare / ignore regions not counted), box L1 (in
@@ -380,7 +386,8 @@ def centernet_loss(
 
     ``raw``: the dense output (B, >= 5, H/4, W/4); ``orientation``: a function (batch (N,),
     boxes (N, 4)) -> (N, 9) evaluating the orientation head on the ground-truth boxes (None: no
-    orientation terms)."""
+    orientation terms); ``bin_weights``: per-bin weights of the bin cross-entropy (a weighted
+    mean, ``detector_train --balance-orientation``; None: unweighted)."""
     w = {"heat": 1.0, "l1": 0.1, "iou": 1.0, "bin": 1.0, "residual": 1.0, **(weights or {})}
     dev = raw.device
     b, _, gh, gw = raw.shape
@@ -412,7 +419,8 @@ def centernet_loss(
             ).to(dev)
             tb = torch.from_numpy(bins).to(dev)[known]
             v = orientation(bi_t[known], gt_boxes[known])
-            l_bin = F.cross_entropy(v[:, 0:NUM_BINS], tb)
+            bw = None if bin_weights is None else torch.tensor(bin_weights, dtype=v.dtype)
+            l_bin = F.cross_entropy(v[:, 0:NUM_BINS], tb, weight=bw if bw is None else bw.to(dev))
             res_raw = v[:, NUM_BINS : 2 * NUM_BINS]
             pred_res = MAX_RESIDUAL * torch.tanh(res_raw.gather(1, tb[:, None])[:, 0])
             err = pred_res - torch.from_numpy(res).to(dev)[known]

@@ -160,10 +160,13 @@ def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> 
     return bank
 
 
-def _centernet_batch_loss(model, f: torch.Tensor, items, rng, orientation_weight: float):
+def _centernet_batch_loss(
+    model, f: torch.Tensor, items, rng, orientation_weight: float, bin_weights=None
+):
     """CenterNet loss of a batch of features ``f`` and their samples (boxes, alphas, DontCare);
     the orientation head sees the ground-truth boxes with each edge moved by up to 5 % of the
-    box size (as the predicted boxes it meets at inference)."""
+    box size (as the predicted boxes it meets at inference); ``bin_weights``: those of
+    ``--balance-orientation`` (None: unweighted)."""
     boxes = [it.boxes for it in items]
 
     def orientation(batch_idx: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
@@ -178,6 +181,7 @@ def _centernet_batch_loss(model, f: torch.Tensor, items, rng, orientation_weight
         [it.dontcare for it in items],
         {"bin": orientation_weight, "residual": orientation_weight},
         orientation,
+        bin_weights,
     )
 
 
@@ -474,7 +478,9 @@ def _train(args: argparse.Namespace) -> int:
                 else:
                     items = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
                     f = model.features(to_tensor([s.image for s in items], device))
-                loss, terms = _centernet_batch_loss(model, f, items, rng, args.orientation_weight)
+                loss, terms = _centernet_batch_loss(
+                    model, f, items, rng, args.orientation_weight, weights.orientation_bin_weights
+                )
             else:
                 batch = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
                 raw = model(to_tensor([s.image for s in batch], device))
