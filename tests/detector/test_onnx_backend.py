@@ -201,3 +201,33 @@ def test_heat_map_peaks_without_autograd_match_max_pooling():
     assert torch.equal(fast_idx, slow_idx)
     assert {5 * 36 + 8, 5 * 36 + 9, 6 * 36 + 8, 6 * 36 + 9} <= set(fast_idx[0].tolist())
     assert {0, 19 * 36 + 17} <= set(fast_idx[1].tolist())
+
+
+@needs_ort
+def test_hard_swish_scale_is_folded_into_the_next_convolutions(shipped):
+    """The hard-swish's float16 scale (0.99976) goes into the weights of the convolutions after
+    it: a Mul stays only where the scaled value meets an unscaled one in a sum (the parity with
+    PyTorch is the test above); there was one Mul per hard-swish."""
+    import onnx
+    from detector_node.onnx_backend import centernet_to_onnx
+
+    model, _ = shipped
+    scales = {n[3]["scale"] for n in model.graph.ops if n[1] == "_HardSwish"}
+    assert scales and all(abs(s - 1.0) > 1e-5 for s in scales)  # the factor exists
+    m = onnx.load_from_string(centernet_to_onnx(model, 96, 160, image_input=True))
+    producer = {o: n for n in m.graph.node for o in n.output}
+    consumers = {}
+    for n in m.graph.node:
+        for i in n.input:
+            consumers.setdefault(i, []).append(n.op_type)
+    hswish = [n for n in m.graph.node if n.op_type == "HardSwish"]
+    scaled = [
+        n
+        for n in m.graph.node
+        if n.op_type == "Mul"
+        and n.input[0] in producer
+        and producer[n.input[0]].op_type == "HardSwish"
+    ]
+    assert len(hswish) >= 10
+    assert len(scaled) <= 2
+    assert all(consumers[n.output[0]] == ["Add"] for n in scaled)
