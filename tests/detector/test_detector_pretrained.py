@@ -300,7 +300,6 @@ def test_centernet_targets_peak_distances_and_orientation():
     assert bins.tolist() == [-1]  # unknown alpha: no orientation target
 
 
-
 def test_centernet_orientation_loss_takes_the_balancing_bin_weights():
     """``--balance-orientation`` reaches the CenterNet's bin cross-entropy (it once reached only
     the paper network's loss): equal weights change nothing, skewed ones change the bin term as
@@ -328,6 +327,7 @@ def test_centernet_orientation_loss_takes_the_balancing_bin_weights():
     weighted = float((ce[0] * 1.0 + ce[1] * 3.0) / 4.0)
     assert bin_term((1.0, 1.0, 3.0, 1.0)) == pytest.approx(weighted, rel=1e-5)
     assert bin_term((1.0, 1.0, 3.0, 1.0)) > bin_term(None)
+
 
 def test_old_checkpoint_loads_by_name_with_bin_centre_and_no_variance():
     from detector_node.checkpoint import SHIPPED_CHECKPOINT

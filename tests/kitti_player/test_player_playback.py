@@ -233,3 +233,23 @@ def test_frame_prefetcher_preloads_within_budget_and_keeps_errors_at_their_frame
         broken.get(4)
     assert broken.get(5)[0][0, 0] == 5  # read when asked for
     broken.close()
+
+
+def test_frame_prefetcher_close_stops_a_running_preload():
+    """Ctrl-C while a long sequence is being read into memory: close() returns after the frame in
+    hand, not after the whole sequence."""
+    import time
+
+    from kitti_player_node.playback import FramePrefetcher
+
+    def read(frame):
+        time.sleep(0.05)
+        return np.zeros((2, 2), np.uint8)
+
+    pre = FramePrefetcher(read)
+    pre.preload(list(range(200)), budget_bytes=10**9)  # 10 s of reading
+    time.sleep(0.12)
+    t0 = time.monotonic()
+    pre.close()
+    assert time.monotonic() - t0 < 1.0
+    assert pre.preloaded and pre.preload_result()[0] < 10

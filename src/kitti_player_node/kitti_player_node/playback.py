@@ -8,6 +8,7 @@ frame it hands out; the scheduler only sees monotonic times passed in, so it is 
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -248,6 +249,7 @@ class FramePrefetcher:
         self._pending: tuple[int, Future] | None = None
         self._cache: dict[int, object] = {}
         self._preload: Future | None = None
+        self._closing = threading.Event()  # a preload stops at the next frame
 
     def preload(self, frames: list[int], budget_bytes: int) -> None:
         self._preload = self._pool.submit(self._read_all, list(dict.fromkeys(frames)), budget_bytes)
@@ -256,6 +258,8 @@ class FramePrefetcher:
         """Reads ``frames`` into the cache; returns (frames held, bytes held)."""
         held = 0
         for i, frame in enumerate(frames):
+            if self._closing.is_set():
+                break
             try:
                 data = self._read(frame)
             except Exception:  # noqa: BLE001 - read again (and raised) by get()
@@ -292,6 +296,7 @@ class FramePrefetcher:
         return self._read(frame)
 
     def close(self) -> None:
+        self._closing.set()
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
