@@ -288,19 +288,11 @@ def offline_stage_times(
     frames = seq.frame_ids[:repeats]
     left, right = seq.read_stereo(frames[0])
 
-    def node_overrides(node: str) -> list[str]:
-        return [o.partition(".")[2] for o in overrides if o.startswith(node + ".")]
+    def threads(node: str) -> int:
+        ovs = graph.node_overrides(overrides, node)
+        return int(graph.parameter_value(PARAMS_FILE, ovs, node, "num_threads", 2))
 
-    det_threads = int(
-        graph.parameter_value(
-            PARAMS_FILE, node_overrides(graph.DETECTOR.name), graph.DETECTOR.name, "num_threads", 2
-        )
-    )
-    cv_threads = int(
-        graph.parameter_value(
-            PARAMS_FILE, node_overrides(graph.STEREO.name), graph.STEREO.name, "num_threads", 2
-        )
-    )
+    det_threads, cv_threads = threads(graph.DETECTOR.name), threads(graph.STEREO.name)
 
     def median_ms(fn) -> float:
         fn()  # warm-up
@@ -317,11 +309,11 @@ def offline_stage_times(
     params = DisparityParams()  # the node's defaults = the parameter file's
     geometry = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
     ranging = RangingSetup.from_params(RangingParams())
+    disp0 = compute_disparity(left, right, params)
+    left1, right1 = seq.read_stereo(frames[1])
     # what the graph ranges: the CNN's boxes (more than the labelled cars: far and partly
     # seen ones too)
-    boxes = [d.box for d in detector.detect(seq.read_stereo(frames[1])[0])]
-    disp0 = compute_disparity(*seq.read_stereo(frames[0]), params)
-    left1, right1 = seq.read_stereo(frames[1])
+    boxes = [d.box for d in detector.detect(left1)]
     disp1 = compute_disparity(left1, right1, params)
     gray0, gray1 = to_gray(left), to_gray(left1)
     bias = disparity_bias_at(np.arange(left.shape[1]), geometry, ranging.params)

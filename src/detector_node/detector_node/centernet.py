@@ -419,8 +419,8 @@ def centernet_loss(
             ).to(dev)
             tb = torch.from_numpy(bins).to(dev)[known]
             v = orientation(bi_t[known], gt_boxes[known])
-            bw = None if bin_weights is None else torch.tensor(bin_weights, dtype=v.dtype)
-            l_bin = F.cross_entropy(v[:, 0:NUM_BINS], tb, weight=bw if bw is None else bw.to(dev))
+            bw = None if bin_weights is None else v.new_tensor(bin_weights)
+            l_bin = F.cross_entropy(v[:, 0:NUM_BINS], tb, weight=bw)
             res_raw = v[:, NUM_BINS : 2 * NUM_BINS]
             pred_res = MAX_RESIDUAL * torch.tanh(res_raw.gather(1, tb[:, None])[:, 0])
             err = pred_res - torch.from_numpy(res).to(dev)[known]

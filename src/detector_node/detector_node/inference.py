@@ -12,7 +12,7 @@ from vehicle_common.orientation_bins import bin_to_alpha, fold_alpha_signed
 from .boxes import decode_raw, nms
 from .checkpoint import SHIPPED_CHECKPOINT, load_checkpoint
 from .dataset import resize_image
-from .model import DetectorConfig, split_output
+from .model import DetectorConfig, check_roi_top, split_output
 
 #: the image size the checkpoints were trained at (KITTI): an overridden input size keeps the
 #: anchors at the training's input px per image px (CnnDetector.from_checkpoint)
@@ -144,14 +144,11 @@ class CnnDetector:
         threads: int | None = None,
         roi_top: float | None = None,
     ) -> None:
-        roi_top = model.config.roi_top if roi_top is None or roi_top < 0 else roi_top
-        if not 0.0 <= roi_top < 0.9:
-            raise ValueError(
-                f"roi_top must be in [0, 0.9) (or < 0: the checkpoint's), got {roi_top}"
-            )
         #: fraction of the image height at the top that is not searched (see :meth:`detect`;
-        #: default the checkpoint's)
-        self.roi_top = float(roi_top)
+        #: None or < 0: the checkpoint's)
+        self.roi_top = float(
+            check_roi_top(model.config.roi_top if roi_top is None or roi_top < 0 else roi_top)
+        )
         self.device = torch.device(device)
         self.model = model.to(self.device).eval()
         self.config = model.config

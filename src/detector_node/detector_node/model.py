@@ -43,6 +43,14 @@ DEFAULT_ANCHORS_352x1152 = (
 )
 
 
+def check_roi_top(roi_top: float) -> float:
+    """``roi_top`` (the top fraction of the image not searched) when in [0, 0.9), else
+    ValueError."""
+    if not 0.0 <= roi_top < 0.9:
+        raise ValueError(f"roi_top must be in [0, 0.9), got {roi_top}")
+    return roi_top
+
+
 @dataclass(frozen=True)
 class DetectorConfig:
     """Everything needed to rebuild a detector; stored in every checkpoint."""
@@ -59,8 +67,7 @@ class DetectorConfig:
     roi_top: float = 0.0
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.roi_top < 0.9:
-            raise ValueError(f"roi_top {self.roi_top} must be in [0, 0.9)")
+        check_roi_top(self.roi_top)
         if self.input_height % 32 or self.input_width % 32:
             raise ValueError(
                 f"input size {self.input_width}x{self.input_height} must be multiples of 32"

@@ -377,7 +377,7 @@ class OnnxCenterNet:
             raise RuntimeError("onnxruntime backend: the onnx / onnxruntime packages are missing")
         self.model = model
         self.threads = threads or torch.get_num_threads()
-        self._sessions: dict[tuple[int, int], object] = {}
+        self._sessions: dict[tuple[int, int, bool], object] = {}
 
     def session(self, height: int, width: int, image_input: bool = False):
         """The session for this input size (``image_input``: uint8 HWC images, see

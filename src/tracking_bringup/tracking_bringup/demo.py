@@ -37,7 +37,7 @@ def detector_checkpoint(params_file, user_params: list[str], synthetic: bool) ->
     data's override (``tiny_kitti``), then the user's ``-p vehicle_detector.checkpoint:=``
     (the same order as the overrides the demo passes)."""
     given = [*(SYNTHETIC_CAMERA_OVERRIDES if synthetic else ()), *user_params]
-    node_params = [ov.split(".", 1)[1] for ov in given if ov.startswith("vehicle_detector.")]
+    node_params = graph.node_overrides(given, "vehicle_detector")
     return str(
         graph.parameter_value(params_file, node_params, "vehicle_detector", "checkpoint", "")
     )

@@ -171,6 +171,11 @@ def wait_for_topics_value(nodes: list[NodeSpec], extra: dict[str, int] | None = 
     return format_topic_counts(edge_counts(nodes, extra))
 
 
+def node_overrides(overrides, node: str) -> list[str]:
+    """``PARAM:=VALUE`` of the ``NODE.PARAM:=VALUE`` overrides that address ``node``."""
+    return [ov.split(".", 1)[1] for ov in overrides if ov.startswith(node + ".")]
+
+
 def parameter_value(params_file, overrides: list[str], node: str, name: str, default):
     """A node parameter's value: the last ``name:=value`` in ``overrides`` (that node's
     ``-p`` overrides), else the parameter file's value, else ``default``."""
