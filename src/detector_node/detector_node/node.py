@@ -100,7 +100,12 @@ class VehicleDetectorNode(Node):
                 f"{100 * self.cnn.roi_top:.0f} %, device {self.cnn.device}, runtime "
                 f"{self.cnn.runtime}"
             )
-            if c.size == "centernet" and self.cnn.runtime == "torch" and p.runtime == "auto":
+            if (
+                c.size == "centernet"
+                and p.runtime == "auto"
+                and self.cnn.device.type == "cpu"  # on a GPU, PyTorch is the right choice
+                and self.cnn.runtime == "torch"
+            ):
                 self.get_logger().warning(
                     "onnx / onnxruntime not installed: the CenterNet runs on PyTorch, about 3x "
                     "slower (pip install onnx==1.23.1 onnxruntime==1.30.0; scripts/setup.sh "
