@@ -329,6 +329,47 @@ def test_centernet_orientation_loss_takes_the_balancing_bin_weights():
     assert bin_term((1.0, 1.0, 3.0, 1.0)) > bin_term(None)
 
 
+def test_overlapping_bins_train_the_true_and_the_nearer_neighbour_residual():
+    """MultiBin's overlap (``--residual-overlap``): an angle of 115 deg trains the residuals of
+    the 135 deg bin (-20 deg) and of the 90 deg bin (+25 deg), not the others; an angle at a bin
+    centre trains that bin only (its neighbours are 45 deg away, out of the residual's reach)."""
+    from detector_node.centernet import MAX_RESIDUAL, overlap_residual_targets
+
+    b, r = alpha_to_bin_residual(np.radians([115.0, 90.0, 170.0]))
+    target, mask = overlap_residual_targets(np.asarray(b), np.asarray(r))
+    assert mask.tolist() == [
+        [False, False, True, True],
+        [False, False, True, False],
+        [True, False, False, True],
+    ]
+    np.testing.assert_allclose(np.degrees(target[0, 2:]), [25.0, -20.0], atol=1e-4)
+    np.testing.assert_allclose(np.degrees(target[2, [0, 3]]), [-10.0, 35.0], atol=1e-4)
+    assert (np.abs(target[mask]) < MAX_RESIDUAL).all()
+
+
+def test_overlap_loss_trains_the_neighbour_residual_only_with_the_option():
+    import torch
+    from detector_node.centernet import MAX_RESIDUAL, centernet_loss
+
+    boxes = [np.array([[40.0, 20.0, 80.0, 60.0]], np.float32)]
+    alphas = [np.array([math.radians(115.0)], np.float32)]  # bin 3, nearer neighbour bin 2
+    dontcare = [np.zeros((0, 4), np.float32)]
+    raw = torch.zeros(1, 5, 20, 64)
+    head = torch.zeros(1, 9, requires_grad=True)
+
+    def res_grad(overlap):
+        head.grad = None
+        loss, _ = centernet_loss(
+            raw, boxes, alphas, dontcare, None, lambda b, g: head, residual_overlap=overlap
+        )
+        loss.backward()
+        return head.grad[0, 4:8].abs() > 0
+
+    assert res_grad(False).tolist() == [False, False, False, True]
+    assert res_grad(True).tolist() == [False, False, True, True]
+    assert pytest.approx(math.pi / 4) == MAX_RESIDUAL
+
+
 def test_old_checkpoint_loads_by_name_with_bin_centre_and_no_variance():
     from detector_node.checkpoint import SHIPPED_CHECKPOINT
     from detector_node.inference import CnnDetector, Detection

@@ -30,7 +30,12 @@ import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
-from vehicle_common.orientation_bins import NUM_BINS, alpha_to_bin_residual, bin_residual_to_alpha
+from vehicle_common.orientation_bins import (
+    NUM_BINS,
+    alpha_to_bin_residual,
+    bin_residual_to_alpha,
+    fold_alpha_signed,
+)
 
 from .tfjs_graph import TfjsGraph
 
@@ -358,6 +363,18 @@ def build_targets(samples_boxes, samples_alphas, samples_dontcare, gh: int, gw: 
     )
 
 
+def overlap_residual_targets(bins: np.ndarray, residuals: np.ndarray):
+    """MultiBin targets with overlapping bins: (residual of the angle to each bin centre (N, 4)
+    [rad], folded into [-pi/2, pi/2); mask (N, 4) of the bins whose centre is less than
+    ``MAX_RESIDUAL`` away, which are trained) of angles given as (true bin, residual)."""
+    alpha = np.asarray(bin_residual_to_alpha(bins, residuals), dtype=float).reshape(-1)
+    centres = np.asarray(bin_residual_to_alpha(np.arange(NUM_BINS), 0.0), dtype=float)
+    target = np.asarray(fold_alpha_signed(alpha[:, None] - centres[None]), dtype=float)
+    mask = np.abs(target) < MAX_RESIDUAL - 1e-6
+    mask[np.arange(len(bins)), bins] = True
+    return target.astype(np.float32).reshape(-1, NUM_BINS), mask.reshape(-1, NUM_BINS)
+
+
 def ltrb_iou(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """IoU of boxes given as distances (l, t, r, b) from the same point."""
     p, t = pred.clamp(min=0), target
@@ -377,6 +394,7 @@ def centernet_loss(
     weights=None,
     orientation=None,
     bin_weights=None,
+    residual_overlap=False,
 ):
     """CenterNet loss of a batch and its terms: penalty-reduced focal loss on the heat map
     (alpha 2, beta 4; negatives inside DontCare / ignore regions not counted), box L1 (in
@@ -387,7 +405,11 @@ def centernet_loss(
     ``raw``: the dense output (B, >= 5, H/4, W/4); ``orientation``: a function (batch (N,),
     boxes (N, 4)) -> (N, 9) evaluating the orientation head on the ground-truth boxes (None: no
     orientation terms); ``bin_weights``: per-bin weights of the bin cross-entropy (a weighted
-    mean, ``detector_train --balance-orientation``; None: unweighted)."""
+    mean, ``detector_train --balance-orientation``; None: unweighted); ``residual_overlap``:
+    MultiBin's overlapping bins (Mousavian et al. 2017): the residual of every bin whose centre
+    lies within ``MAX_RESIDUAL`` (45 deg) of the true angle is trained, i.e. the true bin's and
+    the nearer neighbour's, so that a box whose bin logit picks the neighbour still decodes to
+    the right angle (False: the true bin's residual only)."""
     w = {"heat": 1.0, "l1": 0.1, "iou": 1.0, "bin": 1.0, "residual": 1.0, **(weights or {})}
     dev = raw.device
     b, _, gh, gw = raw.shape
@@ -422,10 +444,17 @@ def centernet_loss(
             bw = None if bin_weights is None else v.new_tensor(bin_weights)
             l_bin = F.cross_entropy(v[:, 0:NUM_BINS], tb, weight=bw)
             res_raw = v[:, NUM_BINS : 2 * NUM_BINS]
-            pred_res = MAX_RESIDUAL * torch.tanh(res_raw.gather(1, tb[:, None])[:, 0])
-            err = pred_res - torch.from_numpy(res).to(dev)[known]
             logvar = v[:, 2 * NUM_BINS].clamp(*LOGVAR_RANGE)
-            l_res = (0.5 * (err**2 * torch.exp(-logvar) + logvar)).mean()
+            if residual_overlap:
+                target, mask = overlap_residual_targets(bins[bins >= 0], res[bins >= 0])
+                target, mask = torch.from_numpy(target).to(dev), torch.from_numpy(mask).to(dev)
+                err = MAX_RESIDUAL * torch.tanh(res_raw) - target
+                nll = 0.5 * (err**2 * torch.exp(-logvar)[:, None] + logvar[:, None])
+                l_res = nll[mask].mean()
+            else:
+                pred_res = MAX_RESIDUAL * torch.tanh(res_raw.gather(1, tb[:, None])[:, 0])
+                err = pred_res - torch.from_numpy(res).to(dev)[known]
+                l_res = (0.5 * (err**2 * torch.exp(-logvar) + logvar)).mean()
     total = (
         w["heat"] * l_heat
         + w["l1"] * l_l1

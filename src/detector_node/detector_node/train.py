@@ -161,12 +161,19 @@ def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> 
 
 
 def _centernet_batch_loss(
-    model, f: torch.Tensor, items, rng, orientation_weight: float, bin_weights=None
+    model,
+    f: torch.Tensor,
+    items,
+    rng,
+    orientation_weight: float,
+    bin_weights=None,
+    residual_overlap: bool = False,
 ):
     """CenterNet loss of a batch of features ``f`` and their samples (boxes, alphas, DontCare);
     the orientation head sees the ground-truth boxes with each edge moved by up to 5 % of the
     box size (as the predicted boxes it meets at inference); ``bin_weights``: those of
-    ``--balance-orientation`` (None: unweighted)."""
+    ``--balance-orientation`` (None: unweighted); ``residual_overlap``: those of
+    ``--residual-overlap`` (MultiBin's overlapping bins)."""
     boxes = [it.boxes for it in items]
 
     def orientation(batch_idx: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
@@ -182,6 +189,7 @@ def _centernet_batch_loss(
         {"bin": orientation_weight, "residual": orientation_weight},
         orientation,
         bin_weights,
+        residual_overlap,
     )
 
 
@@ -280,6 +288,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--balance-orientation",
         action="store_true",
         help="weight the orientation loss by 1/sqrt(bin frequency) of the training boxes",
+    )
+    p.add_argument(
+        "--residual-overlap",
+        action="store_true",
+        help="centernet: train the angle residual of both bins within 45 deg of the true angle "
+        "(MultiBin's overlapping bins), not only the true bin's",
     )
     p.add_argument(
         "--orientation-weight", type=float, default=1.0, help="weight of the orientation loss"
@@ -479,7 +493,13 @@ def _train(args: argparse.Namespace) -> int:
                     items = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
                     f = model.features(to_tensor([s.image for s in items], device))
                 loss, terms = _centernet_batch_loss(
-                    model, f, items, rng, args.orientation_weight, weights.orientation_bin_weights
+                    model,
+                    f,
+                    items,
+                    rng,
+                    args.orientation_weight,
+                    weights.orientation_bin_weights,
+                    args.residual_overlap,
                 )
             else:
                 batch = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
