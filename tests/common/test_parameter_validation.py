@@ -41,6 +41,20 @@ BAD_STARTS = [
     ("tracker_node.node", "vehicle_tracker", ["-p", "process_noise:=abc"], ["process_noise"]),
     ("eval_node.recorder", "bag_recorder", ["-p", "qos_depth:=-1"], ["qos_depth", ">= 1"]),
     ("eval_node.recorder", "bag_recorder", ["-p", "flush_period:=0"], ["flush_period", "> 0"]),
+    # every node's cpu_affinity (vehicle_common.node_runtime.apply_cpu_affinity)
+    (
+        "tracker_node.node",
+        "vehicle_tracker",
+        ["-p", "cpu_affinity:=4095"],
+        ["cpu_affinity", "CPU 4095 not available"],
+    ),
+    (
+        "kitti_player_node.node",
+        "kitti_player",
+        ["-p", "cpu_affinity:=0-x"],
+        ["cpu_affinity", "not a CPU number or range"],
+    ),
+    ("eval_node.recorder", "bag_recorder", ["-p", "cpu_affinity:=4095"], ["cpu_affinity"]),
 ]
 
 

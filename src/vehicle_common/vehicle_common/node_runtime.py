@@ -173,6 +173,37 @@ def spin_until_stopped(
         executor.shutdown(timeout_sec=1.0)
 
 
+CPU_AFFINITY_PARAMETER = "cpu_affinity"
+
+
+def apply_cpu_affinity(node) -> None:
+    """Declare the node's ``cpu_affinity`` parameter (a ``taskset -c`` CPU list, e.g. "1" or
+    "0-3"; "" = every CPU) and move the process's threads onto those CPUs
+    (:mod:`.cpu_affinity`). A list this process cannot use is a ParameterError naming the
+    parameter; a platform without affinities logs a warning and runs on."""
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    from .cpu_affinity import check_cpu_list, pin_process
+    from .node_parameters import ParameterError, check_value
+
+    raw = node.declare_parameter(
+        CPU_AFFINITY_PARAMETER, "", ParameterDescriptor(dynamic_typing=True)
+    ).value
+    text = check_value(CPU_AFFINITY_PARAMETER, raw, "")
+    try:
+        cpus = check_cpu_list(text)
+    except ValueError as exc:
+        raise ParameterError(CPU_AFFINITY_PARAMETER, str(exc)) from None
+    if not cpus:
+        return
+    try:
+        pin_process(cpus)
+    except RuntimeError as exc:
+        node.get_logger().warning(f"{CPU_AFFINITY_PARAMETER} {text!r} not applied: {exc}")
+        return
+    node.get_logger().info(f"running on CPU {text}")
+
+
 def run_node(
     make_node: Callable[[], object],
     node_name: str,

@@ -1,0 +1,88 @@
+"""cpu_affinity: the taskset-style CPU lists every node takes, and the pinning of all threads."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+from vehicle_common.cpu_affinity import available_cpus, check_cpu_list, parse_cpu_list
+
+
+def test_cpu_lists_parse_as_taskset_writes_them():
+    assert parse_cpu_list("") == frozenset()
+    assert parse_cpu_list("1") == {1}
+    assert parse_cpu_list("0,2") == {0, 2}
+    assert parse_cpu_list("1-3, 6") == {1, 2, 3, 6}
+    for bad in ("a", "3-1", "-1", "1-", "0;1"):
+        with pytest.raises(ValueError, match="not a CPU number or range"):
+            parse_cpu_list(bad)
+
+
+def test_a_cpu_the_process_cannot_use_is_named():
+    far = max(available_cpus()) + 64
+    with pytest.raises(ValueError, match=f"CPU {far} not available"):
+        check_cpu_list(f"{min(available_cpus())},{far}")
+    assert check_cpu_list(str(min(available_cpus()))) == {min(available_cpus())}
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="Linux only")
+def test_every_thread_is_moved_and_new_threads_inherit():
+    """In a child process (pinning this one would slow the suite): threads started before and
+    after the call all end up on the chosen CPU."""
+    cpu = max(available_cpus())
+    code = textwrap.dedent(
+        f"""
+        import os, threading, time
+        from vehicle_common.cpu_affinity import pin_process
+        ev = threading.Event()
+        before = threading.Thread(target=ev.wait)
+        before.start()
+        moved = pin_process(frozenset({{{cpu}}}))
+        after = threading.Thread(target=ev.wait)
+        after.start()
+        time.sleep(0.05)
+        sets = {{t: sorted(os.sched_getaffinity(int(t))) for t in os.listdir('/proc/self/task')}}
+        ev.set()
+        print(moved, len(sets), sorted({{tuple(v) for v in sets.values()}}))
+        """
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    ).stdout.split(maxsplit=2)
+    assert int(out[0]) >= 2  # the main thread and the one started before
+    assert int(out[1]) >= 3
+    assert out[2].strip() == f"[({cpu},)]"
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="Linux only")
+def test_a_node_started_with_cpu_affinity_runs_every_thread_there(tmp_path):
+    """The tracker node with ``-p cpu_affinity:=N``: all its threads (the middleware's too) are
+    on CPU N once it says so; it stops cleanly on SIGINT."""
+    import signal
+    import time
+
+    cpu = max(available_cpus())
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tracker_node.node", "--ros-args", "-p", f"cpu_affinity:={cpu}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=tmp_path,
+        env={**os.environ, "ROS_DOMAIN_ID": "177", "PYTHONUNBUFFERED": "1"},
+    )
+    try:
+        deadline = time.monotonic() + 60
+        line = ""
+        while "running on CPU" not in line and time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, "node exited before pinning"
+        assert f"running on CPU {cpu}" in line
+        tasks = os.listdir(f"/proc/{proc.pid}/task")
+        assert len(tasks) >= 2
+        assert {frozenset(os.sched_getaffinity(int(t))) for t in tasks} == {frozenset({cpu})}
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=30)
