@@ -3,6 +3,7 @@ the node, the parameter and what is wrong, and exit code 2 (never a traceback)."
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 
@@ -144,3 +145,23 @@ def test_types_integers_for_floats_strict_booleans_whole_integers():
     for bad in (0.0, float("nan"), -1):
         with pytest.raises(ParameterError, match="x"):
             check_value("x", bad, 1.0, rule)
+
+
+def test_offline_configs_pass_over_the_process_parameters_of_the_shipped_file():
+    """An offline tool builds a core's config from a node's section of the parameter file: the
+    section's process parameters (cpu_affinity) are passed over, a misspelt one is refused."""
+    import yaml
+    from tracker_node.config import TrackerConfig
+    from tracking_bringup.environment import PARAMS_FILE
+
+    section = yaml.safe_load(PARAMS_FILE.read_text())["vehicle_tracker"]["ros__parameters"]
+    assert "cpu_affinity" in section
+    TrackerConfig.from_yaml(PARAMS_FILE)  # no "unknown parameter"
+
+    @dataclasses.dataclass
+    class Core:
+        gain: float = param(1.0, low=0)
+
+    assert config_from_values(Core, {"gain": 2, "cpu_affinity": "1"}).gain == 2.0
+    with pytest.raises(ParameterError, match="cpu_afinity: unknown parameter"):
+        config_from_values(Core, {"cpu_afinity": "1"})

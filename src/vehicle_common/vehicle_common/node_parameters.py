@@ -22,6 +22,9 @@ from typing import Any
 
 #: exit code of a node or tool started with a bad parameter
 EXIT_BAD_PARAMETER = 2
+#: parameters every node process takes besides its core's config (node_runtime), passed over by
+#: :func:`config_from_values` when an offline tool builds a core's config from a node's section
+PROCESS_PARAMETERS = ("cpu_affinity",)
 
 
 class ParameterError(ValueError):
@@ -172,7 +175,8 @@ def config_from_values(
     keep their defaults), every value typed and range-checked (the fields' ``param`` rules,
     updated by ``rules``), then ``cls.validate()`` if defined (its ValueError, when not already a
     ParameterError, is reported as one). Unknown names are refused. Errors name the parameter
-    (``rename``: field -> parameter name), prefixed by ``source`` (e.g. a file name)."""
+    (``rename``: field -> parameter name), prefixed by ``source`` (e.g. a file name). The
+    process's own parameters (``PROCESS_PARAMETERS``) are passed over unless ``cls`` has them."""
     rename = rename or {}
     prefix = f"{source}: " if source else ""
 
@@ -185,6 +189,8 @@ def config_from_values(
         field_rules.setdefault(name, {}).update(extra)
     kwargs = {}
     for name, raw in values.items():
+        if name not in defaults and name in PROCESS_PARAMETERS:
+            continue
         if name not in defaults:
             raise ParameterError(label(name), "unknown parameter")
         try:

@@ -173,7 +173,7 @@ def spin_until_stopped(
         executor.shutdown(timeout_sec=1.0)
 
 
-CPU_AFFINITY_PARAMETER = "cpu_affinity"
+CPU_AFFINITY_PARAMETER = "cpu_affinity"  # in node_parameters.PROCESS_PARAMETERS
 
 
 def apply_cpu_affinity(node) -> None:
