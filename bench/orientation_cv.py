@@ -30,13 +30,14 @@ import sys
 import time
 from pathlib import Path
 
+from detector_node.real_split import partial_source
+
 REPO = Path(__file__).resolve().parent.parent
 K = REPO.parent / "shared" / "kitti"
 sys.path.insert(0, str(REPO / "bench"))
 
 OBJ_A, KEY_A = "30-59,80-100,154,192,463", "0002,0006,0011"
 OBJ_B, KEY_B = "0-29", "0004,0007,0009"
-CROPS = "101-134,136-137,139-217,219-273,2100-2146"
 RECIPE = (
     "--size centernet --input-width 896 --input-height 224 --roi-top 0.25 --orientation-only "
     "--feature-bank 800 --epochs 30 --epoch-samples 800 --batch-size 16 --warmup-epochs 1 "
@@ -61,7 +62,7 @@ def train_command(train: list[str], extra: str, out: Path) -> list[str]:
         f"{train[0]}@0.5",
         f"{train[1]}@0.3",
         "--partial",
-        f"{K / 'object_crops352'}:{CROPS}@0.2",
+        f"{partial_source(K)}@0.2",
         *shlex.split(RECIPE),
         *shlex.split(extra),
         "--output",

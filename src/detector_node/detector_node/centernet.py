@@ -370,8 +370,7 @@ def overlap_residual_targets(bins: np.ndarray, residuals: np.ndarray):
     alpha = np.asarray(bin_residual_to_alpha(bins, residuals), dtype=float).reshape(-1)
     centres = np.asarray(bin_residual_to_alpha(np.arange(NUM_BINS), 0.0), dtype=float)
     target = np.asarray(fold_alpha_signed(alpha[:, None] - centres[None]), dtype=float)
-    mask = np.abs(target) < MAX_RESIDUAL - 1e-6
-    mask[np.arange(len(bins)), bins] = True
+    mask = np.abs(target) < MAX_RESIDUAL - 1e-6  # the true bin's residual is <= 22.5 deg
     return target.astype(np.float32).reshape(-1, NUM_BINS), mask.reshape(-1, NUM_BINS)
 
 

@@ -22,9 +22,11 @@ from typing import Any
 
 #: exit code of a node or tool started with a bad parameter
 EXIT_BAD_PARAMETER = 2
+#: the CPUs of a node's process (node_runtime.apply_cpu_affinity)
+CPU_AFFINITY_PARAMETER = "cpu_affinity"
 #: parameters every node process takes besides its core's config (node_runtime), passed over by
 #: :func:`config_from_values` when an offline tool builds a core's config from a node's section
-PROCESS_PARAMETERS = ("cpu_affinity",)
+PROCESS_PARAMETERS = (CPU_AFFINITY_PARAMETER,)
 
 
 class ParameterError(ValueError):

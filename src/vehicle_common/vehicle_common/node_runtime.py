@@ -173,9 +173,6 @@ def spin_until_stopped(
         executor.shutdown(timeout_sec=1.0)
 
 
-CPU_AFFINITY_PARAMETER = "cpu_affinity"  # in node_parameters.PROCESS_PARAMETERS
-
-
 def apply_cpu_affinity(node) -> None:
     """Declare the node's ``cpu_affinity`` parameter (a ``taskset -c`` CPU list, e.g. "1" or
     "0-3"; "" = every CPU) and move the process's threads onto those CPUs
@@ -184,7 +181,7 @@ def apply_cpu_affinity(node) -> None:
     from rcl_interfaces.msg import ParameterDescriptor
 
     from .cpu_affinity import check_cpu_list, pin_process
-    from .node_parameters import ParameterError, check_value
+    from .node_parameters import CPU_AFFINITY_PARAMETER, ParameterError, check_value
 
     raw = node.declare_parameter(
         CPU_AFFINITY_PARAMETER, "", ParameterDescriptor(dynamic_typing=True)
