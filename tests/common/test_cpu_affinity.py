@@ -1,4 +1,5 @@
-"""cpu_affinity: the taskset-style CPU lists every node takes, and the pinning of all threads."""
+"""cpu_affinity: the taskset-style CPU lists every node takes, and the pinning of all threads
+(the node test also checks ``nice``, applied beside it)."""
 
 from __future__ import annotations
 
@@ -58,31 +59,37 @@ def test_every_thread_is_moved_and_new_threads_inherit():
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="Linux only")
-def test_a_node_started_with_cpu_affinity_runs_every_thread_there(tmp_path):
-    """The tracker node with ``-p cpu_affinity:=N``: all its threads (the middleware's too) are
-    on CPU N once it says so; it stops cleanly on SIGINT."""
+def test_a_node_started_with_cpu_affinity_and_nice_runs_every_thread_so(tmp_path):
+    """The tracker node with ``-p cpu_affinity:=N -p nice:=6`` (both applied by
+    node_runtime.apply_process_settings): all its threads (the middleware's too) are on CPU N
+    and at niceness 6 once it says so; it stops cleanly on SIGINT."""
     import signal
     import time
 
     cpu = max(available_cpus())
     proc = subprocess.Popen(
-        [sys.executable, "-m", "tracker_node.node", "--ros-args", "-p", f"cpu_affinity:={cpu}"],
+        [sys.executable, "-m", "tracker_node.node", "--ros-args"]
+        + ["-p", f"cpu_affinity:={cpu}", "-p", "nice:=6"],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
         cwd=tmp_path,
         env={**os.environ, "ROS_DOMAIN_ID": "177", "PYTHONUNBUFFERED": "1"},
+        start_new_session=True,  # as the launchers start nodes (its own session group)
     )
     try:
         deadline = time.monotonic() + 60
-        line = ""
-        while "running on CPU" not in line and time.monotonic() < deadline:
+        said = ""
+        while "running at niceness" not in said and time.monotonic() < deadline:
             line = proc.stdout.readline()
-            assert line or proc.poll() is None, "node exited before pinning"
-        assert f"running on CPU {cpu}" in line
+            assert line or proc.poll() is None, "node exited before applying its settings"
+            said += line
+        assert f"running on CPU {cpu}" in said
+        assert "running at niceness 6" in said
         tasks = os.listdir(f"/proc/{proc.pid}/task")
         assert len(tasks) >= 2
         assert {frozenset(os.sched_getaffinity(int(t))) for t in tasks} == {frozenset({cpu})}
+        assert {os.getpriority(os.PRIO_PROCESS, int(t)) for t in tasks} == {6}
     finally:
         proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=30)
+        assert proc.wait(timeout=30) == 0

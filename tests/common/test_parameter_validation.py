@@ -42,7 +42,7 @@ BAD_STARTS = [
     ("tracker_node.node", "vehicle_tracker", ["-p", "process_noise:=abc"], ["process_noise"]),
     ("eval_node.recorder", "bag_recorder", ["-p", "qos_depth:=-1"], ["qos_depth", ">= 1"]),
     ("eval_node.recorder", "bag_recorder", ["-p", "flush_period:=0"], ["flush_period", "> 0"]),
-    # every node's cpu_affinity (vehicle_common.node_runtime.apply_cpu_affinity)
+    # every node's cpu_affinity (vehicle_common.node_runtime.apply_process_settings)
     (
         "tracker_node.node",
         "vehicle_tracker",
@@ -56,6 +56,9 @@ BAD_STARTS = [
         ["cpu_affinity", "not a CPU number or range"],
     ),
     ("eval_node.recorder", "bag_recorder", ["-p", "cpu_affinity:=4095"], ["cpu_affinity"]),
+    # every node's nice (the same function)
+    ("stereo_depth_node.node", "stereo_depth", ["-p", "nice:=25"], ["nice", "<= 19"]),
+    ("detector_node.node", "vehicle_detector", ["-p", "nice:=ten"], ["nice", "expected"]),
 ]
 
 

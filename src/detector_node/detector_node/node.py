@@ -23,7 +23,7 @@ from vehicle_common.node_parameters import (
     declare_config,
     param,
 )
-from vehicle_common.node_runtime import NodeHealth, apply_cpu_affinity, run_node
+from vehicle_common.node_runtime import NodeHealth, apply_process_settings, run_node
 
 from vehicle_common import topics
 
@@ -70,7 +70,7 @@ class VehicleDetectorNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        apply_cpu_affinity(self)  # first: the threads started below inherit it
+        apply_process_settings(self)  # first: the threads started below inherit it
         self.params = p = declare_config(self, DetectorParameters)
         self.backend = p.backend
         types = tuple(p.vehicle_types)

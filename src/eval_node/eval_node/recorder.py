@@ -31,7 +31,7 @@ from vehicle_common.node_parameters import (
     param,
     parameter_error_line,
 )
-from vehicle_common.node_runtime import apply_cpu_affinity
+from vehicle_common.node_runtime import apply_process_settings
 
 from eval_node.bag_writer import COMPRESSION_MODES, BagWriter, BagWriterError
 from vehicle_common import topics as graph_topics
@@ -93,7 +93,7 @@ class BagRecorderNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        apply_cpu_affinity(self)  # first: the threads started below inherit it
+        apply_process_settings(self)  # first: the threads started below inherit it
         p = declare_config(self, RecorderParameters)
         self.output = p.output or default_output()
         # flush_period: a writer thread puts chunks on disk (fsync off the executor thread)

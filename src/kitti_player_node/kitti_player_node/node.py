@@ -45,7 +45,7 @@ from vehicle_common.node_runtime import (
     DIAGNOSTICS_TOPIC,
     NodeHealth,
     StopRequest,
-    apply_cpu_affinity,
+    apply_process_settings,
     reports_from_message,
     spin_until_stopped,
 )
@@ -125,7 +125,7 @@ class KittiPlayerNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        apply_cpu_affinity(self)  # first: the threads started below inherit it
+        apply_process_settings(self)  # first: the threads started below inherit it
         self.params = p = dataclasses.asdict(declare_config(self, PlayerParameters))
         if not p["dataset_root"]:
             raise ParameterError("dataset_root", "not set")

@@ -30,7 +30,7 @@ from vehicle_common.node_parameters import (
     declare_config,
     param,
 )
-from vehicle_common.node_runtime import NodeHealth, apply_cpu_affinity, run_node
+from vehicle_common.node_runtime import NodeHealth, apply_process_settings, run_node
 from vehicle_common.stereo_camera import check_stereo_images, check_stereo_infos
 
 from vehicle_common import topics
@@ -146,7 +146,7 @@ class StereoDepthNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        apply_cpu_affinity(self)  # first: the threads started below inherit it
+        apply_process_settings(self)  # first: the threads started below inherit it
         self.disparity_params = declare_config(
             self, DisparityParams, skip=("row_band",), rules=DISPARITY_RULES
         )

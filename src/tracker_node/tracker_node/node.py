@@ -25,7 +25,7 @@ from vehicle_common.node_parameters import (
     check_value,
     declare_config,
 )
-from vehicle_common.node_runtime import NodeHealth, apply_cpu_affinity, run_node
+from vehicle_common.node_runtime import NodeHealth, apply_process_settings, run_node
 from visualization_msgs.msg import MarkerArray
 
 from vehicle_common import topics
@@ -42,7 +42,7 @@ class VehicleTrackerNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
-        apply_cpu_affinity(self)  # first: the threads started below inherit it
+        apply_process_settings(self)  # first: the threads started below inherit it
         self.config = declare_config(self, TrackerConfig)
         cam = check_value(
             "camera_matrix", self.declare_parameter("camera_matrix", [0.0] * 12).value, [0.0]

@@ -3,7 +3,7 @@
 On a small computer the graph's compute nodes compete for the same cores; giving each its own
 (as a robot's deployment pins its real-time processes, ``taskset`` / cpusets) keeps one node's
 work from stretching another's. The setting is the ``cpu_affinity`` parameter of every node of
-the graph (:func:`vehicle_common.node_runtime.apply_cpu_affinity`, the first step of each
+the graph (:func:`vehicle_common.node_runtime.apply_process_settings`, the first step of each
 node's construction), written as ``taskset -c`` writes CPU
 lists: ``"1"``, ``"0,2"``, ``"0-3"``; empty = every CPU the process was started with (no
 change). Every thread of the process is moved (the middleware's and the worker threads that

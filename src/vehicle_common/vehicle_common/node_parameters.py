@@ -22,11 +22,13 @@ from typing import Any
 
 #: exit code of a node or tool started with a bad parameter
 EXIT_BAD_PARAMETER = 2
-#: the CPUs of a node's process (node_runtime.apply_cpu_affinity)
+#: the CPUs of a node's process (node_runtime.apply_process_settings)
 CPU_AFFINITY_PARAMETER = "cpu_affinity"
+#: the niceness of a node's process (node_runtime.apply_process_settings)
+NICE_PARAMETER = "nice"
 #: parameters every node process takes besides its core's config (node_runtime), passed over by
 #: :func:`config_from_values` when an offline tool builds a core's config from a node's section
-PROCESS_PARAMETERS = (CPU_AFFINITY_PARAMETER,)
+PROCESS_PARAMETERS = (CPU_AFFINITY_PARAMETER, NICE_PARAMETER)
 
 
 class ParameterError(ValueError):

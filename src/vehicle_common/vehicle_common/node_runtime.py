@@ -173,32 +173,52 @@ def spin_until_stopped(
         executor.shutdown(timeout_sec=1.0)
 
 
-def apply_cpu_affinity(node) -> None:
-    """Declare the node's ``cpu_affinity`` parameter (a ``taskset -c`` CPU list, e.g. "1" or
-    "0-3"; "" = every CPU) and move the process's threads onto those CPUs
-    (:mod:`.cpu_affinity`). A list this process cannot use is a ParameterError naming the
-    parameter; a platform without affinities logs a warning and runs on."""
+def apply_process_settings(node) -> None:
+    """Declare the process parameters every node takes and apply them to the whole process:
+
+    - ``cpu_affinity``: a ``taskset -c`` CPU list ("1", "0-3"; "" = every CPU); the process's
+      threads move onto those CPUs (:mod:`.cpu_affinity`);
+    - ``nice``: the niceness of its threads, as ``nice -n`` (0 = as started; 1..19 lower
+      priority), and of its session group where it leads one (:mod:`.process_priority`).
+
+    Called first in each node's construction, so that the threads started later inherit both.
+    A value this process cannot take is a ParameterError naming the parameter; a platform
+    without affinities or priorities logs a warning and runs on."""
     from rcl_interfaces.msg import ParameterDescriptor
 
     from .cpu_affinity import check_cpu_list, pin_process
-    from .node_parameters import CPU_AFFINITY_PARAMETER, ParameterError, check_value
+    from .node_parameters import CPU_AFFINITY_PARAMETER, NICE_PARAMETER, ParameterError, check_value
+    from .process_priority import NICE_MAX, NICE_MIN, set_process_nice
 
     raw = node.declare_parameter(
         CPU_AFFINITY_PARAMETER, "", ParameterDescriptor(dynamic_typing=True)
     ).value
     text = check_value(CPU_AFFINITY_PARAMETER, raw, "")
+    raw_nice = node.declare_parameter(
+        NICE_PARAMETER, 0, ParameterDescriptor(dynamic_typing=True)
+    ).value
+    nice = check_value(NICE_PARAMETER, raw_nice, 0, {"low": NICE_MIN, "high": NICE_MAX})
     try:
         cpus = check_cpu_list(text)
     except ValueError as exc:
         raise ParameterError(CPU_AFFINITY_PARAMETER, str(exc)) from None
-    if not cpus:
-        return
-    try:
-        pin_process(cpus)
-    except RuntimeError as exc:
-        node.get_logger().warning(f"{CPU_AFFINITY_PARAMETER} {text!r} not applied: {exc}")
-        return
-    node.get_logger().info(f"running on CPU {text}")
+    if cpus:
+        try:
+            pin_process(cpus)
+            node.get_logger().info(f"running on CPU {text}")
+        except RuntimeError as exc:
+            node.get_logger().warning(f"{CPU_AFFINITY_PARAMETER} {text!r} not applied: {exc}")
+    if nice:
+        try:
+            _, group = set_process_nice(nice)
+        except PermissionError as exc:
+            raise ParameterError(NICE_PARAMETER, str(exc)) from None
+        except RuntimeError as exc:
+            node.get_logger().warning(f"{NICE_PARAMETER} {nice} not applied: {exc}")
+            return
+        node.get_logger().info(
+            f"running at niceness {nice}" + (" (its session group too)" if group else "")
+        )
 
 
 def run_node(
