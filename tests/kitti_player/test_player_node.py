@@ -231,6 +231,55 @@ def test_lockstep_behind_slow_subscriber(rclpy_context, tmp_path):
     slow.destroy_node()
 
 
+def test_unpaced_lockstep_fills_its_window_at_once(rclpy_context, tmp_path):
+    """Unpaced lockstep with a window of 2 (``rate_multiplier`` 0): the first two frames go out
+    in the same tick and each answer releases the next frame itself; the player's timer only
+    starts playback (a slow tick, not 500 wakes a second)."""
+    from kitti_player_node.node import LOCKSTEP_TICK_S
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from sensor_msgs.msg import Image
+    from stereo_vehicle_msgs.msg import TrackedVehicleArray
+
+    _write_tiny_sequence(tmp_path)
+    slow = Node("slow_tracker_window", context=rclpy_context)
+    answers = slow.create_publisher(TrackedVehicleArray, "/vehicles/tracks", 10)
+
+    def on_image(msg):
+        time.sleep(0.2)
+        answers.publish(TrackedVehicleArray(header=msg.header))
+
+    slow_sub = slow.create_subscription(Image, "/stereo/left/image_rect", on_image, 10)
+    slow_ex = SingleThreadedExecutor(context=rclpy_context)
+    slow_ex.add_node(slow)
+    thread = threading.Thread(target=slow_ex.spin, daemon=True)
+    thread.start()
+    try:
+        player, col = _play(
+            rclpy_context,
+            tmp_path,
+            N_FRAMES,
+            matched=lambda p: (
+                slow_sub.get_publisher_count() > 0 and answers.get_subscription_count() > 0
+            ),
+            lockstep=True,
+            lockstep_timeout=5.0,
+            lockstep_window=2,
+            rate_multiplier=0.0,
+        )
+    finally:
+        slow_ex.shutdown()
+        thread.join(5)
+    assert player.timer.timer_period_ns == round(LOCKSTEP_TICK_S * 1e9)
+    times = [t for t, _ in col.got["left"]]
+    assert len(times) == N_FRAMES
+    assert times[1] - times[0] < 0.75 * LOCKSTEP_TICK_S  # one tick, not two
+    assert np.all(np.diff(times[1:]) > 0.15)  # then one frame per answer
+    assert player.scheduler.stats.lockstep_timeouts == 0
+    player.destroy_node()
+    slow.destroy_node()
+
+
 def test_main_exit_codes(tmp_path, capsys):
     from kitti_player_node.node import main
 
