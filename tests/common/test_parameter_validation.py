@@ -59,6 +59,12 @@ BAD_STARTS = [
     # every node's nice (the same function)
     ("stereo_depth_node.node", "stereo_depth", ["-p", "nice:=25"], ["nice", "<= 19"]),
     ("detector_node.node", "vehicle_detector", ["-p", "nice:=ten"], ["nice", "expected"]),
+    (
+        "tracker_node.node",
+        "vehicle_tracker",
+        ["-p", "keep_freed_memory:=maybe"],
+        ["keep_freed_memory", "expected"],
+    ),
 ]
 
 

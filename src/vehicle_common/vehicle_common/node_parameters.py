@@ -26,9 +26,11 @@ EXIT_BAD_PARAMETER = 2
 CPU_AFFINITY_PARAMETER = "cpu_affinity"
 #: the niceness of a node's process (node_runtime.apply_process_settings)
 NICE_PARAMETER = "nice"
+#: whether a node's process keeps freed memory for reuse (node_runtime.apply_process_settings)
+KEEP_FREED_MEMORY_PARAMETER = "keep_freed_memory"
 #: parameters every node process takes besides its core's config (node_runtime), passed over by
 #: :func:`config_from_values` when an offline tool builds a core's config from a node's section
-PROCESS_PARAMETERS = (CPU_AFFINITY_PARAMETER, NICE_PARAMETER)
+PROCESS_PARAMETERS = (CPU_AFFINITY_PARAMETER, NICE_PARAMETER, KEEP_FREED_MEMORY_PARAMETER)
 
 
 class ParameterError(ValueError):

@@ -179,15 +179,24 @@ def apply_process_settings(node) -> None:
     - ``cpu_affinity``: a ``taskset -c`` CPU list ("1", "0-3"; "" = every CPU); the process's
       threads move onto those CPUs (:mod:`.cpu_affinity`);
     - ``nice``: the niceness of its threads, as ``nice -n`` (0 = as started; 1..19 lower
-      priority), and of its session group where it leads one (:mod:`.process_priority`).
+      priority), and of its session group where it leads one (:mod:`.process_priority`);
+    - ``keep_freed_memory`` (true): freed memory stays in the process for reuse, so that a
+      frame's large buffers cost no fresh pages (:mod:`.malloc_policy`).
 
-    Called first in each node's construction, so that the threads started later inherit both.
+    Called first in each node's construction, so that the threads started later inherit them.
     A value this process cannot take is a ParameterError naming the parameter; a platform
-    without affinities or priorities logs a warning and runs on."""
+    without affinities, priorities or ``mallopt`` logs a warning and runs on."""
     from rcl_interfaces.msg import ParameterDescriptor
 
     from .cpu_affinity import check_cpu_list, pin_process
-    from .node_parameters import CPU_AFFINITY_PARAMETER, NICE_PARAMETER, ParameterError, check_value
+    from .malloc_policy import keep_freed_memory
+    from .node_parameters import (
+        CPU_AFFINITY_PARAMETER,
+        KEEP_FREED_MEMORY_PARAMETER,
+        NICE_PARAMETER,
+        ParameterError,
+        check_value,
+    )
     from .process_priority import NICE_MAX, NICE_MIN, set_process_nice
 
     raw = node.declare_parameter(
@@ -198,10 +207,19 @@ def apply_process_settings(node) -> None:
         NICE_PARAMETER, 0, ParameterDescriptor(dynamic_typing=True)
     ).value
     nice = check_value(NICE_PARAMETER, raw_nice, 0, {"low": NICE_MIN, "high": NICE_MAX})
+    raw_keep = node.declare_parameter(
+        KEEP_FREED_MEMORY_PARAMETER, True, ParameterDescriptor(dynamic_typing=True)
+    ).value
+    keep = check_value(KEEP_FREED_MEMORY_PARAMETER, raw_keep, True)
     try:
         cpus = check_cpu_list(text)
     except ValueError as exc:
         raise ParameterError(CPU_AFFINITY_PARAMETER, str(exc)) from None
+    if keep:
+        try:
+            keep_freed_memory()
+        except RuntimeError as exc:
+            node.get_logger().warning(f"{KEEP_FREED_MEMORY_PARAMETER} not applied: {exc}")
     if cpus:
         try:
             pin_process(cpus)
