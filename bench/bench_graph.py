@@ -270,11 +270,14 @@ def _figures(times, reports, cpu0, cpu1, wall) -> dict:
 def offline_stage_times(
     root: Path, sequence: str, repeats: int = 5, overrides: list[str] = ()
 ) -> dict[str, float]:
-    """Median ms per frame of each stage run alone in this process (same core functions and
-    thread counts as the graph's nodes, ``-p NODE.num_threads:=N`` overrides included), the
-    baseline the graph's latency is compared with."""
+    """Median ms per frame of each stage run alone in this process (same core functions, thread
+    counts, match band and malloc policy as the graph's nodes, ``-p NODE.PARAM:=VALUE``
+    overrides included), the baseline the graph's latency is compared with."""
+    import dataclasses
+
     import cv2
     import torch
+    import yaml
     from detector_node.inference import CnnDetector
     from stereo_depth_node.disparity import DisparityParams, compute_disparity
     from stereo_depth_node.ranging import (
@@ -288,10 +291,16 @@ def offline_stage_times(
     from stereo_depth_node.visual_odometry import estimate_camera_motion
     from vehicle_common.image_conversion import image_to_rgb, numpy_to_image
     from vehicle_common.kitti import TrackingSequence
+    from vehicle_common.malloc_policy import keep_freed_memory
 
     seq = TrackingSequence.open(root, sequence)
     frames = seq.frame_ids[:repeats]
     left, right = seq.read_stereo(frames[0])
+
+    def stereo_param(name: str, default):
+        ovs = graph.node_overrides(overrides, graph.STEREO.name)
+        value = graph.parameter_value(PARAMS_FILE, ovs, graph.STEREO.name, name, default)
+        return yaml.safe_load(value) if isinstance(value, str) else value
 
     def threads(node: str) -> int:
         ovs = graph.node_overrides(overrides, node)
@@ -300,7 +309,8 @@ def offline_stage_times(
     det_threads, cv_threads = threads(graph.DETECTOR.name), threads(graph.STEREO.name)
 
     def median_ms(fn, clock=time.perf_counter) -> float:
-        fn()  # warm-up
+        for _ in range(3):  # warm-up (first allocations, caches)
+            fn()
         times = []
         for _ in range(repeats):
             t0 = clock()
@@ -311,7 +321,13 @@ def offline_stage_times(
     torch.set_num_threads(det_threads)
     detector = CnnDetector.from_checkpoint("", "cpu")
     cv2.setNumThreads(cv_threads)
-    params = DisparityParams()  # the node's defaults = the parameter file's
+    # the stereo node's settings: its defaults are the parameter file's, plus the file's match
+    # band and malloc policy (a node keeps freed memory for reuse: keep_freed_memory)
+    top, bottom = (int(v) for v in stereo_param("match_rows", [0, 0]))
+    band = (max(0, top), min(left.shape[0], bottom)) if bottom > top else None
+    params = dataclasses.replace(DisparityParams(), row_band=band)
+    if stereo_param("keep_freed_memory", True):
+        keep_freed_memory()
     geometry = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
     ranging = RangingSetup.from_params(RangingParams())
     disp0 = compute_disparity(left, right, params)
