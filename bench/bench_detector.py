@@ -45,6 +45,7 @@ from detector_node.model import YoloV2Passthrough, preset
 from detector_node.real_split import val_sources
 from detector_node.validation import FrameResult, evaluate_frames
 from vehicle_common.kitti import KittiObject, read_png
+from vehicle_common.malloc_policy import keep_freed_memory
 from vehicle_common.orientation_bins import fold_alpha_signed
 
 REPO = Path(__file__).resolve().parent.parent
@@ -225,7 +226,14 @@ def main() -> None:
     p.add_argument(
         "--with-full", action="store_true", help="also time the paper's full configuration"
     )
+    p.add_argument(
+        "--glibc-malloc",
+        action="store_true",
+        help="time with glibc's malloc defaults (default: the nodes' keep_freed_memory policy)",
+    )
     args = p.parse_args()
+    if not args.glibc_malloc:
+        keep_freed_memory()  # as the detector node runs (its keep_freed_memory parameter)
     torch.set_num_threads(args.threads)
     det = CnnDetector.from_checkpoint(
         args.checkpoint,
