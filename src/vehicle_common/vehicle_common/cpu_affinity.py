@@ -54,6 +54,14 @@ def check_cpu_list(text: str) -> frozenset[int]:
     return cpus
 
 
+def thread_ids() -> list[int]:
+    """The ids of this process's threads (0, the calling thread, where /proc is missing)."""
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return [0]
+
+
 def pin_process(cpus: frozenset[int]) -> int:
     """Move every thread of this process onto ``cpus`` (no-op when empty). Returns the number
     of threads moved; RuntimeError where the platform cannot set affinities."""
@@ -62,11 +70,7 @@ def pin_process(cpus: frozenset[int]) -> int:
     if not hasattr(os, "sched_setaffinity"):
         raise RuntimeError("CPU affinity is not supported on this platform")
     moved = 0
-    try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
-    except OSError:
-        tids = [0]  # the calling thread only
-    for tid in tids:
+    for tid in thread_ids():
         try:
             os.sched_setaffinity(tid, cpus)
             moved += 1

@@ -24,6 +24,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from .cpu_affinity import thread_ids
+
 NICE_MIN, NICE_MAX = -20, 19
 _AUTOGROUP = Path("/proc/self/autogroup")
 
@@ -34,14 +36,6 @@ def check_nice(value: int) -> int:
     if not NICE_MIN <= n <= NICE_MAX:
         raise ValueError(f"{n} is not a niceness ({NICE_MIN}..{NICE_MAX})")
     return n
-
-
-def thread_ids() -> list[int]:
-    """The ids of this process's threads (the calling thread's where /proc is missing)."""
-    try:
-        return [int(t) for t in os.listdir("/proc/self/task")]
-    except OSError:
-        return [0]
 
 
 def leads_own_session() -> bool:
