@@ -186,42 +186,52 @@ def test_player_on_real_0005(rclpy_context, kitti_tracking_root):
     player.destroy_node()
 
 
-def test_lockstep_behind_slow_subscriber(rclpy_context, tmp_path):
-    """A consumer answering on /vehicles/tracks 0.3 s after each frame: no frame is lost."""
+def _play_behind_slow_tracker(context, root, node_name, delay_s, **params):
+    """Play the tiny sequence in lockstep behind a tracker that answers each left image on
+    /vehicles/tracks ``delay_s`` after it arrives (blocking its own executor); returns
+    (player, collector, tracker node)."""
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from sensor_msgs.msg import Image
     from stereo_vehicle_msgs.msg import TrackedVehicleArray
 
-    _write_tiny_sequence(tmp_path)
-    slow = Node("slow_tracker", context=rclpy_context)
+    _write_tiny_sequence(root)
+    slow = Node(node_name, context=context)
     answers = slow.create_publisher(TrackedVehicleArray, "/vehicles/tracks", 10)
 
     def on_image(msg):
-        time.sleep(0.3)  # a slow tracker blocking its own executor
+        time.sleep(delay_s)
         answers.publish(TrackedVehicleArray(header=msg.header))
 
     slow_sub = slow.create_subscription(Image, "/stereo/left/image_rect", on_image, 10)
-    slow_ex = SingleThreadedExecutor(context=rclpy_context)
+    slow_ex = SingleThreadedExecutor(context=context)
     slow_ex.add_node(slow)
     thread = threading.Thread(target=slow_ex.spin, daemon=True)
     thread.start()
     try:
-        # rate 100 Hz: without lockstep all frames would go out within 50 ms
         player, col = _play(
-            rclpy_context,
-            tmp_path,
+            context,
+            root,
             N_FRAMES,
             matched=lambda p: (
                 slow_sub.get_publisher_count() > 0 and answers.get_subscription_count() > 0
             ),
             lockstep=True,
             lockstep_timeout=5.0,
-            rate=100.0,
+            **params,
         )
     finally:
         slow_ex.shutdown()
         thread.join(5)
+    return player, col, slow
+
+
+def test_lockstep_behind_slow_subscriber(rclpy_context, tmp_path):
+    """A consumer answering on /vehicles/tracks 0.3 s after each frame: no frame is lost."""
+    # rate 100 Hz: without lockstep all frames would go out within 50 ms
+    player, col, slow = _play_behind_slow_tracker(
+        rclpy_context, tmp_path, "slow_tracker", 0.3, rate=100.0
+    )
     assert [m.frame_index for _, m in col.got["gt"]] == list(range(N_FRAMES))
     times = [t for t, _ in col.got["left"]]
     assert np.all(np.diff(times) > 0.25)
@@ -236,40 +246,15 @@ def test_unpaced_lockstep_fills_its_window_at_once(rclpy_context, tmp_path):
     in the same tick and each answer releases the next frame itself; the player's timer only
     starts playback (a slow tick, not 500 wakes a second)."""
     from kitti_player_node.node import LOCKSTEP_TICK_S
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from sensor_msgs.msg import Image
-    from stereo_vehicle_msgs.msg import TrackedVehicleArray
 
-    _write_tiny_sequence(tmp_path)
-    slow = Node("slow_tracker_window", context=rclpy_context)
-    answers = slow.create_publisher(TrackedVehicleArray, "/vehicles/tracks", 10)
-
-    def on_image(msg):
-        time.sleep(0.2)
-        answers.publish(TrackedVehicleArray(header=msg.header))
-
-    slow_sub = slow.create_subscription(Image, "/stereo/left/image_rect", on_image, 10)
-    slow_ex = SingleThreadedExecutor(context=rclpy_context)
-    slow_ex.add_node(slow)
-    thread = threading.Thread(target=slow_ex.spin, daemon=True)
-    thread.start()
-    try:
-        player, col = _play(
-            rclpy_context,
-            tmp_path,
-            N_FRAMES,
-            matched=lambda p: (
-                slow_sub.get_publisher_count() > 0 and answers.get_subscription_count() > 0
-            ),
-            lockstep=True,
-            lockstep_timeout=5.0,
-            lockstep_window=2,
-            rate_multiplier=0.0,
-        )
-    finally:
-        slow_ex.shutdown()
-        thread.join(5)
+    player, col, slow = _play_behind_slow_tracker(
+        rclpy_context,
+        tmp_path,
+        "slow_tracker_window",
+        0.2,
+        lockstep_window=2,
+        rate_multiplier=0.0,
+    )
     assert player.timer.timer_period_ns == round(LOCKSTEP_TICK_S * 1e9)
     times = [t for t, _ in col.got["left"]]
     assert len(times) == N_FRAMES
