@@ -17,6 +17,7 @@ from sensor_msgs.msg import Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2DArray
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import kitti_objects_from_message, stamp_ns
+from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_size, image_to_rgb
 from vehicle_common.image_transport import subscribe_image
 from vehicle_common.node_parameters import (
@@ -71,6 +72,7 @@ class VehicleDetectorNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
         apply_process_settings(self)  # first: the threads started below inherit it
+        self.trace = frame_tracer(NODE_NAME)  # per-frame trace points (VEHICLE_TRACE_DIR)
         self.params = p = declare_config(self, DetectorParameters)
         self.backend = p.backend
         types = tuple(p.vehicle_types)
@@ -149,6 +151,7 @@ class VehicleDetectorNode(Node):
         super().destroy_node()
 
     def _on_image(self, msg: Image) -> None:
+        self.trace("image_received", stamp_ns(msg.header))
         self.frames.received()
         if self.backend == "oracle":
             for image, labels in self.pairing.add_image(stamp_ns(msg.header), msg):
@@ -165,13 +168,18 @@ class VehicleDetectorNode(Node):
         self.frames.published()
 
     def _detect(self, msg: Image) -> None:
+        stamp = stamp_ns(msg.header)
+        self.trace("detect_start", stamp)
         try:
             rgb = image_to_rgb(msg)
         except ImageConversionError as exc:
             self.get_logger().warning(f"{IMAGE_TOPIC}: {exc}; publishing no detections")
             self._publish(detections_message(msg.header, []))
             return
-        self._publish(detections_message(msg.header, self.cnn.detect(rgb)))
+        detections = self.cnn.detect(rgb)
+        self.trace("detect_end", stamp)
+        self._publish(detections_message(msg.header, detections))
+        self.trace("detections_published", stamp)
 
     def _on_labels(self, msg: KittiFrameLabels) -> None:
         for image, labels in self.pairing.add_labels(stamp_ns(msg.header), msg):

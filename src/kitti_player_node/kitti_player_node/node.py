@@ -30,6 +30,7 @@ from vehicle_common.frame_messages import (
     stamp_ns,
     stereo_camera_infos,
 )
+from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.graph_readiness import NodeReport, unready_topics
 from vehicle_common.image_conversion import numpy_to_compressed, numpy_to_image
 from vehicle_common.image_transport import PLAYER_TRANSPORTS
@@ -128,6 +129,7 @@ class KittiPlayerNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         apply_process_settings(self)  # first: the threads started below inherit it
+        self.trace = frame_tracer(NODE_NAME)  # per-frame trace points (VEHICLE_TRACE_DIR)
         self.params = p = dataclasses.asdict(declare_config(self, PlayerParameters))
         if not p["dataset_root"]:
             raise ParameterError("dataset_root", "not set")
@@ -318,6 +320,7 @@ class KittiPlayerNode(Node):
         calib, stamp = self.sequence.calib, event.stamp_ns
         clock = Clock()
         clock.clock = header(stamp, "").stamp
+        self.trace("clock", stamp)  # the frame's time 0 (VEHICLE_TRACE_DIR)
         self.pub_clock.publish(clock)
         objects = self.sequence.objects(event.frame)
         self.pub_gt.publish(
@@ -328,7 +331,9 @@ class KittiPlayerNode(Node):
         self.pub_left_info.publish(left_info)
         self.pub_right_info.publish(right_info)
         self.pub_left.publish(self._image_message(left, header(stamp, LEFT_FRAME)))
+        self.trace("left_published", stamp)
         self.pub_right.publish(self._image_message(right, header(stamp, RIGHT_FRAME)))
+        self.trace("right_published", stamp)
 
     def _image_message(self, rgb, hdr):
         """The image as the ``image_transport`` parameter says: raw rgb8, PNG or JPEG."""

@@ -20,6 +20,7 @@ from sensor_msgs.msg import CameraInfo
 from stereo_vehicle_msgs.msg import TrackedVehicleArray, VehicleDetection3DArray
 from vehicle_common.frame_accounting import FrameCounter
 from vehicle_common.frame_messages import stamp_ns
+from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.node_parameters import (
     ParameterError,
     check_value,
@@ -43,6 +44,7 @@ class VehicleTrackerNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         apply_process_settings(self)  # first: the threads started below inherit it
+        self.trace = frame_tracer(NODE_NAME)  # per-frame trace points (VEHICLE_TRACE_DIR)
         self.config = declare_config(self, TrackerConfig)
         cam = check_value(
             "camera_matrix", self.declare_parameter("camera_matrix", [0.0] * 12).value, [0.0]
@@ -93,6 +95,7 @@ class VehicleTrackerNode(Node):
         stamp = stamp_ns(msg.header) * 1e-9
         tracks = self.tracker.step(dets, stamp, motion)
         self.pub.publish(tracks_to_msg(tracks, msg.header))
+        self.trace("tracks_published", stamp_ns(msg.header))
         self.frames.published()
         ids = {int(t) for t in tracks.track_id}
         ended = sorted(self.shown_ids - ids)
