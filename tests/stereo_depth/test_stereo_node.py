@@ -65,6 +65,8 @@ class Harness:
             lambda: (
                 all(p.get_subscription_count() > 0 for p in self.pubs.values())
                 and self.io.count_publishers("/vehicles/detections_3d") > 0
+                # the disparity image is built only for a matched subscriber
+                and self.node.pub_disparity.get_subscription_count() > 0
             )
         )
         K = np.array([[FX, 0, W / 2], [0, FX, H / 2], [0, 0, 1]])
@@ -304,6 +306,29 @@ def test_parameters_accept_yaml_integers_and_reach_the_core(rclpy_context):
         StereoDepthNode(context=rclpy_context, parameter_overrides=[Parameter("mode", value="x")])
 
 
+def test_disparity_image_is_built_only_while_someone_subscribes(rclpy_context, monkeypatch):
+    import stereo_depth_node.node as stereo_node
+
+    built = []
+    real = stereo_node.disparity_message
+    monkeypatch.setattr(
+        stereo_node, "disparity_message", lambda *a: built.append(a[-1].stamp.sec) or real(*a)
+    )
+    h = Harness(rclpy_context)
+    try:
+        h.send_frame(3)  # the harness subscribes to /stereo/disparity
+        assert h.spin_until(lambda: h.disp) and built == [3]
+        h.io.destroy_subscription(
+            next(s for s in h.io.subscriptions if s.topic_name == "/stereo/disparity")
+        )
+        assert h.spin_until(lambda: h.node.pub_disparity.get_subscription_count() == 0)
+        h.send_frame(4)
+        assert h.spin_until(lambda: h.node.frames_processed == 2)
+        assert built == [3]  # no one listens: nothing built for frame 4
+    finally:
+        h.close()
+
+
 def test_point_cloud_is_published_when_enabled(rclpy_context):
     from sensor_msgs.msg import PointCloud2
 
@@ -311,7 +336,7 @@ def test_point_cloud_is_published_when_enabled(rclpy_context):
     clouds = []
     h.io.create_subscription(PointCloud2, "/stereo/points", clouds.append, 5)
     try:
-        assert h.spin_until(lambda: h.io.count_publishers("/stereo/points") > 0)
+        assert h.spin_until(lambda: h.node.pub_points.get_subscription_count() > 0)
         h.send_frame(9)
         assert h.spin_until(lambda: clouds)
         cloud = clouds[0]

@@ -80,6 +80,24 @@ def test_frame_to_frame_odometry_chains_frames_and_restarts_after_a_lost_one(syn
     assert odo.step(400_000_000, gray0[:-2], d0[:-2], g) is None  # size changed
 
 
+def test_begin_moves_the_reference_before_the_estimate_runs(synthetic_pair):
+    """The stereo node starts a pair's odometry once its disparity map is done and goes on
+    with the next pair meanwhile: ``begin`` makes the pair the reference at once, and its
+    deferred estimate gives what ``step`` gives (against the reference before it)."""
+    _, g, gray0, d0, gray1, boxes = synthetic_pair
+    stepped, begun = FrameToFrameOdometry(), FrameToFrameOdometry()
+    stepped.step(0, gray0, d0, g)
+    want = stepped.step(100_000_000, gray1, d0, g, boxes)
+    assert begun.begin(0, gray0, d0)(g) is None  # no earlier frame
+    job = begun.begin(100_000_000, gray1, d0)
+    # the next frame (same image again) already measures against the begun one
+    assert begun.estimate(200_000_000, gray1, g).translation == pytest.approx(0.0, abs=0.01)
+    got = job(g, boxes)  # later, e.g. in the odometry thread
+    assert got is not None and got.dt == pytest.approx(0.1)
+    np.testing.assert_array_equal(got.translation, want.translation)
+    np.testing.assert_array_equal(got.rotation, want.rotation)
+
+
 def test_static_point_velocity():
     m = CameraMotion(np.eye(3), np.array([0.0, 0.0, -1.5]), dt=0.1)
     v = m.static_point_velocity(np.array([[2.0, 1.0, 30.0], [-5.0, 1.0, 10.0]]))

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -24,6 +24,7 @@ from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DA
 from vehicle_common.camera_motion import CameraMotion
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
+from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
 from vehicle_common.image_transport import subscribe_image
 from vehicle_common.node_parameters import (
@@ -137,7 +138,7 @@ class _Frame:
     disparity: np.ndarray | None
     geometry: StereoGeometry | None
     images: tuple[np.ndarray, np.ndarray] | None = None  # gray (left, right), for refinement
-    camera_motion: CameraMotion | None = None  # since the previous processed pair (odometry)
+    odometry: Future | None = None  # its camera motion since the previous processed pair
     skipped: bool = False  # superseded by a newer pair (latest-frame policy): no 3D array
 
 
@@ -147,6 +148,7 @@ class StereoDepthNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         apply_process_settings(self)  # first: the threads started below inherit it
+        self.trace = frame_tracer(NODE_NAME)  # per-frame trace points (VEHICLE_TRACE_DIR)
         self.disparity_params = declare_config(
             self, DisparityParams, skip=("row_band",), rules=DISPARITY_RULES
         )
@@ -169,9 +171,9 @@ class StereoDepthNode(Node):
         cv2.setNumThreads(p.num_threads)  # process-wide
         self.match_rows = (p.match_rows[0], p.match_rows[1])
         self.odometry = FrameToFrameOdometry() if p.visual_odometry else None
-        # the odometry of a pair needs only its left image and the previous pair's disparity:
-        # it runs in this thread while the pair's disparity map is computed (not after it, on
-        # the ranging path)
+        # the odometry of a pair runs in this thread once the pair's disparity map is done
+        # (the map is first: the ranging needs it), beside the ranging; only the publishing of
+        # the 3D array waits for it (ARCHITECTURE.md, "A frame's path through the graph")
         self._odometry_thread = (
             ThreadPoolExecutor(1, thread_name_prefix="odometry") if p.visual_odometry else None
         )
@@ -270,7 +272,9 @@ class StereoDepthNode(Node):
             self.get_logger().warning(f"{self._geometry_error}; frames skipped until it changes")
 
     def _on_image(self, side: str, msg) -> None:
-        group = self.pair_sync.add(stamp_ns(msg.header), side, msg)
+        stamp = stamp_ns(msg.header)
+        self.trace(f"{side}_received", stamp)
+        group = self.pair_sync.add(stamp, side, msg)
         for ev in self.pair_sync.take_evicted():
             self.get_logger().warning(
                 f"stereo pair at stamp {_stamp_text(ev.stamp)} incomplete (missing "
@@ -283,8 +287,10 @@ class StereoDepthNode(Node):
             self.worker.submit(("pair", group["left"], group["right"]))
 
     def _on_detections(self, msg) -> None:
+        stamp = stamp_ns(msg.header)
+        self.trace("detections_received", stamp)
         self.frames.received()
-        self.worker.submit(("detections", stamp_ns(msg.header), msg), frame=False)
+        self.worker.submit(("detections", stamp, msg), frame=False)
 
     def _work(self, item) -> None:
         kind, a, b = item
@@ -325,7 +331,9 @@ class StereoDepthNode(Node):
     # ------------------------------------------------------------------ processing
     def _process_pair(self, left_msg, right_msg) -> None:
         frame = _Frame(left_msg.header, None, None)
-        odometry = gray = None
+        stamp = stamp_ns(left_msg.header)
+        self.trace("pair_start", stamp)
+        gray = None
         try:
             if self.geometry is None:
                 raise _NoGeometry(self._geometry_error)
@@ -335,9 +343,10 @@ class StereoDepthNode(Node):
             # sizes and frame ids of the images and their camera_infos
             check_stereo_images(left_msg, right_msg, left, right, self.left_info, self.right_info)
             gray = to_gray(left)
-            odometry = self._start_odometry(frame, gray)
             params = self._disparity_params_for(left.shape[0])
+            self.trace("disparity_start", stamp)
             frame.disparity = compute_disparity(left, right, params)
+            self.trace("disparity_end", stamp)
             if self.ranging_params.refine != "none":
                 frame.images = (gray, to_gray(right))
         except (ImageConversionError, ValueError) as exc:
@@ -348,25 +357,31 @@ class StereoDepthNode(Node):
                 log = self.get_logger().warning
             log(f"{TOPIC_LEFT}/{TOPIC_RIGHT}: {exc}; frame skipped")
             frame.disparity = None
-        self._finish_odometry(frame, odometry, gray)
+        self._start_odometry(frame, gray)
+        self.trace("pair_end", stamp)
         if frame.disparity is not None:
             self.frames_processed += 1
-        self._add_to_frame_sync(stamp_ns(left_msg.header), "frame", frame)
+        self._add_to_frame_sync(stamp, "frame", frame)
         if frame.disparity is not None and (self.publish_disparity or self.pub_points is not None):
             # off the ranging path: queued behind a detection array that is already waiting
             self.worker.submit(("outputs", frame, left if self.points_rgb else None), frame=False)
 
     def _publish_frame_outputs(self, frame: _Frame, left: np.ndarray | None) -> None:
-        """The pair's disparity image and point cloud (when enabled), after its ranging."""
-        if self.publish_disparity:
+        """The pair's disparity image and point cloud (when enabled and subscribed to: nothing
+        is built for no one)."""
+        if self.publish_disparity and self.pub_disparity.get_subscription_count() > 0:
             self.pub_disparity.publish(
                 disparity_message(
                     frame.disparity, frame.geometry, self.disparity_params, frame.header
                 )
             )
-        if self.pub_points is not None:
+        if self.pub_points is not None and self.pub_points.get_subscription_count() > 0:
             pts, rgb = decimated_points(
-                frame.disparity, frame.geometry, self.points_decimation, left, self.points_max_depth
+                frame.disparity,
+                frame.geometry,
+                self.points_decimation,
+                left,
+                self.points_max_depth,
             )
             self.pub_points.publish(build_point_cloud(pts, rgb, frame.header))
 
@@ -381,6 +396,8 @@ class StereoDepthNode(Node):
         if frame.skipped:
             self.frames.dropped()
             return
+        stamp = stamp_ns(det_msg.header)
+        self.trace("ranging_start", stamp)
         out = VehicleDetection3DArray()
         out.header = frame.header if frame.disparity is not None else det_msg.header
         dets = list(det_msg.detections)
@@ -397,12 +414,12 @@ class StereoDepthNode(Node):
                 frame.disparity, boxes, frame.geometry, self.ranging, bins, frame.images, alphas
             )
             checks = self._check(frame, boxes, results)
+        self.trace("ranging_end", stamp)
         self._vehicle_boxes = [bbox_to_xyxy(d.bbox) for d in dets]
-        if frame.camera_motion is not None:
-            out.camera_motion_dt = frame.camera_motion.dt
-            write_transform(
-                frame.camera_motion.rotation, frame.camera_motion.translation, out.camera_motion
-            )
+        motion = self._camera_motion(frame)
+        if motion is not None:
+            out.camera_motion_dt = motion.dt
+            write_transform(motion.rotation, motion.translation, out.camera_motion)
         action = self.plausibility.plausibility_action
         for d, r, c in zip(dets, results, checks, strict=True):
             if r is None:
@@ -423,6 +440,7 @@ class StereoDepthNode(Node):
             score = d.score * c.plausibility if action == "score" else None
             out.detections.append(detection_3d_message(d, r, c, score))
         self.pub_det3d.publish(out)
+        self.trace("detections_3d_published", stamp)
         self.frames.published()
 
     def _column_bias(self, width: int, geometry: StereoGeometry) -> np.ndarray:
@@ -447,37 +465,40 @@ class StereoDepthNode(Node):
         depths = [fb / r.disparity if r is not None else None for r in results]
         return check_boxes(frame.disparity, boxes, depths, geo, plane, self.plausibility)
 
-    def _start_odometry(self, frame: _Frame, gray: np.ndarray):
-        """Visual odometry of a pair, started beside its disparity map (and the detector): the
-        camera's motion since the previous processed pair. Returns the future, or None."""
-        if self.odometry is None:
-            return None
-        bias = self._column_bias(gray.shape[1], frame.geometry)
-        return self._odometry_thread.submit(
-            self.odometry.estimate,
-            stamp_ns(frame.header),
-            gray,
-            frame.geometry,
-            list(self._vehicle_boxes),
-            bias,
-        )
-
-    def _finish_odometry(self, frame: _Frame, odometry, gray: np.ndarray | None) -> None:
-        """``frame.camera_motion`` from the started odometry; the pair (its gray left image)
-        becomes the next reference. A lost pair (no disparity) breaks the chain."""
+    def _start_odometry(self, frame: _Frame, gray: np.ndarray | None) -> None:
+        """Start the visual odometry of a pair (the camera's motion since the previous
+        processed pair) in its thread once the pair's disparity map is done; the pair becomes
+        the next reference at once. A lost pair (no disparity) breaks the chain."""
         if self.odometry is None:
             return
-        motion = None
-        if odometry is not None:
-            try:
-                motion = odometry.result()
-            except (ValueError, cv2.error) as exc:
-                self.get_logger().warning(f"visual odometry failed: {exc}")
         if frame.disparity is None:
             self.odometry.reset()
             return
-        frame.camera_motion = motion
-        self.odometry.set_reference(stamp_ns(frame.header), gray, frame.disparity)
+        stamp = stamp_ns(frame.header)
+        job = self.odometry.begin(stamp, gray, frame.disparity)
+        bias = self._column_bias(gray.shape[1], frame.geometry)
+        frame.odometry = self._odometry_thread.submit(
+            self._estimate_motion, stamp, job, frame.geometry, list(self._vehicle_boxes), bias
+        )
+
+    def _estimate_motion(self, stamp: int, job, *args) -> CameraMotion | None:
+        """The odometry thread's work (traced as odometry_start / odometry_end)."""
+        self.trace("odometry_start", stamp)
+        try:
+            return job(*args)
+        finally:
+            self.trace("odometry_end", stamp)
+
+    def _camera_motion(self, frame: _Frame) -> CameraMotion | None:
+        """The frame's camera motion, once its odometry is done (None: no odometry, or it
+        failed: reported)."""
+        if frame.odometry is None:
+            return None
+        try:
+            return frame.odometry.result()
+        except (ValueError, cv2.error) as exc:
+            self.get_logger().warning(f"visual odometry failed: {exc}")
+            return None
 
 
 def main(args=None) -> int:

@@ -21,7 +21,9 @@ that frame.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 
 import cv2
 import numpy as np
@@ -152,7 +154,9 @@ class FrameToFrameOdometry:
     or None (first frame, a stamp not after the reference's, a size change, too few points);
     :meth:`reset` drops the reference (a lost frame: the next one has no earlier frame).
     ``step`` is :meth:`estimate` (needs only the new frame's gray image, so it can run while
-    that frame's disparity map is computed) followed by :meth:`set_reference`."""
+    that frame's disparity map is computed) followed by :meth:`set_reference`; :meth:`begin`
+    does both in the other order (the next frame may start before this one's motion is
+    estimated)."""
 
     def __init__(self, params: OdometryParams | None = None):
         self.params = params or OdometryParams()
@@ -188,7 +192,24 @@ class FrameToFrameOdometry:
         disparity_bias=0.0,
     ) -> CameraMotion | None:
         """The motion from the reference frame to this one, without changing the reference."""
+        return self._estimate_from(
+            self._ref, stamp_ns, gray, geometry, reference_boxes, disparity_bias
+        )
+
+    def begin(
+        self, stamp_ns: int, gray: np.ndarray, disparity: np.ndarray
+    ) -> Callable[..., CameraMotion | None]:
+        """Make this frame the next reference at once and return the estimate of its motion
+        from the previous reference, to run later (e.g. in another thread, while the caller
+        goes on with the next frame): ``job(geometry, reference_boxes=(), disparity_bias=0.0)``
+        gives what :meth:`step` would have given."""
         ref = self._ref
+        self.set_reference(stamp_ns, gray, disparity)
+        return partial(self._estimate_from, ref, stamp_ns, gray)
+
+    def _estimate_from(
+        self, ref, stamp_ns: int, gray, geometry, reference_boxes=(), disparity_bias=0.0
+    ) -> CameraMotion | None:
         if ref is None or ref[0] >= stamp_ns or ref[1].shape != gray.shape:
             return None
         motion = estimate_camera_motion(
