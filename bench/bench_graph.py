@@ -20,6 +20,14 @@ camera turns back at each end).
 - ``lockstep K``: the player as fast as the graph goes with at most K unacknowledged frames;
   throughput in frames/s (first /clock to last tracks).
 
+Every run also traces each frame through the nodes (``vehicle_common.frame_trace``, the
+environment variable ``VEHICLE_TRACE_DIR`` set to the run's ``trace`` folder): when the player
+published the images, when each node received them, started and ended each step of its work (the
+CNN, the disparity map, the odometry, the ranging and its check) and published; printed as a
+median timeline after the player's clock event, and each step's wall / own-thread CPU time in the
+graph against the same step alone (``offline_stage_times``: the median over the sequence's frames
+of the same work, inputs and settings in this process).
+
 Prints one table; ``uptime``'s load average is printed with it (the machine may be shared).
 ``--profile`` samples every node process with py-spy during the 10 Hz runs and prints, per
 process, the functions its CPU time goes to.
@@ -41,6 +49,7 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(101, 20
 import numpy as np  # noqa: E402
 from tracking_bringup.environment import PARAMS_FILE, apply_graph_environment  # noqa: E402
 from tracking_bringup.launcher import GraphLauncher, graph_processes  # noqa: E402
+from vehicle_common.frame_trace import TRACE_ENV, read_traces, span_ms  # noqa: E402
 
 from tracking_bringup import graph  # noqa: E402
 
@@ -182,7 +191,10 @@ def run_case(
     ]
     extra = dict.fromkeys(PROBED, 1)  # the probe's subscriptions are edges too
     processes = graph_processes(graph.PIPELINE, PARAMS_FILE, params, extra_subscriptions=extra)
-    launcher = GraphLauncher(processes, logs, ready_timeout=180)
+    trace_dir = logs / "trace"  # every node's per-frame trace points (frame_trace)
+    launcher = GraphLauncher(
+        processes, logs, ready_timeout=180, env={**os.environ, TRACE_ENV: str(trace_dir)}
+    )
     cpu0, cpu1 = {}, {}
     t_cpu0 = t_cpu1 = 0.0
     profilers: list = []
@@ -222,7 +234,88 @@ def run_case(
                 prof.wait(timeout=20)
             except Exception:  # noqa: BLE001 - a profiler that hangs is killed, not fatal
                 prof.kill()
-    return _figures(probe.times, launcher.reports, cpu0, cpu1, t_cpu1 - t_cpu0)
+    figures = _figures(probe.times, launcher.reports, cpu0, cpu1, t_cpu1 - t_cpu0)
+    figures["trace"] = trace_breakdown(read_traces(trace_dir))
+    return figures
+
+
+# a frame's trace points, in the order they happen (vehicle_common.frame_trace; the events'
+# node: player, detector, stereo_depth, tracker)
+TIMELINE = (
+    ("player", ("left_published", "right_published")),
+    ("detector", ("image_received", "detect_start", "detect_end", "detections_published")),
+    (
+        "stereo",
+        (
+            "left_received",
+            "right_received",
+            "pair_start",
+            "disparity_start",
+            "disparity_end",
+            "pair_end",
+            "detections_received",
+            "ranging_start",
+            "odometry_start",
+            "ranging_end",
+            "odometry_end",
+            "detections_3d_published",
+        ),
+    ),
+    ("tracker", ("tracks_published",)),
+)
+# the steps of a frame's work in the graph, timed between two events of one thread, and the
+# key of the same work alone (offline_stage_times)
+STEPS = (
+    ("CNN", "detect_start", "detect_end", "detect"),
+    ("disparity map", "disparity_start", "disparity_end", "disparity ("),
+    ("odometry", "odometry_start", "odometry_end", "odometry"),
+    ("ranging + check", "ranging_start", "ranging_end", "ranging + check"),
+)
+
+
+def trace_breakdown(frames: dict) -> dict:
+    """Medians over the tracked frames of the nodes' trace points: ``timeline`` (ms after the
+    player's clock event, per event) and ``steps`` (wall, CPU of the thread) ms of each step
+    of a frame's work in the graph."""
+    frames = {s: ev for s, ev in frames.items() if "clock" in ev and "tracks_published" in ev}
+    timeline = {}
+    for _, events in TIMELINE:
+        for e in events:
+            v = span_ms(frames, "clock", e)
+            if v:
+                timeline[e] = float(np.median(v))
+    steps = {}
+    for name, a, b, _ in STEPS:
+        wall, cpu = span_ms(frames, a, b), span_ms(frames, a, b, cpu=True)
+        if wall:
+            steps[name] = (float(np.median(wall)), float(np.median(cpu)))
+    return {"frames": len(frames), "timeline": timeline, "steps": steps}
+
+
+def breakdown_lines(trace: dict, alone: dict[str, float] | None) -> list[str]:
+    """The printed form of :func:`trace_breakdown`, with each step's ratio to its time alone."""
+    t = trace["timeline"]
+    lines = []
+    for node, events in TIMELINE:
+        cells = [f"{e} {t[e]:.1f}" for e in events if e in t]
+        if cells:
+            lines.append(f"    {node}: " + ", ".join(cells))
+    cells = []
+    for name, _, _, key in STEPS:
+        if name not in trace["steps"]:
+            continue
+        wall, cpu = trace["steps"][name]
+        ref = next((v for k, v in (alone or {}).items() if k.startswith(key)), None)
+        cell = f"{name} {wall:.1f} / {cpu:.1f}"
+        if ref:
+            cell += f" vs {ref:.1f} = {wall / ref:.2f}x"
+        cells.append(cell)
+    if cells:
+        lines.append(
+            "    each step in the graph (wall / CPU of its thread, ms) vs alone: "
+            + "; ".join(cells)
+        )
+    return lines
 
 
 def _figures(times, reports, cpu0, cpu1, wall) -> dict:
@@ -268,11 +361,16 @@ def _figures(times, reports, cpu0, cpu1, wall) -> dict:
 
 
 def offline_stage_times(
-    root: Path, sequence: str, repeats: int = 5, overrides: list[str] = ()
+    root: Path, sequence: str, max_frames: int = 40, overrides: list[str] = ()
 ) -> dict[str, float]:
-    """Median ms per frame of each stage run alone in this process (same core functions, thread
-    counts, match band and malloc policy as the graph's nodes, ``-p NODE.PARAM:=VALUE``
-    overrides included), the baseline the graph's latency is compared with."""
+    """Median ms per frame of each stage run alone in this process, over the sequence's frames
+    (up to ``max_frames``, evenly spaced; all 16 of real 0005): the same core functions, thread
+    counts, match band, malloc policy and inputs as the graph's nodes (``-p NODE.PARAM:=VALUE``
+    overrides included). The baseline the graph's stages are compared with. The odometry of
+    frame k runs from frame k-1 (its disparity map and the previous frame's CNN boxes, as the
+    node keeps them); "ranging + check" ranges the CNN's boxes with their orientation bins and
+    angles and checks them against the frame's road plane, as the node does before it
+    publishes the 3D array."""
     import dataclasses
 
     import cv2
@@ -280,10 +378,12 @@ def offline_stage_times(
     import yaml
     from detector_node.inference import CnnDetector
     from stereo_depth_node.disparity import DisparityParams, compute_disparity
+    from stereo_depth_node.plausibility import GroundEstimator, PlausibilityParams, check_boxes
     from stereo_depth_node.ranging import (
         RangingParams,
         RangingSetup,
         disparity_bias_at,
+        observation_angles_of,
         range_boxes,
     )
     from stereo_depth_node.region_matching import to_gray
@@ -294,8 +394,9 @@ def offline_stage_times(
     from vehicle_common.malloc_policy import keep_freed_memory
 
     seq = TrackingSequence.open(root, sequence)
-    frames = seq.frame_ids[:repeats]
-    left, right = seq.read_stereo(frames[0])
+    ids = seq.frame_ids
+    step = max(1, -(-len(ids) // max_frames))
+    frames = ids[::step][:max_frames]
 
     def stereo_param(name: str, default):
         ovs = graph.node_overrides(overrides, graph.STEREO.name)
@@ -307,74 +408,106 @@ def offline_stage_times(
         return int(graph.parameter_value(PARAMS_FILE, ovs, node, "num_threads", 2))
 
     det_threads, cv_threads = threads(graph.DETECTOR.name), threads(graph.STEREO.name)
-
-    def median_ms(fn, clock=time.perf_counter) -> float:
-        for _ in range(3):  # warm-up (first allocations, caches)
-            fn()
-        times = []
-        for _ in range(repeats):
-            t0 = clock()
-            fn()
-            times.append(clock() - t0)
-        return float(np.median(times) * 1e3)
-
     torch.set_num_threads(det_threads)
     detector = CnnDetector.from_checkpoint("", "cpu")
     cv2.setNumThreads(cv_threads)
     # the stereo node's settings: its defaults are the parameter file's, plus the file's match
     # band and malloc policy (a node keeps freed memory for reuse: keep_freed_memory)
+    pairs = [seq.read_stereo(f) for f in frames]
+    left0, right0 = pairs[0]
     top, bottom = (int(v) for v in stereo_param("match_rows", [0, 0]))
-    band = (max(0, top), min(left.shape[0], bottom)) if bottom > top else None
+    band = (max(0, top), min(left0.shape[0], bottom)) if bottom > top else None
     params = dataclasses.replace(DisparityParams(), row_band=band)
     if stereo_param("keep_freed_memory", True):
         keep_freed_memory()
     geometry = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
     ranging = RangingSetup.from_params(RangingParams())
-    disp0 = compute_disparity(left, right, params)
-    left1, right1 = seq.read_stereo(frames[1])
-    # what the graph ranges: the CNN's boxes (more than the labelled cars: far and partly
-    # seen ones too)
-    boxes = [d.box for d in detector.detect(left1)]
-    disp1 = compute_disparity(left1, right1, params)
-    gray0, gray1 = to_gray(left), to_gray(left1)
-    bias = disparity_bias_at(np.arange(left.shape[1]), geometry, ranging.params)
-    return {
+    plausibility = PlausibilityParams()
+    ground = GroundEstimator(plausibility, ranging.params.ground_height)
+    bias = np.asarray(disparity_bias_at(np.arange(left0.shape[1]), geometry, ranging.params))
+    fb = geometry.fx * geometry.baseline
+
+    def timed(fn, clock=time.perf_counter):
+        t0 = clock()
+        out = fn()
+        return out, (clock() - t0) * 1e3
+
+    for _ in range(3):  # warm-up (first allocations, caches)
+        detector.detect(left0)
+        compute_disparity(left0, right0, params)
+    times: dict[str, list[float]] = {}
+
+    def add(key: str, ms: float) -> None:
+        times.setdefault(key, []).append(ms)
+
+    previous = None  # (gray, disparity, CNN boxes) of the frame before
+    for left, right in pairs:
+        dets, ms = timed(lambda left=left: detector.detect(left))
+        add(f"detect (CNN, {det_threads} thread)", ms)
+        c0 = time.process_time()
+        disp, ms = timed(lambda left=left, right=right: compute_disparity(left, right, params))
+        add(f"disparity ({cv_threads} thread{'s' if cv_threads > 1 else ''})", ms)
+        add("disparity CPU", (time.process_time() - c0) * 1e3)  # all its threads
+        gray, gray_r = to_gray(left), to_gray(right)
+        boxes = [d.box for d in dets]
+        if previous is not None:
+            g0, d0, b0 = previous
+            _, ms = timed(
+                lambda g0=g0, d0=d0, b0=b0, gray=gray: estimate_camera_motion(
+                    g0, d0, gray, geometry, b0, None, bias
+                )
+            )
+            add("odometry", ms)
+        bins = [d.orientation_bin for d in dets]
+        alphas = observation_angles_of(
+            [d.observation_angle for d in dets], [d.observation_angle_variance for d in dets]
+        )
+
+        def range_and_check(
+            disp=disp, boxes=boxes, bins=bins, alphas=alphas, images=(gray, gray_r)
+        ):
+            if not boxes:  # the node ranges and checks nothing then
+                return []
+            results = range_boxes(disp, boxes, geometry, ranging, bins, images, alphas)
+            plane = ground.update(disp, geometry, bias)
+            depths = [fb / r.disparity if r is not None else None for r in results]
+            return check_boxes(disp, boxes, depths, geometry, plane, plausibility)
+
+        _, ms = timed(range_and_check)
+        add("ranging + check", ms)
+        previous = (gray, disp, boxes)
+
+    def median_ms(fn, repeats: int = 5) -> float:
+        for _ in range(2):
+            fn()
+        return float(np.median([timed(fn)[1] for _ in range(repeats)]))
+
+    out = {
+        "frames": float(len(pairs)),
         "read pair (2 PNG)": median_ms(lambda: seq.read_stereo(frames[-1])),
         "image message, build + convert": median_ms(
-            lambda: image_to_rgb(numpy_to_image(left, "rgb8"))
+            lambda: image_to_rgb(numpy_to_image(left0, "rgb8"))
         ),
-        "image message from bytes (before)": median_ms(lambda: _image_from_bytes(left)),
-        f"detect (CNN, {det_threads} thread)": median_ms(lambda: detector.detect(left)),
-        f"disparity ({cv_threads} threads)": median_ms(
-            lambda: compute_disparity(left, right, params)
-        ),
-        # CPU time of all its threads (this process runs nothing else meanwhile)
-        "disparity CPU": median_ms(
-            lambda: compute_disparity(left, right, params), time.process_time
-        ),
-        "odometry": median_ms(
-            lambda: estimate_camera_motion(gray0, disp0, gray1, geometry, boxes, None, bias)
-        ),
-        "ranging": median_ms(
-            lambda: range_boxes(disp1, boxes, geometry, ranging, None, (gray1, to_gray(right1)))
-        ),
+        "image message from bytes (before)": median_ms(lambda: _image_from_bytes(left0)),
     }
+    out.update({k: float(np.median(v)) for k, v in times.items()})
+    return out
 
 
 def path_alone(alone: dict[str, float]) -> float:
-    """The stereo node's critical path alone: the later of the CNN, the disparity map and the
-    odometry (each with its own cores), then the ranging."""
+    """The stereo node's critical path alone, as if each step had cores of its own: the later
+    of the CNN, the disparity map and the odometry (which needs only the pair's left image and
+    the previous map, so could start with the pair), then the ranging and its check."""
     det = next(v for k, v in alone.items() if k.startswith("detect"))
     disp = next(v for k, v in alone.items() if k.startswith("disparity ("))
-    return max(det, disp, alone["odometry"]) + alone["ranging"]
+    return max(det, disp, alone["odometry"]) + alone["ranging + check"]
 
 
 def stage_ratios(figures: dict, alone: dict[str, float]) -> dict[str, tuple[float, float]]:
     """In-graph time (p50) against the same work alone, per stage: ``{stage: (in graph ms,
     alone ms)}``. detect: image -> 2D detections vs the CNN alone; image -> 3D detections vs
-    the stereo node's critical path alone (the later of the CNN and the disparity map, then the
-    ranging; the odometry runs beside the disparity map); tracks: image -> tracks vs the same
-    path (the tracker's own step is well under a millisecond)."""
+    the stereo node's critical path alone (:func:`path_alone`); tracks: image -> tracks vs the
+    same path (the tracker's own step is well under a millisecond)."""
     det = next(v for k, v in alone.items() if k.startswith("detect"))
     path = path_alone(alone)
     st = figures["stage_ms_p50"]
@@ -388,21 +521,22 @@ def stage_ratios(figures: dict, alone: dict[str, float]) -> dict[str, tuple[floa
 
 def cores_bound_3d(alone: dict[str, float], cores: int) -> float:
     """The earliest image -> 3D detections a machine of ``cores`` cores allows with no graph
-    overhead at all: the frame's CPU work before the ranging (CNN, the disparity map's CPU over
-    all its threads, the odometry) spread perfectly over the cores, but no sooner than the
-    longest single step; then the ranging."""
+    overhead at all: the frame's CPU work up to its 3D array (the CNN, the disparity map's CPU
+    over all its threads, the odometry, the ranging and its check) spread perfectly over the
+    cores, but no sooner than the longest chain (the later of the CNN and the map, then the
+    ranging)."""
     det = next(v for k, v in alone.items() if k.startswith("detect"))
     disp = next(v for k, v in alone.items() if k.startswith("disparity ("))
-    work = det + alone["disparity CPU"] + alone["odometry"]
-    return max(det, disp, work / max(1, cores)) + alone["ranging"]
+    rng = alone["ranging + check"]
+    work = det + alone["disparity CPU"] + alone["odometry"] + rng
+    return max(max(det, disp) + rng, work / max(1, cores))
 
 
 def node_work(figures: dict, alone: dict[str, float]) -> dict[str, tuple[float, float, float]]:
     """Per compute node: (wall, CPU) ms its worker spent per frame in the graph and the same
-    work alone. detector: the CNN on a converted image; stereo_depth: a pair's conversion,
-    disparity map and the wait for its odometry (run beside it in another thread, whose CPU
-    time is not in the worker's), alone: the disparity map. CPU counts the worker thread only
-    (OpenCV's own threads are not in it)."""
+    work alone. detector: the CNN on a converted image; stereo_depth: a pair's conversion and
+    disparity map (its odometry then runs in another thread), alone: the disparity map. CPU
+    counts the worker thread only (OpenCV's own threads are not in it)."""
     det = next(v for k, v in alone.items() if k.startswith("detect"))
     disp = next(v for k, v in alone.items() if k.startswith("disparity ("))
     out = {}
@@ -566,10 +700,20 @@ def main(argv=None) -> int:
         print("parameters: " + " ".join(args.param))
     for label, times in offline.items():
         print(
-            f"each stage alone on one {label} frame (median ms): "
-            + ", ".join(f"{k} {v:.1f}" for k, v in times.items())
+            f"each stage alone, {label} (median ms over {times.get('frames', 0):.0f} frames): "
+            + ", ".join(f"{k} {v:.1f}" for k, v in times.items() if k != "frames")
         )
     print(_table(rows))
+    print(
+        "where a frame's time goes (the nodes' trace points, VEHICLE_TRACE_DIR; median ms "
+        "after the player's clock event):"
+    )
+    for data, mode, f in rows:
+        tr = f.get("trace") or {}
+        if tr.get("frames"):
+            print(f"  {data}, {mode} ({tr['frames']} frames):")
+            for line in breakdown_lines(tr, offline.get(data)):
+                print(line)
     if offline:
         print("in graph (p50) / alone, per stage (1.0 = no overhead beyond the work itself):")
         for data, mode, f in rows:
@@ -584,8 +728,8 @@ def main(argv=None) -> int:
             path = path_alone(times)
             print(
                 f"  {label}: on {cores} cores image -> 3D cannot come sooner than {bound:.0f} ms "
-                f"= {bound / path:.2f}x its time alone (the CPU work of a frame before the "
-                "ranging spread perfectly over the cores, no graph overhead)"
+                f"= {bound / path:.2f}x its time alone (the CPU work of a frame up to its 3D "
+                "array spread perfectly over the cores, no graph overhead)"
             )
         print(
             "each compute node's own work per frame in the graph (its /diagnostics report: "
