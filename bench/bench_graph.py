@@ -307,7 +307,7 @@ def breakdown_lines(trace: dict, alone: dict[str, float] | None) -> list[str]:
         wall, cpu = trace["steps"][name]
         ref = next((v for k, v in (alone or {}).items() if k.startswith(key)), None)
         cell = f"{name} {wall:.1f} / {cpu:.1f}"
-        if ref:
+        if ref and ref >= 0.5:  # (no ratio of nothing: the synthetic CNN ranges no box)
             cell += f" vs {ref:.1f} = {wall / ref:.2f}x"
         cells.append(cell)
     if cells:
@@ -363,8 +363,9 @@ def _figures(times, reports, cpu0, cpu1, wall) -> dict:
 def offline_stage_times(
     root: Path, sequence: str, max_frames: int = 40, overrides: list[str] = ()
 ) -> dict[str, float]:
-    """Median ms per frame of each stage run alone in this process, over the sequence's frames
-    (up to ``max_frames``, evenly spaced; all 16 of real 0005): the same core functions, thread
+    """Median ms per frame of each stage run alone in this process, over the sequence's first
+    ``max_frames`` frames (successive, as the odometry sees them; all 16 of real 0005): the
+    same core functions, thread
     counts, match band, malloc policy and inputs as the graph's nodes (``-p NODE.PARAM:=VALUE``
     overrides included). The baseline the graph's stages are compared with. The odometry of
     frame k runs from frame k-1 (its disparity map and the previous frame's CNN boxes, as the
@@ -394,9 +395,7 @@ def offline_stage_times(
     from vehicle_common.malloc_policy import keep_freed_memory
 
     seq = TrackingSequence.open(root, sequence)
-    ids = seq.frame_ids
-    step = max(1, -(-len(ids) // max_frames))
-    frames = ids[::step][:max_frames]
+    frames = seq.frame_ids[:max_frames]
 
     def stereo_param(name: str, default):
         ovs = graph.node_overrides(overrides, graph.STEREO.name)
