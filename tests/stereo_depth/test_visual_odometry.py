@@ -98,6 +98,32 @@ def test_begin_moves_the_reference_before_the_estimate_runs(synthetic_pair):
     np.testing.assert_array_equal(got.rotation, want.rotation)
 
 
+def test_corners_prepared_ahead_give_the_same_motion(synthetic_pair):
+    """The stereo node finds the reference's corners after publishing its 3D array (idle
+    time); the next estimate uses them only when they are of its reference and boxes."""
+    _, g, gray0, d0, gray1, boxes = synthetic_pair
+    want = estimate_camera_motion(gray0, d0, gray1, g, boxes)
+    odo = FrameToFrameOdometry()
+    odo.begin(0, gray0, d0)
+    odo.prepare(boxes)()
+    prepared = odo._prepared[1]
+    assert prepared.exclude_boxes == tuple(tuple(b) for b in boxes)
+    assert prepared.corners is not None and len(prepared.corners) >= 30
+    got = odo.begin(100_000_000, gray1, d0)(g, boxes)
+    np.testing.assert_array_equal(got.translation, want.translation)
+    # prepared with other boxes: not used (the estimate finds its own corners)
+    other = FrameToFrameOdometry()
+    other.begin(0, gray0, d0)
+    other.prepare([])()
+    wrong = estimate_camera_motion(gray0, d0, gray1, g, boxes, reference=other._prepared[1])
+    assert not np.array_equal(wrong.translation, want.translation)  # they would show
+    got = other.begin(100_000_000, gray1, d0)(g, boxes)
+    np.testing.assert_array_equal(got.translation, want.translation)
+    # the prepared corners are the ones the estimate would find
+    fresh = estimate_camera_motion(gray0, d0, gray1, g, boxes, reference=prepared)
+    np.testing.assert_array_equal(fresh.translation, want.translation)
+
+
 def test_static_point_velocity():
     m = CameraMotion(np.eye(3), np.array([0.0, 0.0, -1.5]), dt=0.1)
     v = m.static_point_velocity(np.array([[2.0, 1.0, 30.0], [-5.0, 1.0, 10.0]]))

@@ -442,6 +442,9 @@ class StereoDepthNode(Node):
         self.pub_det3d.publish(out)
         self.trace("detections_3d_published", stamp)
         self.frames.published()
+        if self.odometry is not None and frame.disparity is not None:
+            # the next pair's odometry tracks this one's corners: found now, in idle time
+            self._odometry_thread.submit(self.odometry.prepare(self._vehicle_boxes))
 
     def _column_bias(self, width: int, geometry: StereoGeometry) -> np.ndarray:
         """The ranging's disparity bias model per image column [px] (read-only); it depends

@@ -61,6 +61,47 @@ def _corner_mask(shape: tuple[int, int], boxes, margin: float) -> np.ndarray:
     return mask
 
 
+def _scaled(gray: np.ndarray, p: OdometryParams, interpolation=cv2.INTER_AREA) -> np.ndarray:
+    if p.scale == 1.0:
+        return gray
+    h, w = gray.shape
+    size = (max(1, round(w * p.scale)), max(1, round(h * p.scale)))
+    return cv2.resize(gray, size, interpolation=interpolation)
+
+
+@dataclass(frozen=True)
+class ReferenceCorners:
+    """Step 1 of :func:`estimate_camera_motion` for an earlier frame, done ahead (it needs
+    nothing of the later frame): its gray image at the tracking scale and its Shi-Tomasi
+    corners (None: none found) away from ``exclude_boxes``."""
+
+    gray: np.ndarray
+    corners: np.ndarray | None
+    exclude_boxes: tuple
+
+
+def reference_corners(
+    earlier_gray: np.ndarray,
+    earlier_disparity: np.ndarray,
+    exclude_boxes=(),
+    params: OdometryParams | None = None,
+) -> ReferenceCorners:
+    """The corners of the earlier frame that :func:`estimate_camera_motion` tracks."""
+    p = params or OdometryParams()
+    valid = np.isfinite(earlier_disparity) & (earlier_disparity >= p.min_disparity)
+    mask = _corner_mask(earlier_gray.shape, exclude_boxes, p.box_margin)
+    mask[~valid] = 0
+    small = _scaled(earlier_gray, p)
+    corners = cv2.goodFeaturesToTrack(
+        small,
+        p.max_corners,
+        p.corner_quality,
+        p.min_corner_distance,
+        mask=_scaled(mask, p, cv2.INTER_NEAREST),
+    )
+    return ReferenceCorners(small, corners, tuple(tuple(b) for b in exclude_boxes))
+
+
 def estimate_camera_motion(
     earlier_gray: np.ndarray,
     earlier_disparity: np.ndarray,
@@ -69,12 +110,15 @@ def estimate_camera_motion(
     exclude_boxes=(),
     params: OdometryParams | None = None,
     disparity_bias=0.0,
+    reference: ReferenceCorners | None = None,
 ) -> CameraMotion | None:
     """The camera's motion from the earlier frame (gray left image and its disparity map, same
     size) to the later one (gray left image); ``exclude_boxes``: (x1, y1, x2, y2) boxes of the
     earlier image where no corners are taken; ``disparity_bias``: the map's known bias [px]
     (a number, or one per image column), subtracted before the points are lifted to 3D (a
-    biased far point scales the translation). None when it cannot be estimated."""
+    biased far point scales the translation); ``reference``: the earlier frame's
+    :func:`reference_corners` with the same boxes, when done ahead (else computed here). None
+    when it cannot be estimated."""
     p = params or OdometryParams()
     if not 0.0 < p.scale <= 1.0:
         raise ValueError(f"scale: {p.scale} is not in (0, 1]")
@@ -83,20 +127,13 @@ def estimate_camera_motion(
             f"image sizes differ: earlier {earlier_gray.shape}, later {later_gray.shape}, "
             f"disparity {earlier_disparity.shape}"
         )
-    valid = np.isfinite(earlier_disparity) & (earlier_disparity >= p.min_disparity)
-    mask = _corner_mask(earlier_gray.shape, exclude_boxes, p.box_margin)
-    mask[~valid] = 0
     h, w = earlier_gray.shape
-    if p.scale != 1.0:
-        size = (max(1, round(w * p.scale)), max(1, round(h * p.scale)))
-        earlier_gray = cv2.resize(earlier_gray, size, interpolation=cv2.INTER_AREA)
-        later_gray = cv2.resize(later_gray, size, interpolation=cv2.INTER_AREA)
-        mask = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST)
-    corners = cv2.goodFeaturesToTrack(
-        earlier_gray, p.max_corners, p.corner_quality, p.min_corner_distance, mask=mask
-    )
+    if reference is None:
+        reference = reference_corners(earlier_gray, earlier_disparity, exclude_boxes, p)
+    earlier_gray, corners = reference.gray, reference.corners
     if corners is None or len(corners) < p.min_inliers:
         return None
+    later_gray = _scaled(later_gray, p)
     lk = {
         "winSize": (p.lk_window, p.lk_window),
         "maxLevel": p.lk_levels,
@@ -156,11 +193,12 @@ class FrameToFrameOdometry:
     ``step`` is :meth:`estimate` (needs only the new frame's gray image, so it can run while
     that frame's disparity map is computed) followed by :meth:`set_reference`; :meth:`begin`
     does both in the other order (the next frame may start before this one's motion is
-    estimated)."""
+    estimated). :meth:`prepare` finds the reference's corners ahead, in idle time."""
 
     def __init__(self, params: OdometryParams | None = None):
         self.params = params or OdometryParams()
         self._ref: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._prepared: tuple[tuple, ReferenceCorners] | None = None  # (reference, its corners)
 
     def reset(self) -> None:
         self._ref = None
@@ -207,13 +245,33 @@ class FrameToFrameOdometry:
         self.set_reference(stamp_ns, gray, disparity)
         return partial(self._estimate_from, ref, stamp_ns, gray)
 
+    def prepare(self, reference_boxes=()) -> Callable[[], None]:
+        """Return a job that finds the current reference's corners away from
+        ``reference_boxes`` ahead (:func:`reference_corners`), to run in idle time in the
+        thread that runs the estimates; the next estimate against this reference with the same
+        boxes uses them (with other boxes it finds its own: the motion is the same either
+        way)."""
+        ref = self._ref
+        boxes = tuple(tuple(b) for b in reference_boxes)
+        return partial(self._prepare_from, ref, boxes)
+
+    def _prepare_from(self, ref, boxes: tuple) -> None:
+        if ref is not None:
+            self._prepared = (ref, reference_corners(ref[1], ref[2], boxes, self.params))
+
     def _estimate_from(
         self, ref, stamp_ns: int, gray, geometry, reference_boxes=(), disparity_bias=0.0
     ) -> CameraMotion | None:
         if ref is None or ref[0] >= stamp_ns or ref[1].shape != gray.shape:
             return None
+        prepared = self._prepared
+        corners = None
+        if prepared is not None and prepared[0] is ref:
+            boxes = tuple(tuple(b) for b in reference_boxes)
+            if prepared[1].exclude_boxes == boxes:
+                corners = prepared[1]
         motion = estimate_camera_motion(
-            ref[1], ref[2], gray, geometry, reference_boxes, self.params, disparity_bias
+            ref[1], ref[2], gray, geometry, reference_boxes, self.params, disparity_bias, corners
         )
         return None if motion is None else replace(motion, dt=(stamp_ns - ref[0]) * 1e-9)
 
