@@ -389,7 +389,7 @@ def offline_stage_times(
     )
     from stereo_depth_node.region_matching import to_gray
     from stereo_depth_node.reprojection import StereoGeometry
-    from stereo_depth_node.visual_odometry import estimate_camera_motion
+    from stereo_depth_node.visual_odometry import estimate_camera_motion, reference_corners
     from vehicle_common.image_conversion import image_to_rgb, numpy_to_image
     from vehicle_common.kitti import TrackingSequence
     from vehicle_common.malloc_policy import keep_freed_memory
@@ -450,10 +450,14 @@ def offline_stage_times(
         gray, gray_r = to_gray(left), to_gray(right)
         boxes = [d.box for d in dets]
         if previous is not None:
+            # as the node: the reference's corners found ahead (in idle time after its 3D
+            # array), then the estimate on the frame's path
             g0, d0, b0 = previous
+            ref, ms = timed(lambda g0=g0, d0=d0, b0=b0: reference_corners(g0, d0, b0))
+            add("odometry corners (ahead)", ms)
             _, ms = timed(
-                lambda g0=g0, d0=d0, b0=b0, gray=gray: estimate_camera_motion(
-                    g0, d0, gray, geometry, b0, None, bias
+                lambda g0=g0, d0=d0, b0=b0, gray=gray, ref=ref: estimate_camera_motion(
+                    g0, d0, gray, geometry, b0, None, bias, ref
                 )
             )
             add("odometry", ms)
