@@ -454,7 +454,7 @@ def offline_stage_times(
             # array), then the estimate on the frame's path
             g0, d0, b0 = previous
             ref, ms = timed(lambda g0=g0, d0=d0, b0=b0: reference_corners(g0, d0, b0))
-            add("odometry corners (ahead)", ms)
+            add("corners ahead (odometry)", ms)
             _, ms = timed(
                 lambda g0=g0, d0=d0, b0=b0, gray=gray, ref=ref: estimate_camera_motion(
                     g0, d0, gray, geometry, b0, None, bias, ref
