@@ -61,6 +61,11 @@ def _corner_mask(shape: tuple[int, int], boxes, margin: float) -> np.ndarray:
     return mask
 
 
+def _box_key(boxes) -> tuple:
+    """Boxes as a comparable value (which boxes a reference's corners keep away from)."""
+    return tuple(tuple(b) for b in boxes)
+
+
 def _scaled(gray: np.ndarray, p: OdometryParams, interpolation=cv2.INTER_AREA) -> np.ndarray:
     if p.scale == 1.0:
         return gray
@@ -99,7 +104,7 @@ def reference_corners(
         p.min_corner_distance,
         mask=_scaled(mask, p, cv2.INTER_NEAREST),
     )
-    return ReferenceCorners(small, corners, tuple(tuple(b) for b in exclude_boxes))
+    return ReferenceCorners(small, corners, _box_key(exclude_boxes))
 
 
 def estimate_camera_motion(
@@ -251,9 +256,7 @@ class FrameToFrameOdometry:
         thread that runs the estimates; the next estimate against this reference with the same
         boxes uses them (with other boxes it finds its own: the motion is the same either
         way)."""
-        ref = self._ref
-        boxes = tuple(tuple(b) for b in reference_boxes)
-        return partial(self._prepare_from, ref, boxes)
+        return partial(self._prepare_from, self._ref, _box_key(reference_boxes))
 
     def _prepare_from(self, ref, boxes: tuple) -> None:
         if ref is not None:
@@ -266,10 +269,12 @@ class FrameToFrameOdometry:
             return None
         prepared = self._prepared
         corners = None
-        if prepared is not None and prepared[0] is ref:
-            boxes = tuple(tuple(b) for b in reference_boxes)
-            if prepared[1].exclude_boxes == boxes:
-                corners = prepared[1]
+        if (
+            prepared is not None
+            and prepared[0] is ref
+            and prepared[1].exclude_boxes == _box_key(reference_boxes)
+        ):
+            corners = prepared[1]
         motion = estimate_camera_motion(
             ref[1], ref[2], gray, geometry, reference_boxes, self.params, disparity_bias, corners
         )
