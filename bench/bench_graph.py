@@ -273,6 +273,20 @@ STEPS = (
 )
 
 
+_MISSING = object()
+
+
+def alone_ms(alone: dict[str, float], prefix: str, default=_MISSING) -> float:
+    """The time alone of the step whose label starts with ``prefix`` (the labels carry the
+    thread counts: "detect (CNN, 1 thread)"); ``default`` when there is none."""
+    for k, v in alone.items():
+        if k.startswith(prefix):
+            return v
+    if default is _MISSING:
+        raise KeyError(prefix)
+    return default
+
+
 def trace_breakdown(frames: dict) -> dict:
     """Medians over the tracked frames of the nodes' trace points: ``timeline`` (ms after the
     player's clock event, per event) and ``steps`` (wall, CPU of the thread) ms of each step
@@ -305,7 +319,7 @@ def breakdown_lines(trace: dict, alone: dict[str, float] | None) -> list[str]:
         if name not in trace["steps"]:
             continue
         wall, cpu = trace["steps"][name]
-        ref = next((v for k, v in (alone or {}).items() if k.startswith(key)), None)
+        ref = alone_ms(alone or {}, key, None)
         cell = f"{name} {wall:.1f} / {cpu:.1f}"
         if ref and ref >= 0.5:  # (no ratio of nothing: the synthetic CNN ranges no box)
             cell += f" vs {ref:.1f} = {wall / ref:.2f}x"
@@ -501,8 +515,8 @@ def path_alone(alone: dict[str, float]) -> float:
     """The stereo node's critical path alone, as if each step had cores of its own: the later
     of the CNN, the disparity map and the odometry (which needs only the pair's left image and
     the previous map, so could start with the pair), then the ranging and its check."""
-    det = next(v for k, v in alone.items() if k.startswith("detect"))
-    disp = next(v for k, v in alone.items() if k.startswith("disparity ("))
+    det = alone_ms(alone, "detect")
+    disp = alone_ms(alone, "disparity (")
     return max(det, disp, alone["odometry"]) + alone["ranging + check"]
 
 
@@ -511,7 +525,7 @@ def stage_ratios(figures: dict, alone: dict[str, float]) -> dict[str, tuple[floa
     alone ms)}``. detect: image -> 2D detections vs the CNN alone; image -> 3D detections vs
     the stereo node's critical path alone (:func:`path_alone`); tracks: image -> tracks vs the
     same path (the tracker's own step is well under a millisecond)."""
-    det = next(v for k, v in alone.items() if k.startswith("detect"))
+    det = alone_ms(alone, "detect")
     path = path_alone(alone)
     st = figures["stage_ms_p50"]
     to_3d = st["detect"] + st["range"]
@@ -528,8 +542,8 @@ def cores_bound_3d(alone: dict[str, float], cores: int) -> float:
     over all its threads, the odometry, the ranging and its check) spread perfectly over the
     cores, but no sooner than the longest chain (the later of the CNN and the map, then the
     ranging)."""
-    det = next(v for k, v in alone.items() if k.startswith("detect"))
-    disp = next(v for k, v in alone.items() if k.startswith("disparity ("))
+    det = alone_ms(alone, "detect")
+    disp = alone_ms(alone, "disparity (")
     rng = alone["ranging + check"]
     work = det + alone["disparity CPU"] + alone["odometry"] + rng
     return max(max(det, disp) + rng, work / max(1, cores))
@@ -540,8 +554,8 @@ def node_work(figures: dict, alone: dict[str, float]) -> dict[str, tuple[float, 
     work alone. detector: the CNN on a converted image; stereo_depth: a pair's conversion and
     disparity map (its odometry then runs in another thread), alone: the disparity map. CPU
     counts the worker thread only (OpenCV's own threads are not in it)."""
-    det = next(v for k, v in alone.items() if k.startswith("detect"))
-    disp = next(v for k, v in alone.items() if k.startswith("disparity ("))
+    det = alone_ms(alone, "detect")
+    disp = alone_ms(alone, "disparity (")
     out = {}
     for node, label, ref in (
         (graph.DETECTOR.name, "detect", det),
