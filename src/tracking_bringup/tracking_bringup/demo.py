@@ -171,9 +171,13 @@ def main(argv: list[str] | None = None) -> int:
         return _error(f"{args.params}: parameter file not found")
 
     from vehicle_common.kitti import KittiFormatError
+    from vehicle_common.output_paths import make_output_dir
 
     out = Path(args.output or f"output/demo_{datetime.now():%Y%m%d_%H%M%S}").resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        make_output_dir(out)
+    except KittiFormatError as exc:
+        return _error(str(exc))
     print(f"[demo] output folder: {out}", flush=True)
     try:
         root, sequence, frames = _prepare_data(args)
