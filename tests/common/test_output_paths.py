@@ -51,3 +51,15 @@ def test_demo_and_training_refuse_an_unwritable_output_at_once(tmp_path, capsys)
     assert train(["--train", str(tmp_path / "missing"), "--output", "/proc/x"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["error: /proc/x: cannot create output folder (No such file or directory)"]
+
+
+def test_demo_with_an_unusable_checkpoint_is_one_line(tmp_path, capsys):
+    """The demo reads the checkpoint itself for another camera's settings: a missing one was a
+    CheckpointError traceback."""
+    from tracking_bringup.demo import main as demo
+
+    argv = ["--width", "320", "--height", "100", "--frames", "2", "--data-dir", str(tmp_path)]
+    argv += ["--output", str(tmp_path / "out"), "-p", "vehicle_detector.checkpoint:=/x.pt"]
+    assert demo(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: vehicle_detector.checkpoint: /x.pt: checkpoint not found"]

@@ -187,7 +187,12 @@ def main(argv: list[str] | None = None) -> int:
     if not args.kitti_root and (args.focal > 0 or (args.width, args.height) != (1242, 375)):
         # derived for the checkpoint the detector will load (tiny_kitti on synthetic data)
         checkpoint = detector_checkpoint(args.params, args.param, synthetic=True)
-        camera = _camera_settings(root, sequence, args.no_camera_settings, checkpoint)
+        try:
+            camera = _camera_settings(root, sequence, args.no_camera_settings, checkpoint)
+        except KittiFormatError as exc:  # the data
+            return _error(str(exc))
+        except ValueError as exc:  # the checkpoint (CheckpointError)
+            return _error(f"vehicle_detector.checkpoint: {exc}")
 
     bag = out / "bag"
     overrides = [
