@@ -137,3 +137,24 @@ def test_unwritable_outputs_exit_2_before_the_evaluation(
         err = cap.err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith(f"error: {out}: "), err
         assert cap.out == ""  # refused before the evaluation, not after it
+
+
+def test_detection_results_named_by_a_negative_frame_are_refused(
+    kitti_tracking_root, tmp_path, capsys
+):
+    """`evaluate detection` pairs result files with a tracking label file by their frame
+    number: '-00001.txt' (frame -1) was read as frame -1 and paired with nothing."""
+    from eval_node.cli import main
+
+    res = tmp_path / "res"
+    res.mkdir()
+    (res / "-00001.txt").write_text(
+        "Car 0 0 -1.5 600 170 700 230 -1 -1 -1 -1000 -1000 -1000 -10 0.9\n"
+    )
+    labels = kitti_tracking_root / "label_02" / "0005.txt"
+    assert main(["detection", "--results", str(res), "--labels", str(labels)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"error: {res / '-00001.txt'}: result file names must be frame numbers (NNNNNN.txt) to "
+        "pair with a tracking label file"
+    ]
