@@ -392,7 +392,7 @@ def offline_stage_times(
     import torch
     import yaml
     from detector_node.inference import CnnDetector
-    from stereo_depth_node.disparity import DisparityParams, compute_disparity
+    from stereo_depth_node.disparity import DisparityParams, compute_disparity, match_band
     from stereo_depth_node.plausibility import GroundEstimator, PlausibilityParams, check_boxes
     from stereo_depth_node.ranging import (
         RangingParams,
@@ -428,8 +428,8 @@ def offline_stage_times(
     # band and malloc policy (a node keeps freed memory for reuse: keep_freed_memory)
     pairs = [seq.read_stereo(f) for f in frames]
     left0, right0 = pairs[0]
-    top, bottom = (int(v) for v in stereo_param("match_rows", [0, 0]))
-    band = (max(0, top), min(left0.shape[0], bottom)) if bottom > top else None
+    rows = [int(v) for v in stereo_param("match_rows", [0, 0])]
+    band, _ = match_band(rows, left0.shape[0], DisparityParams())  # as the node does
     params = dataclasses.replace(DisparityParams(), row_band=band)
     if stereo_param("keep_freed_memory", True):
         keep_freed_memory()

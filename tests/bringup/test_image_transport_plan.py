@@ -73,3 +73,44 @@ def test_host_profile_image_transport_reaches_both_hosts(tmp_path):
         _launch_plan(params, "--host", "camera", "--peers", "10.0.0.9")
     # one host (no profile): nothing implied
     assert not any("image_transport" in o for o in _launch_plan(PARAMS_FILE).overrides)
+
+
+@pytest.mark.parametrize("transport", ["raw", "jpeg"])
+def test_recorder_records_the_images_where_they_travel(transport):
+    """`image_transport:=jpeg` with `include_images:=true` recorded no image: the recorder
+    subscribed to the raw topics, which nobody published. With include_images the recorder
+    now follows the player's transport like the other image subscribers, and the player waits
+    for its image subscriptions too (no image is lost at the start)."""
+    planned = _plan(
+        {
+            "kitti_player": [f"image_transport:={transport}"],
+            "bag_recorder": ["include_images:=true"],
+        }
+    )
+    recorder, extra = planned["bag_recorder"]
+    suffix = "" if transport == "raw" else "/compressed"
+    assert extra["image_transport"] == ("raw" if transport == "raw" else "compressed")
+    assert f"stereo/left/image_rect{suffix}" in recorder.subscribes
+    assert f"stereo/right/image_rect{suffix}" in recorder.subscribes
+    waits = dict(e.split(":") for e in planned["kitti_player"][1]["wait_for_topics"].split(","))
+    assert waits[f"stereo/left/image_rect{suffix}"] == "3"  # detector, stereo depth, recorder
+    assert waits[f"stereo/right/image_rect{suffix}"] == "2"
+    # without include_images the recorder takes no image
+    recorder, extra = _plan({"kitti_player": [f"image_transport:={transport}"]})["bag_recorder"]
+    assert "image_transport" not in extra and not any("image" in t for t in recorder.subscribes)
+
+
+def test_recorder_image_topics_follow_its_transport():
+    from eval_node.recorder import parse_topics
+
+    assert parse_topics([], True, "compressed") == {
+        "stereo/left/image_rect/compressed": "sensor_msgs/msg/CompressedImage",
+        "stereo/right/image_rect/compressed": "sensor_msgs/msg/CompressedImage",
+        "stereo/disparity": "stereo_msgs/msg/DisparityImage",
+        "stereo/points": "sensor_msgs/msg/PointCloud2",
+    }
+    raw = parse_topics([], True)
+    assert raw["stereo/left/image_rect"] == "sensor_msgs/msg/Image" and len(raw) == 4
+    assert parse_topics(["/a:std_msgs/msg/String"], False, "compressed") == {
+        "/a": "std_msgs/msg/String"
+    }

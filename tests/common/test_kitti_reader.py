@@ -136,3 +136,101 @@ def test_unreadable_png_is_named(tmp_path):
     assert left.shape == (8, 12, 3)
     with pytest.raises(KittiFormatError, match=r"image_03/0003/000001.png: unreadable image"):
         seq.read_stereo(1)
+
+
+# --------------------------------------------------------------- bad input files (issue #35)
+BINARY = b"\xff\xfe\x00\x01\x80\x81binary\xc3\x28\n"
+
+
+def _real_calib_copy(kitti_tracking_root, tmp_path):
+    calib = tmp_path / "calib" / "0005.txt"
+    calib.parent.mkdir(parents=True)
+    calib.write_text((kitti_tracking_root / "calib" / "0005.txt").read_text())
+    return calib
+
+
+def test_non_finite_calibration_values_name_file_line_and_field(kitti_tracking_root, tmp_path):
+    """A `nan` in the real 0005 calibration (P3's Tx, the value the baseline comes from) used
+    to be read, and every frame was then skipped downstream as "P is missing (all zeros)"."""
+    calib = _real_calib_copy(kitti_tracking_root, tmp_path)
+    lines = calib.read_text().splitlines()
+    p3 = lines[3].split()
+    assert p3[0] == "P3:"
+    p3[4] = "nan"  # P3[0,3]
+    lines[3] = " ".join(p3)
+    calib.write_text("\n".join(lines) + "\n")
+    with pytest.raises(KittiFormatError) as err:
+        kitti.read_calib(calib)
+    assert str(err.value) == (
+        f"{calib}:4: P3[0,3]: non-finite value nan (a calibration holds finite numbers only)"
+    )
+    lines = (kitti_tracking_root / "calib" / "0005.txt").read_text().splitlines()
+    lines[4] = lines[4].replace("9.999421000000e-01", "inf")  # R_rect[1,1]
+    calib.write_text("\n".join(lines) + "\n")
+    with pytest.raises(KittiFormatError, match=r"0005.txt:5: R_rect\[1,1\]: non-finite value inf"):
+        kitti.read_calib(calib)
+
+
+def test_a_calibration_without_a_stereo_baseline_is_named(kitti_tracking_root, tmp_path):
+    calib_file = _real_calib_copy(kitti_tracking_root, tmp_path)
+    calib = kitti.read_calib(calib_file)
+    kitti.check_stereo_calibration(calib, calib_file)  # the real one passes
+    for p3 in (calib.P2, calib.P2 + np.array([[0, 0, 0, 100.0], [0] * 4, [0] * 4])):
+        bad = kitti.Calibration(calib.P0, calib.P1, calib.P2, p3)
+        with pytest.raises(KittiFormatError, match=rf"^{calib_file}: P2\[0,3\] - P3\[0,3\] = "):
+            kitti.check_stereo_calibration(bad, calib_file)
+
+
+@pytest.mark.parametrize("kind", ["calib", "labels", "object labels"])
+def test_binary_files_are_one_line_naming_the_file(tmp_path, kind):
+    path = tmp_path / "0003.txt"
+    path.write_bytes(BINARY)
+    read = {
+        "calib": kitti.read_calib,
+        "labels": kitti.read_tracking_labels,
+        "object labels": kitti.read_object_labels,
+    }[kind]
+    with pytest.raises(KittiFormatError) as err:
+        read(path)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: not a text file (byte 0xff at offset 0 is not UTF-8)")
+    assert "\n" not in msg
+
+
+ROW = "Car 0 0 -1.5 600 170 700 230 1.5 1.6 3.9 1.0 1.7 10 -1.57"
+
+
+@pytest.mark.parametrize(
+    ("rows", "message"),
+    [
+        ([f"0 1 {ROW}", f"1 1 {ROW.replace('600', 'nan')}"], r":2: bbox x1: non-finite value nan"),
+        ([f"0 1 {ROW} inf"], r":1: score: non-finite value inf"),
+        ([f"0 1 {ROW.replace('-1.57', '-inf')}"], r":1: rotation_y: non-finite value -inf"),
+        ([f"0 1 {ROW}", f"-1 2 {ROW}"], r":2: frame: -1 is negative"),
+        ([f"0 -2 {ROW}"], r":1: track id: -2"),
+        (
+            [f"0 1 {ROW}", f"0 2 {ROW}", f"1 1 {ROW}", f"1 1 {ROW}"],
+            r":4: track id 1 appears twice in frame 1 \(also on line 3\)",
+        ),
+    ],
+)
+def test_label_and_result_rows_that_cannot_be_scored_are_named(tmp_path, rows, message):
+    """NaN boxes, frame -1 and one track twice in a frame used to be accepted by `evaluate
+    tracking` (MOTA of a run that is not one); KITTI's files never hold them."""
+    path = tmp_path / "0005.txt"
+    path.write_text("\n".join(rows) + "\n")
+    with pytest.raises(KittiFormatError, match=rf"^{path}{message}"):
+        kitti.read_tracking_labels(path)
+
+
+def test_dontcare_rows_may_share_id_minus_one_and_real_labels_pass(kitti_tracking_root, tmp_path):
+    path = tmp_path / "0005.txt"
+    dc = "DontCare -1 -1 -10 10 10 20 20 -1 -1 -1 -1000 -1000 -1000 -10"
+    path.write_text(f"0 -1 {dc}\n0 -1 {dc}\n0 3 {ROW}\n")
+    assert len(kitti.read_tracking_labels(path)[0]) == 3
+    for f in sorted((kitti_tracking_root / "label_02").glob("*.txt")):
+        kitti.read_tracking_labels(f)  # every real label file still reads
+    obj = tmp_path / "000001.txt"
+    obj.write_text(f"{ROW.replace('600', 'nan')}\n")
+    with pytest.raises(KittiFormatError, match=rf"^{obj}:1: bbox x1: non-finite value nan"):
+        kitti.read_object_labels(obj)

@@ -33,6 +33,14 @@ BAD_STARTS = [
     ("stereo_depth_node.node", "stereo_depth", ["-p", "downscale:=8.7"], ["downscale"]),
     ("stereo_depth_node.node", "stereo_depth", ["-p", "num_threads:=-2"], ["num_threads", ">= 1"]),
     ("stereo_depth_node.node", "stereo_depth", ["-p", "frame_queue:=1.5"], ["frame_queue"]),
+    # inverted or empty row bands (used to be read as the whole image)
+    (
+        "stereo_depth_node.node",
+        "stereo_depth",
+        ["-p", "match_rows:=[500, 100]"],
+        ["match_rows", "[500, 100]", "0 <= top < bottom"],
+    ),
+    ("stereo_depth_node.node", "stereo_depth", ["-p", "match_rows:=[5, 5]"], ["match_rows"]),
     (
         "tracker_node.node",
         "vehicle_tracker",

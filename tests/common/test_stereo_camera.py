@@ -93,3 +93,15 @@ def test_disparity_range_for_the_nearest_depth():
     assert num_disparities_for(FX, B, 2.6) == 48  # 84 px*m / 2.6 m = 32.3 -> 48
     assert num_disparities_for(FX, B, 4.0) == 32
     assert num_disparities_for(FX, B, 100.0) == 16  # never below OpenCV's 16
+
+
+def test_a_non_finite_value_in_p_is_named_not_called_missing():
+    """A nan in the right P (a calibration file with `nan`) was reported as "P is missing (all
+    zeros)"; it names the element now."""
+    K = np.array([[FX, 0, W / 2], [0, FX, H / 2], [0, 0, 1.0]])
+    right = np.hstack([K, [[np.nan], [0], [0]]])
+    with pytest.raises(StereoCameraError) as err:
+        check_stereo_infos(*_infos(right_p=right))
+    assert str(err.value) == (
+        "right camera_info: P[0,3] is nan: the calibration holds a non-finite value"
+    )

@@ -190,3 +190,61 @@ def test_cnn_backend_named_checkpoint_finds_synthetic_car(rclpy_context, tmp_pat
         assert sum(d.orientation_probs) == pytest.approx(1.0, abs=1e-4)
         assert d.orientation_bin == int(np.argmax(d.orientation_probs))
     assert [d.id for d in msg.detections] == [str(i) for i in range(len(msg.detections))]
+
+
+def test_bad_checkpoint_device_or_runtime_is_one_line_and_exit_2(tmp_path, capsys):
+    """`checkpoint:=/x.pt`, a file that is no checkpoint and `device:=cuda` without CUDA used to
+    end the node in a traceback (exit 1)."""
+    import torch
+    from detector_node.checkpoint import save_checkpoint
+    from detector_node.model import YoloV2Passthrough, preset
+    from detector_node.node import main
+
+    text = tmp_path / "text.pt"
+    text.write_text("not a checkpoint\n")
+    noise = tmp_path / "noise.pt"
+    noise.write_bytes(np.random.default_rng(0).integers(0, 256, 3000, np.uint8).tobytes())
+    other = tmp_path / "other.pt"
+    torch.save({"weights": torch.zeros(3)}, other)
+    mismatch = tmp_path / "mismatch.pt"
+    save_checkpoint(mismatch, YoloV2Passthrough(preset("tiny", input_width=320, input_height=96)))
+    state = torch.load(mismatch, weights_only=True)
+    first = next(iter(state["state_dict"]))
+    state["state_dict"][first] = torch.zeros(1)
+    torch.save(state, mismatch)
+    cases = [
+        ("checkpoint:=/x.pt", "parameter checkpoint: /x.pt: checkpoint not found"),
+        (f"checkpoint:={tmp_path}", f"parameter checkpoint: {tmp_path}: is a folder"),
+        (f"checkpoint:={text}", f"{text}: not a PyTorch weights-only checkpoint"),
+        (f"checkpoint:={noise}", f"{noise}: not a PyTorch weights-only checkpoint"),
+        (f"checkpoint:={other}", f"{other}: not a detector checkpoint"),
+        (f"checkpoint:={mismatch}", f"{mismatch}: not a usable detector checkpoint"),
+        ("device:=gpu", "parameter device: expected auto, cpu, cuda or cuda:N"),
+        ("runtime:=onnxruntime -p checkpoint:=tiny_kitti", "parameter runtime: 'onnxruntime'"),
+    ]
+    if not torch.cuda.is_available():
+        cases.append(("device:=cuda", "parameter device: 'cuda' requested but CUDA is not"))
+    for setting, message in cases:
+        args = [a for item in setting.split(" -p ") for a in ("-p", item)]
+        rc = main(["--ros-args", *args])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2, (setting, err)
+        assert len(err) == 1 and err[0].startswith("error: vehicle_detector: "), err
+        assert message in err[0], err
+
+
+def test_detector_offline_unwritable_output_is_one_line(tmp_path, capsys):
+    from detector_node.offline import main
+    from vehicle_common.kitti import write_png
+
+    write_png(tmp_path / "images" / "000000.png", np.zeros((40, 64, 3), np.uint8))
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    for out, message in (
+        ("/proc/x", "/proc/x: cannot create output folder (No such file or directory)"),
+        (str(a_file), f"{a_file}: exists and is not a folder"),
+        (str(a_file / "sub"), f"{a_file / 'sub'}: cannot create output folder"),
+    ):
+        rc = main(["--images", str(tmp_path / "images"), "--output", out, "--checkpoint", "x.pt"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and err[0].startswith(f"error: {message}"), err

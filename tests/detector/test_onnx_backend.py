@@ -77,7 +77,7 @@ def test_runtime_resolution():
     assert resolve_runtime("auto", tiny, cpu) == "torch"
     expected = "onnxruntime" if onnxruntime_available() else "torch"
     assert resolve_runtime("auto", centernet, cpu) == expected
-    with pytest.raises(ValueError, match="runtime must be one of"):
+    with pytest.raises(ValueError, match="runtime: must be one of"):
         resolve_runtime("tensorrt", centernet, cpu)
     with pytest.raises(ValueError, match="needs a CenterNet"):
         resolve_runtime("onnxruntime", tiny, cpu)

@@ -125,8 +125,10 @@ def test_killed_writer_keeps_flushed_chunks(tmp_path, capsys):
 @pytest.mark.parametrize("options", [{}, {"compression": "zstd"}])
 def test_cut_anywhere_keeps_every_complete_chunk(tmp_path, options):
     """The last file cut at 40 offsets, 38 of them random (a kill during a write): the reader
-    keeps the messages of every chunk that lies wholly before the cut; bag_recover agrees."""
+    keeps the messages of every chunk that lies wholly before the cut (a cut before the first
+    complete chunk leaves nothing to read: one error line naming the bag); bag_recover agrees."""
     from kitti_player_node.bag_replay import open_reader
+    from vehicle_common.bag_files import BagError
     from vehicle_common.bag_recovery import recover_bag
     from vehicle_common.mcap_recovery import scan_mcap
 
@@ -147,13 +149,18 @@ def test_cut_anywhere_keeps_every_complete_chunk(tmp_path, options):
             sum(len(e) for e in c.index.values()) for c in full.chunks if c.start + c.length <= cut
         )
         lines = []
-        reader = open_reader(bag, warn=lines.append)
-        try:
-            got = [(c.topic, bytes(raw), t) for c, t, raw in reader.messages()]
-        finally:
-            reader.close()
-        assert got == flushed[:kept], f"cut at {cut}"
-        assert len(lines) == 1 and f"kept {kept} messages" in lines[0]
+        if kept == 0:  # nothing to read: one error line instead of an empty run
+            with pytest.raises(BagError, match=rf"^{bag}: .*(no message can be read|empty)"):
+                open_reader(bag, warn=lines.append)
+            assert lines == []
+        else:
+            reader = open_reader(bag, warn=lines.append)
+            try:
+                got = [(c.topic, bytes(raw), t) for c, t, raw in reader.messages()]
+            finally:
+                reader.close()
+            assert got == flushed[:kept], f"cut at {cut}"
+            assert len(lines) == 1 and f"kept {kept} messages" in lines[0]
         if k % 8 == 0:
             assert recover_bag(bag).message_count == kept
             assert _read_all(bag) == flushed[:kept]

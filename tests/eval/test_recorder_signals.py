@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -33,6 +34,33 @@ def _flushed_messages(bag) -> int:
         return 0
 
 
+@contextlib.contextmanager
+def _recorder(params: list[str]):
+    """A bag_recorder process with ``-p`` ``params``, killed if still running at the end."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "eval_node.recorder", "--ros-args"]
+        + [x for p in params for x in ("-p", p)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=dict(os.environ),
+    )
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def _stop(proc, sig=signal.SIGINT) -> str:
+    """Stop the recorder with ``sig``; its output (it must exit with 0)."""
+    proc.send_signal(sig)
+    out, _ = proc.communicate(timeout=20)
+    assert proc.returncode == 0, out
+    return out
+
+
 def _record(tmp_path, rclpy_context, sig, extra_params):
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -48,16 +76,8 @@ def _record(tmp_path, rclpy_context, sig, extra_params):
         "['/vehicles/tracks:stereo_vehicle_msgs/msg/TrackedVehicleArray',"
         "'/vehicles/detections_3d:stereo_vehicle_msgs/msg/VehicleDetection3DArray']"
     )
-    params = ["-p", f"output:={bag}", "-p", f"topics:={topics}"]
-    params += [x for p in extra_params for x in ("-p", p)]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "eval_node.recorder", "--ros-args", *params],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=dict(os.environ),
-    )
-    try:
+    params = [f"output:={bag}", f"topics:={topics}", *extra_params]
+    with _recorder(params) as proc:
         assert _wait(
             lambda: (
                 pub_tracks.get_subscription_count() > 0 and pub_det.get_subscription_count() > 0
@@ -74,14 +94,8 @@ def _record(tmp_path, rclpy_context, sig, extra_params):
             pub_det.publish(det)
         assert pub_tracks.wait_for_all_acked(rclpy.duration.Duration(seconds=5))
         assert pub_det.wait_for_all_acked(rclpy.duration.Duration(seconds=5))
-        proc.send_signal(sig)
-        out, _ = proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        node.destroy_node()
-    assert proc.returncode == 0, out
+        out = _stop(proc, sig)
+    node.destroy_node()
     return bag, out
 
 
@@ -238,3 +252,33 @@ def test_recorder_killed_keeps_flushed_messages(tmp_path, rclpy_context, capsys)
             "\nkill -9 runs (published, kept, required, kill after [s]): "
             + "; ".join(f"{p}, {k}, {m}, {a:.2f}" for p, k, m, a in results)
         )
+
+
+def test_recorder_records_compressed_images(tmp_path, rclpy_context):
+    """End to end: the recorder with `include_images:=true image_transport:=compressed` (what
+    the launchers give it when the player sends jpeg) records the CompressedImages on
+    `<image topic>/compressed`; it used to wait on the raw topics and record none."""
+    import rclpy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import CompressedImage
+
+    bag = tmp_path / "bag"
+    node = rclpy.create_node("recorder_image_test_pub", context=rclpy_context)
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    topics = ("/stereo/left/image_rect/compressed", "/stereo/right/image_rect/compressed")
+    pubs = [node.create_publisher(CompressedImage, t, qos) for t in topics]
+    params = [f"output:={bag}", "topics:=['/unused:std_msgs/msg/String']"]
+    with _recorder([*params, "include_images:=true", "image_transport:=compressed"]) as proc:
+        assert _wait(lambda: all(p.get_subscription_count() > 0 for p in pubs), 20.0), (
+            "recorder did not subscribe to the compressed images"
+        )
+        for i in range(3):
+            for pub in pubs:
+                msg = CompressedImage(format="jpeg", data=bytes([255, 216, i]))
+                msg.header.stamp.sec = i
+                pub.publish(msg)
+        assert all(p.wait_for_all_acked(rclpy.duration.Duration(seconds=5)) for p in pubs)
+        out = _stop(proc)
+    node.destroy_node()
+    counts, _ = _read(bag)
+    assert counts == {t: 3 for t in topics}, out

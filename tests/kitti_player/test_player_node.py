@@ -282,3 +282,44 @@ def test_main_exit_codes(tmp_path, capsys):
     assert main([*args, "-p", "rate:=0", "-p", "last_frame:=2", "-p", "drop_probability:=0.5"]) == 0
     assert main([*args, "-p", "first_frame:=9"]) == 2
     assert "first_frame/last_frame" in capsys.readouterr().err
+
+
+def _real_0005_with(tmp_path, kitti_tracking_root, calib_text=None, labels=None):
+    """A tracking root with real 0005's images (linked) and its calibration and labels copied,
+    optionally replaced."""
+    root = tmp_path / "kitti"
+    for cam in ("image_02", "image_03"):
+        (root / cam).mkdir(parents=True)
+        (root / cam / "0005").symlink_to(kitti_tracking_root / cam / "0005")
+    for sub, new in (("calib", calib_text), ("label_02", labels)):
+        (root / sub).mkdir()
+        src = (kitti_tracking_root / sub / "0005.txt").read_bytes()
+        (root / sub / "0005.txt").write_bytes(src if new is None else new)
+    return root
+
+
+def test_bad_calibration_or_labels_stop_the_player_with_one_line(
+    tmp_path, kitti_tracking_root, capsys
+):
+    """Real 0005 with a `nan` in P3's Tx: the player used to publish a NaN baseline, and every
+    frame was skipped downstream as "P is missing (all zeros)" with exit code 0. Binary calib
+    and label files gave a UnicodeDecodeError traceback; a calibration whose P3 gives no
+    baseline ran and tracked nothing."""
+    from kitti_player_node.node import main
+
+    calib = (kitti_tracking_root / "calib" / "0005.txt").read_text()
+    p3 = calib.splitlines()[3].split()
+    nan_tx = calib.replace(" ".join(p3), " ".join([*p3[:4], "nan", *p3[5:]]))
+    no_baseline = calib.replace(" ".join(p3[1:]), " ".join(calib.splitlines()[2].split()[1:]))
+    cases = [
+        (dict(calib_text=nan_tx.encode()), "calib/0005.txt:4: P3[0,3]: non-finite value nan"),
+        (dict(calib_text=b"\xff\xfe\x80 binary"), "calib/0005.txt: not a text file"),
+        (dict(labels=b"\xff\xfe\x80 binary"), "label_02/0005.txt: not a text file"),
+        (dict(calib_text=no_baseline.encode()), "calib/0005.txt: P2[0,3] - P3[0,3] = 0"),
+    ]
+    for k, (files, message) in enumerate(cases):
+        root = _real_0005_with(tmp_path / str(k), kitti_tracking_root, **files)
+        rc = main(["--ros-args", "-p", f"dataset_root:={root}", "-p", "sequence:=0005"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2, err
+        assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err

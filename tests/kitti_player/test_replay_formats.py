@@ -244,3 +244,55 @@ def test_damaged_bag_one_line_error(tmp_path, fmt, how):
         errors = [ln for ln in lines if ln.startswith("error: ")]
         assert len(errors) == 1 and str(bad) in errors[0], (argv, p.stderr)
         assert "Traceback" not in p.stderr and len(lines) == 1, (argv, p.stderr)
+
+
+def _mcap_without_a_message(folder: Path, how: str) -> Path:
+    """An ``.mcap`` (or a bag folder) from which nothing can be read or played."""
+    from eval_node.bag_writer import BagWriter
+    from vehicle_common.mcap_recovery import MAGIC
+
+    folder.mkdir(parents=True, exist_ok=True)
+    if how == "zero bytes":
+        (folder / "zero.mcap").write_bytes(b"")
+        return folder / "zero.mcap"
+    if how == "zero bytes in a bag folder":
+        (folder / "bag").mkdir()
+        (folder / "bag" / "bag_0.mcap").write_bytes(b"")
+        return folder / "bag"
+    if how == "garbage":
+        (folder / "garbage.mcap").write_bytes(np.random.default_rng(2).bytes(5000))
+        return folder / "garbage.mcap"
+    if how == "magic and garbage":  # a recording cut before its first chunk, or damaged
+        (folder / "cut.mcap").write_bytes(MAGIC + np.random.default_rng(3).bytes(5000))
+        return folder / "cut.mcap"
+    writer = BagWriter(folder / "empty")  # complete and valid, no message recorded
+    writer.add_topic("/vehicles/tracks", "stereo_vehicle_msgs/msg/TrackedVehicleArray")
+    writer.close()
+    return folder / "empty"
+
+
+@pytest.mark.parametrize(
+    ("how", "message"),
+    [
+        ("zero bytes", "empty file (0 bytes): nothing was recorded"),
+        ("zero bytes in a bag folder", "bag_0.mcap is empty (0 bytes)"),
+        ("garbage", "cannot read bag (not an MCAP file: bad magic)"),
+        ("magic and garbage", "no message can be read: the recording has no complete chunk"),
+        ("no message", "no message to play (1 topics, 0 messages in the bag)"),
+    ],
+)
+def test_a_bag_with_nothing_to_play_is_one_line_and_exit_2(tmp_path, capsys, how, message):
+    """A 0-byte or garbage `.mcap` used to play with exit code 0 ("done: 0 messages
+    published"), after a warning that `bag_recover` would repair it; a random file's error
+    named a temporary copy instead of the file."""
+    from eval_node.cli import main as evaluate
+    from kitti_player_node.bag_player import main as play
+
+    bag = _mcap_without_a_message(tmp_path, how)
+    assert play([str(bag), "--rate", "0", "--immediate"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {bag}: {message}"), err
+    assert "bag_read_" not in err[0]  # the user's file, not the reader's temporary copy
+    assert evaluate(["bag", str(bag), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {bag}: "), err  # no warning line first

@@ -108,4 +108,4 @@ def test_cli_unwritable_output(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {blocker / 'sub'}")
     assert main(["--output", str(blocker), "--frames", "1"]) == 2
-    assert "not a directory" in capsys.readouterr().err
+    assert "exists and is not a folder" in capsys.readouterr().err

@@ -141,3 +141,33 @@ def test_decimated_points_subsample_and_clip_depth():
     assert pts.shape == (10 * 7, 3) and cols.shape == (70, 3)  # columns 32..56
     np.testing.assert_allclose(pts[:, 2], 20.0, rtol=1e-5)
     assert np.all(cols[:, 1] == 200)
+
+
+def test_match_rows_against_the_image_height():
+    """`match_rows` [400, 500] on a 375-row image used to match nothing (MOTA 0, no word) and
+    [500, 100] was read as the whole image. The one check of the band against an image:"""
+    from stereo_depth_node.disparity import (
+        RowBandError,
+        check_match_rows,
+        match_band,
+        min_band_rows,
+    )
+
+    p = DisparityParams()  # block 3 at half resolution: 12 rows at least
+    assert min_band_rows(p) == 12
+    assert match_band([0, 0], 375, p) == (None, None)  # every row
+    assert match_band([94, 375], 375, p) == ((94, 375), None)  # the KITTI graph's band
+    band, note = match_band([94, 375], 370, p)  # a 1224x370 KITTI frame: cut, and said so
+    assert band == (94, 370)
+    assert note == "match_rows: [94, 375] reaches below the 370-row image: rows 94..369 are matched"
+    with pytest.raises(RowBandError) as err:
+        match_band([400, 500], 375, p)
+    assert str(err.value) == (
+        "match_rows: [400, 500] lies below the 375-row image (rows 0..374); the matcher needs "
+        "at least 12 rows: nothing could be ranged"
+    )
+    with pytest.raises(RowBandError, match=r"\[370, 400\] keeps 5 rows of the 375-row image"):
+        match_band([370, 400], 375, p)
+    for rows in ([500, 100], [5, 5], [-1, 10]):
+        with pytest.raises(ValueError, match=rf"^match_rows: \[{rows[0]}, {rows[1]}\]: expected"):
+            check_match_rows(rows)

@@ -491,3 +491,94 @@ def test_continuous_observation_angle_moves_the_centre_when_given(rclpy_context)
         assert dist[1] - dist[0] == pytest.approx(shift, abs=0.02)
     finally:
         h.close()
+
+
+def test_a_match_band_outside_the_images_stops_the_node_and_one_partly_outside_is_cut(
+    rclpy_context, capfd
+):
+    """`match_rows` is checked against the images at the first pair (the image size is only
+    known then): a band below the image sets the node's fatal error (node_runtime.run_node
+    then exits 2 with its line); a band reaching below the image is cut there, with a warning
+    naming the parameter and the image height."""
+    h = Harness(rclpy_context, match_rows=[20, 400], disparity_bias=0.0, lateral_fit=False)
+    try:
+        h.send_frame(1)
+        h.send_detections(1, [(150, 30, 250, 90)])
+        assert h.spin_until(lambda: len(h.det3d) == 1)
+        assert len(h.det3d[0].detections) == 1 and h.node.fatal_error is None
+        assert h.node._band_params[1].row_band == (20, H)
+        err = capfd.readouterr().err
+        assert err.count("match_rows: [20, 400] reaches below the 120-row image") == 1
+    finally:
+        h.close()
+    h = Harness(rclpy_context, match_rows=[200, 300])
+    try:
+        h.send_frame(1)
+        h.send_detections(1, [(150, 30, 250, 90)])
+        assert h.spin_until(lambda: h.node.fatal_error is not None)
+        assert h.node.fatal_error.name == "match_rows"
+        assert h.node.fatal_error.problem.startswith("[200, 300] lies below the 120-row image")
+    finally:
+        h.close()
+
+
+def test_stereo_depth_process_exits_2_naming_match_rows_at_its_first_pair(tmp_path):
+    """End to end: the node process, given a 375-row pair with `match_rows:=[400, 500]`, stops
+    with one error line and exit code 2 (it used to run on, publishing nothing)."""
+    import subprocess
+    import sys
+
+    import rclpy
+    from rclpy.context import Context
+    from sensor_msgs.msg import CameraInfo, Image
+    from std_msgs.msg import Header
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "stereo_depth_node.node", "--ros-args", "-p",
+         "match_rows:=[400, 500]", "-p", "visual_odometry:=false"],
+        stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=tmp_path,
+    )  # fmt: skip
+    ctx = Context()
+    rclpy.init(context=ctx)
+    io = rclpy.create_node("match_rows_test_io", context=ctx)
+    try:
+        pubs = {
+            topic: io.create_publisher(cls, topic, 5)
+            for topic, cls in (
+                ("/stereo/left/camera_info", CameraInfo),
+                ("/stereo/right/camera_info", CameraInfo),
+                ("/stereo/left/image_rect", Image),
+                ("/stereo/right/image_rect", Image),
+            )
+        }
+        deadline = time.monotonic() + 60
+        while any(p.get_subscription_count() == 0 for p in pubs.values()):
+            assert proc.poll() is None and time.monotonic() < deadline, "node did not come up"
+            time.sleep(0.05)
+        K = np.array([[721.5, 0, 609.6], [0, 721.5, 172.9], [0, 0, 1]])
+        hdr = Header(frame_id="left_camera_optical_frame")
+        hdr.stamp.sec = 1
+        left_info = camera_info_from_projection(np.hstack([K, np.zeros((3, 1))]), 1242, 375)
+        right_info = camera_info_from_projection(np.hstack([K, [[-389.6], [0], [0]]]), 1242, 375)
+        img = np.zeros((375, 1242, 3), np.uint8)
+        for topic, msg in (
+            ("/stereo/left/camera_info", left_info),
+            ("/stereo/right/camera_info", right_info),
+            ("/stereo/left/image_rect", numpy_to_image(img, "rgb8", hdr)),
+            ("/stereo/right/image_rect", numpy_to_image(img, "rgb8", hdr)),
+        ):
+            msg.header = hdr
+            pubs[topic].publish(msg)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        io.destroy_node()
+        ctx.try_shutdown()
+    assert proc.returncode == 2, err
+    lines = [line for line in err.splitlines() if line.startswith("error: ")]
+    assert lines == [
+        "error: stereo_depth: parameter match_rows: [400, 500] lies below the 375-row image "
+        "(rows 0..374); the matcher needs at least 12 rows: nothing could be ranged"
+    ], err
+    assert "Traceback" not in err

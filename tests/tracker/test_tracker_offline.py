@@ -95,12 +95,21 @@ def test_offline_with_shared_calib_projects_boxes(tmp_path, shared_kitti):
             "0,2,600,170,700,230,9.5,1.5,1.6,3.9,1.0,1.7,10,-1.57,-1.66\n0,2,a,b,c,d,e,f,g,h,i,j,k,l,m\n",
             "0009.txt:2",
         ),
+        ("0,2,600,170,nan,230,9.5,1.5,1.6,3.9,1.0,1.7,10,-1.57,-1.66\n", "0009.txt:1: non-finite"),
+        ("-1,2,600,170,700,230,9.5,1.5,1.6,3.9,1.0,1.7,10,-1.57,-1.66\n", "0009.txt:1: frame"),
+        ("0,2.5,600,170,700,230,9.5,1.5,1.6,3.9,1.0,1.7,10,-1.57,-1.66\n", "0009.txt:1: type"),
+        (b"\xff\xfe\x00\x80 binary", "0009.txt: not a text file"),
     ],
 )
 def test_offline_bad_input_exits_2_with_one_line(tmp_path, capsys, content, needle):
+    """The PointRCNN detections reader: malformed rows, NaN, frame -1, a fractional type and a
+    binary file are each one line naming the file (and line)."""
     dets = tmp_path / "dets"
     dets.mkdir()
-    (dets / "0009.txt").write_text(content)
+    if isinstance(content, bytes):
+        (dets / "0009.txt").write_bytes(content)
+    else:
+        (dets / "0009.txt").write_text(content)
     rc = main(["--detections", str(dets), "--output", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert rc == 2
@@ -195,3 +204,30 @@ def test_pointrcnn_profile_beats_the_defaults_online_on_real_detections(tmp_path
     assert p["mota"] > d["mota"] - 0.01 and p["idsw"] <= d["idsw"]  # best threshold
     assert p["all_rows"]["mota"] > d["all_rows"]["mota"] + 0.03  # no threshold
     assert p["hota"] > d["hota"] + 0.01
+
+
+def test_offline_binary_params_or_calib_and_unwritable_output_exit_2(tmp_path, capsys):
+    """A binary --params or calibration file and an output that cannot be created (a path
+    under /proc, a path through a file) used to end in tracebacks."""
+    dets = tmp_path / "dets"
+    dets.mkdir()
+    _write_dets(dets / "0009.txt")
+    binary = tmp_path / "binary"
+    binary.write_bytes(b"\xff\xfe\x00\x80 binary")
+    calib = tmp_path / "calib"
+    calib.mkdir()
+    (calib / "0009.txt").write_bytes(b"\xff\xfe\x00\x80 binary")
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    out = str(tmp_path / "out")
+    runs = [
+        (["--params", str(binary), "--output", out], f"{binary}: not a text file"),
+        (["--calib", str(calib), "--output", out], f"{calib / '0009.txt'}: not a text file"),
+        (["--output", "/proc/x"], "/proc/x: cannot create output folder"),
+        (["--output", str(a_file)], f"{a_file}: exists and is not a folder"),
+        (["--output", str(a_file / "sub")], f"{a_file / 'sub'}: cannot create output folder"),
+    ]
+    for argv, message in runs:
+        assert main(["--detections", str(dets), *argv]) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"error: {message}"), err

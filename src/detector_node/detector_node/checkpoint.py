@@ -67,32 +67,60 @@ def resolve_checkpoint(name: str | os.PathLike) -> Path:
     return shipped if shipped.is_file() else path
 
 
+class CheckpointError(ValueError):
+    """A checkpoint file is missing, unreadable or not a detector checkpoint; the message (one
+    line) names the file."""
+
+
+def _reason(exc: Exception) -> str:
+    """The gist of a loading error in one short line (torch's unpickling errors span many lines
+    of advice; the line after 'WeightsUnpickler error:' says what was found)."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    for i, line in enumerate(lines[:-1]):
+        if line.endswith("WeightsUnpickler error:"):
+            return lines[i + 1]
+    text = lines[0] if lines else type(exc).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
 def load_checkpoint(
     path: str | os.PathLike, device: str | torch.device = "cpu"
 ) -> tuple[torch.nn.Module, dict]:
     """Load a checkpoint safely (``weights_only=True``); returns (model in eval mode, raw dict).
 
-    Raises ValueError naming the file when it is missing or not a detector checkpoint.
+    Raises CheckpointError (a ValueError) naming the file, in one line, when it is missing, is
+    not a PyTorch file, or is not a detector checkpoint whose weights fit its model.
     """
     path = resolve_checkpoint(path)
+    if path.is_dir():
+        raise CheckpointError(f"{path}: is a folder, not a checkpoint file")
     if not path.is_file():
-        raise ValueError(f"{path}: checkpoint not found")
+        raise CheckpointError(f"{path}: checkpoint not found")
     try:
         state = torch.load(path, map_location=device, weights_only=True)
     except Exception as exc:  # unpickling errors come in many types
-        raise ValueError(f"{path}: not a loadable weights-only checkpoint ({exc})") from None
+        raise CheckpointError(
+            f"{path}: not a PyTorch weights-only checkpoint ({_reason(exc)})"
+        ) from None
     if not isinstance(state, dict) or "config" not in state or "state_dict" not in state:
-        raise ValueError(f"{path}: not a detector checkpoint (config/state_dict missing)")
-    config = DetectorConfig.from_dict(state["config"])
-    if config.size == "centernet":
-        from .centernet import CenterNetDetector
+        raise CheckpointError(f"{path}: not a detector checkpoint (config/state_dict missing)")
+    try:
+        config = DetectorConfig.from_dict(state["config"])
+        if config.size == "centernet":
+            from .centernet import CenterNetDetector
 
-        if "graph" not in state:
-            raise ValueError(f"{path}: CenterNet checkpoint without its graph")
-        model = CenterNetDetector(config, json.loads(state["graph"]), None)
-    else:
-        model = YoloV2Passthrough(config)
-    model.load_state_dict(state["state_dict"])
+            if "graph" not in state:
+                raise CheckpointError(f"{path}: CenterNet checkpoint without its graph")
+            model = CenterNetDetector(config, json.loads(state["graph"]), None)
+        else:
+            model = YoloV2Passthrough(config)
+        model.load_state_dict(state["state_dict"])
+    except CheckpointError:
+        raise
+    except Exception as exc:  # a config or weights that do not fit the model
+        raise CheckpointError(
+            f"{path}: not a usable detector checkpoint ({_reason(exc)})"
+        ) from None
     if config.size == "centernet":
         model.graph.fuse()  # the constants' values are known now
     model.to(device).eval()

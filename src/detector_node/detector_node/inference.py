@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from vehicle_common.node_parameters import ParameterError
 from vehicle_common.orientation_bins import bin_to_alpha, fold_alpha_signed
 
 from .boxes import decode_raw, nms
@@ -35,13 +36,22 @@ class Detection:
 
 
 def choose_device(device: str = "auto") -> torch.device:
-    """'auto' -> CUDA when available, else CPU; 'cpu' / 'cuda' as given."""
+    """'auto' -> CUDA when available, else CPU; 'cpu', 'cuda' and 'cuda:N' as given. A device
+    that is not there raises ParameterError (a ValueError) naming the parameter ``device``."""
     if device == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if device not in ("cpu", "cuda"):
-        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
-    if device == "cuda" and not torch.cuda.is_available():
-        raise ValueError("device 'cuda' requested but CUDA is not available")
+    kind, sep, index = device.partition(":")
+    if device != "cpu" and not (kind == "cuda" and (not sep or index.isdigit())):
+        raise ParameterError("device", f"expected auto, cpu, cuda or cuda:N, got {device!r}")
+    if kind == "cuda":
+        if not torch.cuda.is_available():
+            raise ParameterError(
+                "device", f"{device!r} requested but CUDA is not available here (use auto or cpu)"
+            )
+        if sep and int(index) >= torch.cuda.device_count():
+            raise ParameterError(
+                "device", f"{device!r}: only {torch.cuda.device_count()} CUDA device(s) here"
+            )
     return torch.device(device)
 
 
@@ -109,9 +119,10 @@ def resolve_runtime(runtime: str, config: DetectorConfig, device: torch.device) 
     """The inference runtime actually used: 'onnxruntime' runs the CenterNet's dense part on
     ONNX Runtime (CPU; :mod:`detector_node.onnx_backend`), 'torch' everything in PyTorch.
     'auto' = onnxruntime for a CenterNet checkpoint on the CPU when the packages are installed,
-    else torch. Raises ValueError for an unknown name or an impossible request."""
+    else torch. Raises ParameterError (a ValueError) naming ``runtime`` for an unknown name or
+    an impossible request."""
     if runtime not in RUNTIMES:
-        raise ValueError(f"runtime must be one of {', '.join(RUNTIMES)}, got {runtime!r}")
+        raise ParameterError("runtime", f"must be one of {', '.join(RUNTIMES)}, got {runtime!r}")
     if runtime == "torch":
         return "torch"
     from .onnx_backend import onnxruntime_available
@@ -120,12 +131,15 @@ def resolve_runtime(runtime: str, config: DetectorConfig, device: torch.device) 
     if runtime == "auto":
         return "onnxruntime" if possible and onnxruntime_available() else "torch"
     if not possible:
-        raise ValueError(
-            "runtime 'onnxruntime' needs a CenterNet checkpoint on the CPU "
-            f"(got {config.size} on {device.type})"
+        raise ParameterError(
+            "runtime",
+            "'onnxruntime' needs a CenterNet checkpoint on the CPU "
+            f"(got {config.size} on {device.type})",
         )
     if not onnxruntime_available():
-        raise ValueError("runtime 'onnxruntime': the onnx / onnxruntime packages are not installed")
+        raise ParameterError(
+            "runtime", "'onnxruntime': the onnx / onnxruntime packages are not installed"
+        )
     return "onnxruntime"
 
 

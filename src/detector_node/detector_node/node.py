@@ -21,6 +21,7 @@ from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_size, image_to_rgb
 from vehicle_common.image_transport import subscribe_image
 from vehicle_common.node_parameters import (
+    ParameterError,
     declare_config,
     param,
 )
@@ -41,7 +42,7 @@ class DetectorParameters:
     """The node's parameters (ROS names and defaults) with their allowed values."""
 
     backend: str = param("cnn", choices=("cnn", "oracle"))
-    checkpoint: str = ""  # "" = the shipped tiny checkpoint
+    checkpoint: str = ""  # "" = the shipped CenterNet checkpoint
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     score_threshold: float = param(0.3, low=0.0, high=1.0)
     nms_iou: float = param(0.45, low=0.0, high=1.0, low_open=True)
@@ -82,20 +83,24 @@ class VehicleDetectorNode(Node):
         if self.backend == "cnn":
             import torch
 
+            from .checkpoint import CheckpointError
             from .inference import CnnDetector
 
             torch.set_num_threads(p.num_threads)
-            self.cnn = CnnDetector.from_checkpoint(
-                p.checkpoint,
-                p.device,
-                p.score_threshold,
-                p.nms_iou,
-                p.input_width,
-                p.input_height,
-                runtime=p.runtime,
-                threads=p.num_threads,
-                roi_top=p.roi_top,
-            )
+            try:  # device and runtime raise ParameterError themselves
+                self.cnn = CnnDetector.from_checkpoint(
+                    p.checkpoint,
+                    p.device,
+                    p.score_threshold,
+                    p.nms_iou,
+                    p.input_width,
+                    p.input_height,
+                    runtime=p.runtime,
+                    threads=p.num_threads,
+                    roi_top=p.roi_top,
+                )
+            except CheckpointError as exc:
+                raise ParameterError("checkpoint", str(exc)) from None
             c = self.cnn.config
             self.get_logger().info(
                 f"cnn backend: {c.size} model (width {c.width}, depth {c.depth}), input "

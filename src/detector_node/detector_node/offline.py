@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from vehicle_common.kitti import KittiFormatError, KittiObject, format_row, read_png
+from vehicle_common.output_paths import make_output_dir, os_error_line
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -94,6 +95,9 @@ def main(argv: list[str] | None = None) -> int:
     except (KittiFormatError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a write failing half-way (disk full)
+        print(f"error: {os_error_line(exc)}", file=sys.stderr)
+        return 2
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -112,6 +116,7 @@ def _run(args: argparse.Namespace) -> int:
         if v < 0 or v % 32:
             raise ValueError(f"--{name.replace('_', '-')}: {v} must be 0 or a multiple of 32")
     paths = image_paths(args)
+    make_output_dir(args.output)  # before the model is loaded: a bad path fails at once
     torch.set_num_threads(args.num_threads)
     det = CnnDetector.from_checkpoint(
         args.checkpoint,
@@ -121,9 +126,6 @@ def _run(args: argparse.Namespace) -> int:
         args.input_width,
         args.input_height,
     )
-    if args.output.exists() and not args.output.is_dir():
-        raise ValueError(f"{args.output}: exists and is not a folder")
-    args.output.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     n = 0
     for path in paths:

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from vehicle_common.output_paths import make_output_dir
 
 from .anchors import kmeans_anchors
 from .augmentation import crop_roi_top, resize_sample
@@ -328,6 +329,7 @@ def main(argv: list[str] | None = None) -> int:
 def _train(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    make_output_dir(args.output)  # before the data is loaded: a bad path fails at once
     torch.set_num_threads(max(1, args.num_threads))
     seed_everything(args.seed)
     device = choose_device(args.device)
@@ -462,7 +464,6 @@ def _train(args: argparse.Namespace) -> int:
 
         ema = AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(args.ema), use_buffers=True)
     eval_model = ema.module if ema is not None else model
-    args.output.mkdir(parents=True, exist_ok=True)
     log_path = args.output / "train_log.jsonl"
     train_start = time.time()
     for epoch in range(start_epoch, args.epochs):

@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 from vehicle_common.kitti import KittiFormatError
+from vehicle_common.output_paths import check_output_file, make_output_dir, os_error_line
 
 
 def _jsonable(obj):
@@ -195,14 +196,23 @@ def _run_bag(args) -> int:
     return 0
 
 
+def _check_outputs(args) -> None:
+    """The output file and folder, checked before the evaluation (which can take minutes)."""
+    if getattr(args, "json", None):
+        check_output_file(args.json, "the --json file")
+    if getattr(args, "report", None):
+        make_output_dir(args.report, "the --report folder")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``evaluate`` console script."""
     args = build_parser().parse_args(argv)
     try:
+        _check_outputs(args)
         run = {"tracking": _run_tracking, "detection": _run_detection, "bag": _run_bag}
         return run[args.command](args)
     except (KittiFormatError, OSError) as exc:
-        msg = str(exc) if isinstance(exc, KittiFormatError) else f"{exc.filename}: {exc.strerror}"
+        msg = str(exc) if isinstance(exc, KittiFormatError) else os_error_line(exc)
         print("error: " + " ".join(msg.split()), file=sys.stderr)
         return 2
 

@@ -32,13 +32,12 @@ def _carries_3d(o: KittiObject) -> bool:
 
 
 def _frame_id(path: Path) -> int:
-    try:
-        return int(path.stem)
-    except ValueError:
+    if not path.stem.isdigit():  # "-00001", "+3", "1e3" are no frame numbers
         raise KittiFormatError(
             f"{path}: result file names must be frame numbers (NNNNNN.txt) to pair with a "
             "tracking label file"
-        ) from None
+        )
+    return int(path.stem)
 
 
 def read_detection_dirs(

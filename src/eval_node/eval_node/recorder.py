@@ -24,6 +24,7 @@ import rclpy.executors
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from vehicle_common.image_transport import SUBSCRIBER_TRANSPORTS
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
     ParameterError,
@@ -41,8 +42,19 @@ NODE_NAME = "bag_recorder"
 #: The pipeline's topics (docs/ARCHITECTURE.md) recorded by default. Their types are given so
 #: that the recorder subscribes at start-up (before any publisher exists) and misses nothing.
 PIPELINE_TOPICS = [f"{t}:{graph_topics.TYPES[t]}" for t in graph_topics.RECORDED]
-#: Large image-like topics, recorded only with ``include_images``.
-IMAGE_TOPICS = [f"{t}:{graph_topics.TYPES[t]}" for t in graph_topics.RECORDED_IMAGES]
+
+
+def image_topics(transport: str = "raw") -> list[str]:
+    """``topic:type`` of the image-like topics recorded with ``include_images``: the camera
+    images where they travel with ``transport`` ("raw": sensor_msgs/Image on the image topics,
+    "compressed": sensor_msgs/CompressedImage on ``<image topic>/compressed``, as the player's
+    png/jpeg send them), the disparity and the point cloud."""
+    out = []
+    for t in graph_topics.RECORDED_IMAGES:
+        if t in graph_topics.CAMERA_IMAGES:
+            t = graph_topics.image_topic(t, transport)
+        out.append(f"{t}:{graph_topics.TYPES[t]}")
+    return out
 
 
 @dataclass
@@ -52,6 +64,9 @@ class RecorderParameters:
     output: str = ""  # "" = output/bags/run_<time>
     topics: list = param(PIPELINE_TOPICS)  # "topic" or "topic:pkg/msg/Type"
     include_images: bool = False
+    # where the images travel ("raw" | "compressed": <image topic>/compressed); the launchers
+    # set it from the player's image_transport, as on the other image subscribers
+    image_transport: str = param("raw", choices=SUBSCRIBER_TRANSPORTS)
     compression: str = param("none", choices=("none", "zstd"))
     compression_mode: str = param("storage", choices=tuple(COMPRESSION_MODES))
     max_bag_size: int = param(0, low=0)  # bytes per .mcap file; 0 = no splitting
@@ -65,8 +80,11 @@ def default_output() -> str:
     return str(Path("output") / "bags" / datetime.now().strftime("run_%Y%m%d_%H%M%S"))
 
 
-def parse_topics(entries: list[str], include_images: bool) -> dict[str, str | None]:
-    """``['a', '/b:pkg/msg/T']`` -> ``{'a': None, '/b': 'pkg/msg/T'}`` (None: discover)."""
+def parse_topics(
+    entries: list[str], include_images: bool, image_transport: str = "raw"
+) -> dict[str, str | None]:
+    """``['a', '/b:pkg/msg/T']`` -> ``{'a': None, '/b': 'pkg/msg/T'}`` (None: discover), plus
+    the :func:`image_topics` of ``image_transport`` with ``include_images``."""
     topics: dict[str, str | None] = {}
     for entry in entries:
         entry = entry.strip()
@@ -75,7 +93,7 @@ def parse_topics(entries: list[str], include_images: bool) -> dict[str, str | No
         name, _, msgtype = entry.partition(":")
         topics[name] = msgtype or None
     if include_images:
-        for entry in IMAGE_TOPICS:
+        for entry in image_topics(image_transport):
             name, _, msgtype = entry.partition(":")
             topics.setdefault(name, msgtype or None)
     return topics
@@ -106,7 +124,7 @@ class BagRecorderNode(Node):
         )
         self.wanted = {
             self.resolve_topic_name(name): msgtype
-            for name, msgtype in parse_topics(p.topics, p.include_images).items()
+            for name, msgtype in parse_topics(p.topics, p.include_images, p.image_transport).items()
         }
         self.qos = QoSProfile(
             history=HistoryPolicy.KEEP_LAST,

@@ -244,13 +244,21 @@ def bag_types(path: str | Path) -> dict[str, str]:
 
 
 def output_types(path: str | Path, topics: list[str] | None, remap: dict[str, str]):
-    """``{output topic: ROS 2 type name}`` of the selected topics after remapping; for a ROS 1
-    bag, BagError when one of them cannot be converted (before anything is published)."""
+    """``{output topic: ROS 2 type name}`` of the selected topics after remapping; BagError
+    when they hold no message at all (nothing to play: an empty recording, or topics that
+    never got a message) and, for a ROS 1 bag, when one of them cannot be converted (before
+    anything is published)."""
     reader = open_reader(path)
     try:
         types = {c.topic: ros2_type_name(c.msgtype) for c in reader.connections}
         _check_topics(types, topics, path)
         selected = [c for c in reader.connections if c.topic in (topics or types)]
+        if not sum(int(c.msgcount or 0) for c in selected):
+            where = f" on {', '.join(topics)}" if topics else ""
+            raise BagError(
+                f"{path}: no message to play{where} ({len(types)} topics, "
+                f"{sum(int(c.msgcount or 0) for c in reader.connections)} messages in the bag)"
+            )
         _cdr_converters(reader, selected, path)
     finally:
         reader.close()

@@ -34,7 +34,7 @@ from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.graph_readiness import NodeReport, unready_topics
 from vehicle_common.image_conversion import numpy_to_compressed, numpy_to_image
 from vehicle_common.image_transport import PLAYER_TRANSPORTS
-from vehicle_common.kitti import KittiFormatError, TrackingSequence
+from vehicle_common.kitti import KittiFormatError, TrackingSequence, check_stereo_calibration
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
     ParameterError,
@@ -134,6 +134,8 @@ class KittiPlayerNode(Node):
         if not p["dataset_root"]:
             raise ParameterError("dataset_root", "not set")
         self.sequence = TrackingSequence.open(p["dataset_root"], p["sequence"])
+        # a pair the graph cannot range (no baseline) is refused here, not frame by frame later
+        check_stereo_calibration(self.sequence.calib, self.sequence.calib_path)
         try:
             frames = select_frames(self.sequence.frame_ids, p["first_frame"], p["last_frame"])
         except ValueError as exc:

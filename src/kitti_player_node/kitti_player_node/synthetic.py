@@ -35,6 +35,7 @@ from vehicle_common.kitti import (
     write_png,
     write_tracking_labels,
 )
+from vehicle_common.output_paths import make_output_dir
 
 from .synthetic_render import StereoRenderer
 from .synthetic_scene import random_scene
@@ -255,14 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     settings = {k: getattr(args, k) for k in names}
     try:
         _check_settings(**settings)
-        if out.exists() and not out.is_dir():
-            raise KittiFormatError(f"{out}: output exists and is not a directory")
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise KittiFormatError(f"{out}: cannot create output folder ({exc.strerror})") from None
-        if not os.access(out, os.W_OK):
-            raise KittiFormatError(f"{out}: output folder is not writable")
+        make_output_dir(out)
     except ValueError as exc:  # KittiFormatError included
         msg = str(exc)
         if not isinstance(exc, KittiFormatError):

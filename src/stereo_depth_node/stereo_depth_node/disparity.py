@@ -74,6 +74,56 @@ class DisparityParams:
             raise ValueError(f"downscale: {self.downscale} must be 1, 2 or 4")
 
 
+class RowBandError(ValueError):
+    """The rows to match (the node's ``match_rows``) do not fit the images; the message names
+    the parameter and the image height."""
+
+
+def check_match_rows(rows) -> None:
+    """Raise ValueError (``match_rows: ...``) unless ``rows`` is ``[0, 0]`` (every row) or
+    ``[top, bottom]`` with ``0 <= top < bottom`` (rows top..bottom-1 are matched)."""
+    top, bottom = (int(v) for v in rows)
+    if (top, bottom) != (0, 0) and not 0 <= top < bottom:
+        raise ValueError(
+            f"match_rows: [{top}, {bottom}]: expected [top, bottom] with 0 <= top < bottom "
+            "(rows top..bottom-1 are matched), or [0, 0] for every row"
+        )
+
+
+def min_band_rows(params: DisparityParams) -> int:
+    """The fewest rows a band may have for the matcher and filter to give disparities."""
+    return 2 * params.block_size * params.downscale
+
+
+def match_band(
+    rows, height: int, params: DisparityParams
+) -> tuple[tuple[int, int] | None, str | None]:
+    """The ``row_band`` to match in images ``height`` rows tall for the node's ``match_rows``
+    (``[0, 0]``: every row), and a warning (or None) when the band reaches below the image and
+    was cut at its last row (``[94, 375]`` on a 370-row KITTI frame). Raises RowBandError when
+    fewer than :func:`min_band_rows` rows of the band lie in the image: nothing could be
+    ranged, and the run would silently produce no vehicle. The one check of the band against
+    an image, for the node and for settings derived from a CameraInfo."""
+    check_match_rows(rows)
+    top, bottom = (int(v) for v in rows)
+    if (top, bottom) == (0, 0):
+        return None, None
+    inside = max(0, min(bottom, height) - top)
+    need = min_band_rows(params)
+    if inside < need:
+        where = "lies below" if top >= height else f"keeps {inside} rows of"
+        raise RowBandError(
+            f"match_rows: [{top}, {bottom}] {where} the {height}-row image (rows 0..{height - 1}); "
+            f"the matcher needs at least {need} rows: nothing could be ranged"
+        )
+    if bottom > height:
+        return (top, height), (
+            f"match_rows: [{top}, {bottom}] reaches below the {height}-row image: rows "
+            f"{top}..{height - 1} are matched"
+        )
+    return (top, bottom), None
+
+
 def _round16(n: float) -> int:
     return max(16, int(np.ceil(n / 16.0)) * 16)
 

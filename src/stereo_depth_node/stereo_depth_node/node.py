@@ -28,6 +28,7 @@ from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
 from vehicle_common.image_transport import subscribe_image
 from vehicle_common.node_parameters import (
+    ParameterError,
     declare_config,
     param,
 )
@@ -37,7 +38,13 @@ from vehicle_common.stereo_camera import check_stereo_images, check_stereo_infos
 from vehicle_common import topics
 
 from .conversions import build_point_cloud, detection_3d_message, disparity_message
-from .disparity import DisparityParams, compute_disparity
+from .disparity import (
+    DisparityParams,
+    RowBandError,
+    check_match_rows,
+    compute_disparity,
+    match_band,
+)
 from .plausibility import GroundEstimator, PlausibilityParams, check_boxes
 from .ranging import (
     RangingParams,
@@ -116,10 +123,13 @@ class StereoNodeParameters:
     sync_cache_size: int = param(10, low=1)
     num_threads: int = param(2, low=1)  # OpenCV threads of the matcher (cv2.setNumThreads)
     frame_queue: int = param(1, low=1)  # newest stereo pairs kept waiting (1: latest frame)
-    # [top, bottom) rows to match; bottom <= top means all rows
+    # [top, bottom) rows to match (0 <= top < bottom); [0, 0] = all rows
     match_rows: list = param([0, 0], low=0, length=2)
     # stereo visual odometry between successive frames (camera_motion of the 3D arrays)
     visual_odometry: bool = True
+
+    def validate(self) -> None:
+        check_match_rows(self.match_rows)  # against the image: match_band, at the first pair
 
 
 def _stamp_text(ns: int) -> str:
@@ -162,6 +172,9 @@ class StereoDepthNode(Node):
         self.ground = GroundEstimator(self.plausibility, self.ranging_params.ground_height)
         self.implausible_detections = 0
         self._band_params: tuple[int, DisparityParams] | None = None  # (height, params)
+        #: a parameter found not to fit the camera while running (node_runtime.run_node stops
+        #: the node with its one-line error and exit code 2)
+        self.fatal_error: ParameterError | None = None
         p = declare_config(self, StereoNodeParameters)
         self.publish_disparity = p.publish_disparity
         self.publish_points = p.publish_points
@@ -232,16 +245,19 @@ class StereoDepthNode(Node):
             self._odometry_thread.shutdown(wait=True)
         super().destroy_node()
 
-    def _match_band(self, height: int):
-        top, bottom = self.match_rows
-        if bottom <= top:
-            return None
-        return (max(0, top), min(height, bottom))
-
     def _disparity_params_for(self, height: int) -> DisparityParams:
-        """The disparity settings with the match band of images ``height`` rows tall."""
+        """The disparity settings with the match band of images ``height`` rows tall. A band
+        cut at the image's last row is warned about once; a band that leaves nothing to match
+        stops the node (``fatal_error``: one line naming ``match_rows``, exit code 2)."""
         if self._band_params is None or self._band_params[0] != height:
-            params = dataclasses.replace(self.disparity_params, row_band=self._match_band(height))
+            try:
+                band, note = match_band(self.match_rows, height, self.disparity_params)
+            except RowBandError as exc:
+                self.fatal_error = ParameterError(str(exc))
+                raise
+            if note:
+                self.get_logger().warning(note)
+            params = dataclasses.replace(self.disparity_params, row_band=band)
             self._band_params = (height, params)
         return self._band_params[1]
 
@@ -355,6 +371,8 @@ class StereoDepthNode(Node):
             log = self.get_logger().debug
             if not isinstance(exc, _NoGeometry) or self._calibration_key is None:
                 log = self.get_logger().warning
+            if self.fatal_error is not None:  # the node stops with that one line
+                log = self.get_logger().debug
             log(f"{TOPIC_LEFT}/{TOPIC_RIGHT}: {exc}; frame skipped")
             frame.disparity = None
         self._start_odometry(frame, gray)

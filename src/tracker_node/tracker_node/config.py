@@ -155,6 +155,12 @@ class TrackerConfig:
             data = yaml.safe_load(path.read_text())
         except OSError as exc:
             raise TrackerConfigError(str(path), f"cannot read ({exc.strerror})") from None
+        except UnicodeDecodeError as exc:
+            raise TrackerConfigError(
+                str(path),
+                f"not a text file (byte 0x{exc.object[exc.start]:02x} at offset {exc.start} is "
+                "not UTF-8)",
+            ) from None
         except yaml.YAMLError as exc:
             raise TrackerConfigError(
                 str(path), f"not valid YAML ({str(exc).splitlines()[0]})"

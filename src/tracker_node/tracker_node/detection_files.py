@@ -65,6 +65,8 @@ def read_detection_file(path: str | os.PathLike) -> DetectionRows:
             raise KittiFormatError(f"{path}:{lineno}: non-finite value")
         if vals[0] < 0 or vals[0] != int(vals[0]):
             raise KittiFormatError(f"{path}:{lineno}: frame must be a non-negative integer")
+        if vals[1] != int(vals[1]):
+            raise KittiFormatError(f"{path}:{lineno}: type must be an integer (2 = Car)")
         if min(vals[7:10]) <= 0:
             raise KittiFormatError(f"{path}:{lineno}: box size h, w, l must be > 0")
         rows.append(vals)

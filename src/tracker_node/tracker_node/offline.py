@@ -36,6 +36,7 @@ from vehicle_common.kitti import (
     read_calib,
     write_tracking_labels,
 )
+from vehicle_common.output_paths import make_output_dir, os_error_line
 
 from .config import TrackerConfig, TrackerConfigError
 from .detection_files import TYPE_NAMES, DetectionRows, detection_batch, read_detection_file
@@ -251,9 +252,13 @@ def main(argv: list[str] | None = None) -> int:
             raise KittiFormatError(f"{calib_dir}: calibration folder not found")
         if calib_dir is None:
             calib_dir = find_calib_dir(args.detections)
+        make_output_dir(args.output)
         written = run(args.detections, args.output, seqs, config, calib_dir, args.lookahead)
     except (KittiFormatError, TrackerConfigError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a write failing half-way (disk full)
+        print(f"error: {os_error_line(exc)}", file=sys.stderr)
         return 2
     print(f"wrote {len(written)} result file(s) to {args.output}")
     return 0

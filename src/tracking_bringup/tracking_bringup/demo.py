@@ -171,9 +171,13 @@ def main(argv: list[str] | None = None) -> int:
         return _error(f"{args.params}: parameter file not found")
 
     from vehicle_common.kitti import KittiFormatError
+    from vehicle_common.output_paths import make_output_dir
 
     out = Path(args.output or f"output/demo_{datetime.now():%Y%m%d_%H%M%S}").resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        make_output_dir(out)
+    except KittiFormatError as exc:
+        return _error(str(exc))
     print(f"[demo] output folder: {out}", flush=True)
     try:
         root, sequence, frames = _prepare_data(args)
@@ -183,7 +187,12 @@ def main(argv: list[str] | None = None) -> int:
     if not args.kitti_root and (args.focal > 0 or (args.width, args.height) != (1242, 375)):
         # derived for the checkpoint the detector will load (tiny_kitti on synthetic data)
         checkpoint = detector_checkpoint(args.params, args.param, synthetic=True)
-        camera = _camera_settings(root, sequence, args.no_camera_settings, checkpoint)
+        try:
+            camera = _camera_settings(root, sequence, args.no_camera_settings, checkpoint)
+        except KittiFormatError as exc:  # the data
+            return _error(str(exc))
+        except ValueError as exc:  # the checkpoint (CheckpointError)
+            return _error(f"vehicle_detector.checkpoint: {exc}")
 
     bag = out / "bag"
     overrides = [

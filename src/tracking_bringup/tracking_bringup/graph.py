@@ -133,6 +133,16 @@ def with_lockstep(nodes: list[NodeSpec], lockstep: bool) -> list[NodeSpec]:
     return [spec if n.name == PLAYER.name else n for n in nodes]
 
 
+def with_recorded_images(nodes: list[NodeSpec], include_images: bool) -> list[NodeSpec]:
+    """``nodes`` with the recorder subscribing to the camera images when it records them
+    (``include_images``): the sources then wait for its image subscriptions too, and
+    :func:`with_image_transport` moves them to the topics the images travel on."""
+    if not include_images:
+        return nodes
+    spec = replace(RECORDER, subscribes=(*RECORDER.subscribes, *IMAGES))
+    return [spec if n.name == RECORDER.name else n for n in nodes]
+
+
 def with_image_transport(nodes: list[NodeSpec], transport: str) -> list[NodeSpec]:
     """``nodes`` with the image topics of the player's ``image_transport``: the raw topics for
     "raw", ``.../compressed`` (sensor_msgs/CompressedImage) for "png" and "jpeg"."""
@@ -218,9 +228,10 @@ def plan(
     - in lockstep with ``lockstep_window`` K frames in flight, ``frame_queue: K`` on the
       latest-frame nodes, so that none of the K frames waiting there is skipped (unless the
       node's ``frame_queue`` is overridden);
-    - on the nodes that subscribe to the images, ``image_transport`` "raw" or "compressed" as
-      the player's ``image_transport`` ("raw" | "png" | "jpeg") says (unless overridden), and
-      the image edges on the matching topics."""
+    - on the nodes that subscribe to the images (the recorder too when its
+      ``include_images`` is on), ``image_transport`` "raw" or "compressed" as the player's
+      ``image_transport`` ("raw" | "png" | "jpeg") says (unless overridden), and the image
+      edges on the matching topics."""
     overrides = overrides or {}
 
     def value(node: NodeSpec, name: str, default):
@@ -229,10 +240,11 @@ def plan(
     backend = str(value(DETECTOR, "backend", "cnn"))
     lockstep = as_bool(value(PLAYER, "lockstep", False))
     transport = str(value(PLAYER, "image_transport", "raw"))
+    images = as_bool(value(RECORDER, "include_images", False))
 
     def shaped(specs: list[NodeSpec]) -> list[NodeSpec]:
         specs = with_lockstep(with_detector_backend(list(specs), backend), lockstep)
-        return with_image_transport(specs, transport)
+        return with_image_transport(with_recorded_images(specs, images), transport)
 
     nodes = shaped(nodes)
     whole = nodes if graph_nodes is None else shaped(graph_nodes)

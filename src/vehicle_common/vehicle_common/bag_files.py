@@ -30,7 +30,8 @@ def _print_warning(text: str) -> None:
 def _readable(path: Path, warn: Callable[[str], None]) -> Path:
     """A readable copy of an interrupted recording (no metadata.yaml, or a ``.mcap`` cut after
     its last flushed chunk), made once per process in a temporary folder; warns once (one line)
-    saying what was lost."""
+    saying what was lost. A recording of which nothing can be read (0 bytes, or cut before its
+    first complete chunk) raises BagError instead: there is nothing to play or evaluate."""
     from .bag_recovery import readable_copy
 
     files = sorted(path.iterdir()) if path.is_dir() else [path]
@@ -39,9 +40,19 @@ def _readable(path: Path, warn: Callable[[str], None]) -> Path:
         tuple((f.name, f.stat().st_size, f.stat().st_mtime_ns) for f in files),
     )
     if key not in _RECOVERED:
+        mcaps = [f for f in files if f.suffix == ".mcap"]
+        if mcaps and all(f.stat().st_size == 0 for f in mcaps):
+            what = f"{mcaps[0].name} is empty" if path.is_dir() else "empty file"
+            raise BagError(f"{path}: {what} (0 bytes): nothing was recorded, no message to read")
         tmp = Path(tempfile.mkdtemp(prefix="bag_read_"))
         atexit.register(shutil.rmtree, tmp, True)
         report = readable_copy(path, tmp)
+        if report.lost and report.message_count == 0:
+            dropped = sum(f.scan.lost_bytes for f in report.files if f.scan is not None)
+            raise BagError(
+                f"{path}: no message can be read: the recording has no complete chunk (cut "
+                f"before its first flush, or damaged; {dropped} bytes of unfinished records)"
+            )
         text = ""
         if report.lost:
             text = (

@@ -334,7 +334,10 @@ def readable_copy(path: str | Path, tmp_dir: str | Path) -> RecoveryReport:
         else:
             plain = tmp_dir / p.name
             os.symlink(p.resolve(), plain)
-        info = file_info(plain, plain.name)
+        try:
+            info = file_info(plain, plain.name)
+        except McapRecoveryError as exc:  # name the user's file, not the temporary link
+            raise type(exc)(str(exc).replace(str(plain), str(p))) from None
         if info.scan is not None:
             if plain.is_symlink():  # copy the kept part of the original next to the links
                 plain.unlink()

@@ -141,13 +141,36 @@ def read_calib(path: str | os.PathLike) -> Calibration:
                 f"{path}:{lineno}: {key}: expected {shape[0] * shape[1]} numbers, "
                 f"got {numbers.size}"
             )
-        values[name] = numbers.reshape(shape)
+        matrix = numbers.reshape(shape)
+        bad = np.argwhere(~np.isfinite(matrix))
+        if bad.size:  # float() reads "nan" and "inf": a calibration never holds them
+            r, c = (int(v) for v in bad[0])
+            raise KittiFormatError(
+                f"{path}:{lineno}: {key}[{r},{c}]: non-finite value {float(matrix[r, c])!r} "
+                "(a calibration holds finite numbers only)"
+            )
+        values[name] = matrix
     missing = [k for k in ("P0", "P1", "P2", "P3") if k not in values]
     if missing:
         raise KittiFormatError(f"{path}: missing calibration rows {', '.join(missing)}")
     if abs(values["P2"][0, 0]) < 1e-9:
         raise KittiFormatError(f"{path}: P2 has a zero focal length")
     return Calibration(**values)
+
+
+def check_stereo_calibration(calib: Calibration, path: str | os.PathLike) -> None:
+    """Raise KittiFormatError naming ``path`` unless ``calib`` describes a stereo pair the graph
+    can range with: positive focal lengths in P2 and a positive baseline (camera 3, P3, right of
+    camera 2, P2: ``P2[0,3] - P3[0,3] > 0``)."""
+    if not (calib.P2[0, 0] > 0 and calib.P2[1, 1] > 0):
+        raise KittiFormatError(
+            f"{path}: P2 focal lengths fx, fy = {calib.fx:g}, {calib.fy:g} must be > 0"
+        )
+    if not calib.baseline > 0:
+        raise KittiFormatError(
+            f"{path}: P2[0,3] - P3[0,3] = {calib.P2[0, 3] - calib.P3[0, 3]:g} gives a stereo "
+            f"baseline of {calib.baseline:g} m: camera 3 (P3) must lie right of camera 2 (P2)"
+        )
 
 
 def write_calib(path: str | os.PathLike, calib: Calibration) -> None:
@@ -234,6 +257,26 @@ class KittiObject:
         return replace(self, **changes)
 
 
+#: the numeric columns of a label row after its type, as error messages name them
+_ROW_FIELDS = (
+    "truncated",
+    "occluded",
+    "alpha",
+    "bbox x1",
+    "bbox y1",
+    "bbox x2",
+    "bbox y2",
+    "height",
+    "width",
+    "length",
+    "location x",
+    "location y",
+    "location z",
+    "rotation_y",
+    "score",
+)
+
+
 def _parse_row(tokens: list[str], path: Path, lineno: int, tracking: bool) -> KittiObject:
     head = 2 if tracking else 0
     n = len(tokens) - head
@@ -250,6 +293,15 @@ def _parse_row(tokens: list[str], path: Path, lineno: int, tracking: bool) -> Ki
         nums = [float(v) for v in t[1:]]
     except ValueError:
         raise KittiFormatError(f"{path}:{lineno}: non-numeric value in label row") from None
+    for name, value in zip(_ROW_FIELDS, nums, strict=False):
+        if not math.isfinite(value):  # float() reads "nan" and "inf"; no KITTI field holds them
+            raise KittiFormatError(f"{path}:{lineno}: {name}: non-finite value {value!r}")
+    if tracking and frame < 0:
+        raise KittiFormatError(f"{path}:{lineno}: frame: {frame} is negative (frames count from 0)")
+    if tracking and track_id < -1:
+        raise KittiFormatError(
+            f"{path}:{lineno}: track id: {track_id} (ids are >= 0; -1 only for DontCare rows)"
+        )
     return KittiObject(
         type=t[0],
         truncated=nums[0],
@@ -272,20 +324,36 @@ def read_text(path: Path, what: str) -> str:
         return path.read_text()
     except OSError as exc:
         raise KittiFormatError(f"{path}: cannot read {what} ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise KittiFormatError(
+            f"{path}: not a text file (byte 0x{exc.object[exc.start]:02x} at offset {exc.start} "
+            f"is not UTF-8): cannot read {what}"
+        ) from None
 
 
 def read_tracking_labels(path: str | os.PathLike) -> dict[int, list[KittiObject]]:
     """Read a tracking label (or result) file: ``{frame: [objects...]}``, frames ascending.
 
     Frames without any row are absent from the dict; use the sequence's frame list to iterate.
+    Raises KittiFormatError naming the file and line for a malformed row, a non-finite value, a
+    negative frame or a track id that appears twice in one frame (a track is one object; the
+    KITTI benchmark's HOTA code, TrackEval, refuses that in results and ground truth alike).
     """
     path = Path(path)
     frames: dict[int, list[KittiObject]] = {}
+    first_line: dict[tuple[int, int], int] = {}  # (frame, track id) -> line
     for lineno, line in enumerate(read_text(path, "labels").splitlines(), start=1):
         tokens = line.split()
         if not tokens:
             continue
         obj = _parse_row(tokens, path, lineno, tracking=True)
+        if obj.track_id >= 0:
+            seen = first_line.setdefault((obj.frame, obj.track_id), lineno)
+            if seen != lineno:
+                raise KittiFormatError(
+                    f"{path}:{lineno}: track id {obj.track_id} appears twice in frame "
+                    f"{obj.frame} (also on line {seen})"
+                )
         frames.setdefault(obj.frame, []).append(obj)
     return dict(sorted(frames.items()))
 
@@ -361,6 +429,11 @@ def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
 # ----------------------------------------------------------------------------- layouts
 
 
+def calib_path(root: Path, sequence: str) -> Path:
+    """The calibration file of a tracking sequence: ``root/calib/SSSS.txt``."""
+    return Path(root) / "calib" / f"{sequence}.txt"
+
+
 def _frame_ids(folder: Path) -> list[int]:
     ids = []
     for p in folder.iterdir():
@@ -398,10 +471,14 @@ class TrackingSequence:
                 f"{right_dir}: left/right frame counts differ ({len(left)} in image_02, "
                 f"{len(right)} in image_03)"
             )
-        calib = read_calib(root / "calib" / f"{seq}.txt")
+        calib = read_calib(calib_path(root, seq))
         label_path = root / "label_02" / f"{seq}.txt"
         labels = read_tracking_labels(label_path) if label_path.is_file() else None
         return cls(root=root, sequence=seq, calib=calib, frame_ids=left, labels=labels)
+
+    @property
+    def calib_path(self) -> Path:
+        return calib_path(self.root, self.sequence)
 
     def left_path(self, frame: int) -> Path:
         return self.root / "image_02" / self.sequence / f"{frame:06d}.png"

@@ -248,7 +248,12 @@ def run_node(
     """The ``main`` of a node process: initialise rclpy with this module's signal handling,
     build the node with ``make_node()`` (a ParameterError -> one line naming the node and the
     parameter, exit code 2; a signal during start-up -> exit 0), spin it until stopped with
-    ``on_stop(node)`` as the drain steps, then destroy it. Returns the exit code."""
+    ``on_stop(node)`` as the drain steps, then destroy it. Returns the exit code.
+
+    A node may set ``fatal_error`` (a ParameterError) while it runs: a parameter that turns
+    out not to fit the data, known only at the first frame (stereo_depth's ``match_rows``
+    against the image height). The node then stops as on a signal and the process ends with
+    that parameter's one line and exit code 2, instead of running on producing nothing."""
     import sys
 
     import rclpy
@@ -270,9 +275,18 @@ def run_node(
     except KeyboardInterrupt:  # stopped during start-up
         rclpy.try_shutdown()
         return 0
+
+    def fatal() -> ParameterError | None:
+        return getattr(node, "fatal_error", None)
+
     try:
-        spin_until_stopped(node, stop, node.health, on_stop=list(on_stop(node)))
+        spin_until_stopped(
+            node, stop, node.health, on_stop=list(on_stop(node)), done=lambda: fatal() is not None
+        )
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+    if fatal() is not None:
+        print(parameter_error_line(node_name, fatal()), file=sys.stderr)
+        return EXIT_BAD_PARAMETER
     return 0

@@ -26,7 +26,14 @@ def _p(info, side: str) -> np.ndarray:
     p = np.asarray(info.p, dtype=float)
     if p.size != 12:
         raise StereoCameraError(f"{side} camera_info: P has {p.size} values, not 12")
-    if not np.all(np.isfinite(p)) or not np.any(p):
+    bad = np.flatnonzero(~np.isfinite(p))
+    if bad.size:
+        r, c = divmod(int(bad[0]), 4)
+        raise StereoCameraError(
+            f"{side} camera_info: P[{r},{c}] is {float(p[bad[0]])!r}: the calibration holds a "
+            "non-finite value"
+        )
+    if not np.any(p):
         raise StereoCameraError(
             f"{side} camera_info: P is missing (all zeros): the camera is not calibrated"
         )

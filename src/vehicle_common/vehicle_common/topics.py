@@ -73,6 +73,8 @@ RECORDED = (
 )
 #: large image-like topics, recorded only on request (the recorder's ``include_images``)
 RECORDED_IMAGES = (LEFT_IMAGE, RIGHT_IMAGE, DISPARITY, POINTS)
+#: the camera images (raw here; ``image_topic`` gives where another transport sends them)
+CAMERA_IMAGES = (LEFT_IMAGE, RIGHT_IMAGE)
 
 
 def image_topic(topic: str, transport: str) -> str:
