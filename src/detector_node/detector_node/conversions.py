@@ -1,4 +1,5 @@
-"""Message conversions of the detector: detections -> VehicleDetection2DArray.
+"""Message conversions of the detector: detections -> VehicleDetection2DArray, and that as
+vision_msgs/Detection2DArray (mapping: :mod:`vehicle_common.vision_messages`).
 
 Shared by the ``vehicle_detector`` node and offline tools; the message package is imported when a
 message is built, no rclpy (and no torch).
@@ -6,8 +7,9 @@ message is built, no rclpy (and no torch).
 
 from __future__ import annotations
 
-from vehicle_common.frame_messages import xyxy_to_bbox
+from vehicle_common.frame_messages import bbox_to_xyxy, xyxy_to_bbox
 from vehicle_common.orientation_bins import bin_to_alpha, fold_alpha_signed
+from vehicle_common.vision_messages import detection_2d
 
 
 def detections_message(header, detections) -> object:
@@ -35,3 +37,14 @@ def detections_message(header, detections) -> object:
         m.observation_angle_variance = var
         msg.detections.append(m)
     return msg
+
+
+def vision_detections_message(msg) -> object:
+    """vision_msgs/Detection2DArray of a VehicleDetection2DArray: same header, one Detection2D
+    per detection (box, class and score; the orientation stays on the project's message)."""
+    from vision_msgs.msg import Detection2DArray
+
+    out = Detection2DArray(header=msg.header)
+    for d in msg.detections:
+        out.detections.append(detection_2d(bbox_to_xyxy(d.bbox), d.class_id, d.score, msg.header))
+    return out

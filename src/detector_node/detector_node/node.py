@@ -3,7 +3,9 @@
 Backends: ``cnn`` (default; the YOLOv2-style network, the shipped checkpoint unless
 ``checkpoint`` is set) and ``oracle`` (ablations only: ground-truth boxes from
 /kitti/ground_truth, matched to the image by exact stamp, with optional noise and drops).
-Exactly one VehicleDetection2DArray per left image, with the image's header.
+Exactly one VehicleDetection2DArray per left image, with the image's header; the same boxes as
+vision_msgs/Detection2DArray on ``vehicles/vision/detections_2d`` (built while someone
+subscribes, after the project's array).
 """
 
 from __future__ import annotations
@@ -26,10 +28,11 @@ from vehicle_common.node_parameters import (
     param,
 )
 from vehicle_common.node_runtime import NodeHealth, apply_process_settings, run_node
+from vision_msgs.msg import Detection2DArray
 
 from vehicle_common import topics
 
-from .conversions import detections_message
+from .conversions import detections_message, vision_detections_message
 
 NODE_NAME = "vehicle_detector"
 IMAGE_TOPIC = topics.LEFT_IMAGE
@@ -80,6 +83,7 @@ class VehicleDetectorNode(Node):
         self.frames = FrameCounter()  # images in, detection arrays out, images skipped
         self.worker: LatestFrameWorker | None = None
         self.pub = self.create_publisher(VehicleDetection2DArray, DETECTIONS_TOPIC, 10)
+        self.vision_pub = self.create_publisher(Detection2DArray, topics.VISION_DETECTIONS_2D, 10)
         if self.backend == "cnn":
             import torch
 
@@ -171,6 +175,8 @@ class VehicleDetectorNode(Node):
     def _publish(self, out: VehicleDetection2DArray) -> None:
         self.pub.publish(out)
         self.frames.published()
+        if self.vision_pub.get_subscription_count() > 0:
+            self.vision_pub.publish(vision_detections_message(out))
 
     def _detect(self, msg: Image) -> None:
         stamp = stamp_ns(msg.header)

@@ -7,19 +7,24 @@
 through :mod:`vehicle_common.camera_frames` (size from the message or the KITTI mean car, alpha
 from the orientation bin (folded, so ambiguous by pi) or from the track's yaw; rows that are not
 finite are dropped). The raw 3D detections (left optical frame) are kept too, for re-running
-the tracker offline. Pure core: rosbags only, no rclpy.
+the tracker offline. Tracks published in another frame than the camera's (the tracker's
+``tracks_frame``, e.g. ``odom``) are brought back into the camera's frame with the recorded
+/tf and /tf_static (:func:`tracks_in_camera_frame`). Pure core: rosbags only, no rclpy.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 from vehicle_common.bag_files import BagError, open_reader
 from vehicle_common.camera_frames import kitti_row_from_centre
 from vehicle_common.frame_messages import bbox_to_xyxy, kitti_objects_from_message, stamp_ns
 from vehicle_common.kitti import KittiObject
+from vehicle_common.odometry import Pose
+from vehicle_common.odometry_messages import TransformTree
 from vehicle_common.orientation_bins import bin_to_alpha
 
 from vehicle_common import topics
@@ -31,6 +36,8 @@ DET3D_TOPIC = topics.resolve(topics.DETECTIONS_3D)
 TRACKS_TOPIC = topics.resolve(topics.TRACKS)
 LEFT_IMAGE_TOPIC = topics.resolve(topics.LEFT_IMAGE)
 LEFT_INFO_TOPIC = topics.resolve(topics.LEFT_INFO)
+TF_TOPIC = topics.resolve(topics.TF)
+TF_STATIC_TOPIC = topics.resolve(topics.TF_STATIC)
 #: Track states reported as tracker output (confirmed and coasting; tentative ones are not).
 OUTPUT_STATES = (1, 2)
 #: Track states ranked by the tracks' 3D AP: the output plus tentative tracks (state 0), whose
@@ -115,6 +122,41 @@ def _ground_velocity(v) -> np.ndarray:
     return np.array([g.x, g.y, g.z], dtype=float)
 
 
+def _vector(v) -> np.ndarray:
+    return np.array([v.x, v.y, v.z], dtype=float)
+
+
+def _xyz(a) -> SimpleNamespace:
+    return SimpleNamespace(x=float(a[0]), y=float(a[1]), z=float(a[2]))
+
+
+def tracks_in_camera_frame(msg, camera_pose: Pose) -> list:
+    """The vehicles of a TrackedVehicleArray published in another frame, as seen from the
+    camera whose pose in that frame is ``camera_pose``: position and velocities moved and
+    rotated back, the yaw (about that frame's z axis) back to KITTI's rotation about the
+    camera's y axis (the inverse of tracker_node.conversions.TrackGeometry); other fields as
+    they are."""
+    inv = camera_pose.inverse()
+    out = []
+    for v in msg.vehicles:
+        heading = inv.rotation @ np.array([np.cos(v.yaw), np.sin(v.yaw), 0.0])
+        out.append(
+            SimpleNamespace(
+                track_id=v.track_id,
+                state=v.state,
+                confidence=v.confidence,
+                size=v.size,
+                bbox=v.bbox,
+                position=_xyz(inv.apply(_vector(v.position))),
+                yaw=float(np.arctan2(-heading[2], heading[0])),
+                velocity=_xyz(inv.rotation @ _vector(v.velocity)),
+                velocity_over_ground=_xyz(inv.rotation @ _vector(v.velocity_over_ground)),
+                velocity_over_ground_covariance=v.velocity_over_ground_covariance,
+            )
+        )
+    return out
+
+
 def bag_namespace(topic_names) -> str:
     """The namespace the recorded graph ran in, from a bag's topic names: the one in which
     ``kitti/ground_truth`` (else ``vehicles/tracks``) appears; ``""`` when none or ambiguous."""
@@ -142,7 +184,15 @@ def read_run(
         namespace = bag_namespace(counts)
     name = {
         t: topics.resolve(t.lstrip("/"), namespace)
-        for t in (GT_TOPIC, DET2D_TOPIC, DET3D_TOPIC, TRACKS_TOPIC, LEFT_INFO_TOPIC)
+        for t in (
+            GT_TOPIC,
+            DET2D_TOPIC,
+            DET3D_TOPIC,
+            TRACKS_TOPIC,
+            LEFT_INFO_TOPIC,
+            TF_TOPIC,
+            TF_STATIC_TOPIC,
+        )
     }
     recorded = {v: k for k, v in name.items()}  # namespaced name -> the name used below
     wanted = set(name.values())
@@ -150,6 +200,7 @@ def read_run(
     gts: dict[int, object] = {}
     msgs: dict[str, dict[int, tuple[object, int]]] = {t: {} for t in name}
     P_left, image_size, info_seen = None, None, None
+    transforms = TransformTree(history=10**9)  # every recorded stamp
     if not conns:
         reader.close()
         raise BagReadError(f"{path}: none of the pipeline's topics ({', '.join(sorted(wanted))})")
@@ -168,6 +219,12 @@ def read_run(
             topic = recorded[conn.topic]
             if topic == LEFT_INFO_TOPIC:
                 info_seen = msg
+                continue
+            if topic in (TF_TOPIC, TF_STATIC_TOPIC):
+                try:
+                    transforms.add_message(msg, static=topic == TF_STATIC_TOPIC)
+                except ValueError as exc:
+                    raise BagReadError(f"{path}: {conn.topic}: {exc}") from None
                 continue
             stamp = stamp_ns(msg.header)
             if topic == GT_TOPIC:
@@ -198,6 +255,7 @@ def read_run(
             off = next(iter(frames.values())).offset
             P_left = K @ np.hstack([np.eye(3), off[:, None]])
 
+    camera_frame = info_seen.header.frame_id if info_seen is not None else None
     unmatched = 0
     for topic in (DET2D_TOPIC, DET3D_TOPIC, TRACKS_TOPIC):
         for stamp, (m, t_ns) in msgs[topic].items():
@@ -222,7 +280,18 @@ def read_run(
                 rows = (det3d_to_object(d, f.offset, f.frame) for d in m.detections)
                 f.det3d = [r for r in rows if r is not None]
             else:
-                for v in m.vehicles:
+                vehicles = m.vehicles
+                camera = f.det3d_msg.header.frame_id if f.det3d_msg is not None else camera_frame
+                if camera and m.header.frame_id and m.header.frame_id != camera:
+                    pose = transforms.lookup(m.header.frame_id, camera, stamp)
+                    if pose is None:
+                        raise BagReadError(
+                            f"{path}: {name[TRACKS_TOPIC]}: tracks in {m.header.frame_id!r} at "
+                            f"stamp {stamp} ns and no recorded transform to {camera!r} "
+                            f"({name[TF_TOPIC]}, {name[TF_STATIC_TOPIC]})"
+                        )
+                    vehicles = tracks_in_camera_frame(m, pose)
+                for v in vehicles:
                     output = int(v.state) in track_states
                     if not output and int(v.state) not in RANKED_STATES:
                         continue

@@ -22,7 +22,7 @@ from pathlib import Path
 import rclpy
 import rclpy.executors
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from vehicle_common.image_transport import SUBSCRIBER_TRANSPORTS
 from vehicle_common.node_parameters import (
@@ -131,6 +131,15 @@ class BagRecorderNode(Node):
             depth=p.qos_depth,
             reliability=ReliabilityPolicy.RELIABLE,
         )
+        # /tf_static's publisher keeps its last message (TRANSIENT_LOCAL): ask for it too, so
+        # that the rig's transforms published before the recorder matched are recorded
+        self.latched = {self.resolve_topic_name(t) for t in graph_topics.TRANSIENT_LOCAL}
+        self.latched_qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=p.qos_depth,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
         self.subs = {}
         self._last_ns = 0
         self.discover()
@@ -151,7 +160,8 @@ class BagRecorderNode(Node):
             self._last_ns = now
             self.writer.write(topic, data, now)
 
-        self.subs[topic] = self.create_subscription(cls, topic, callback, self.qos, raw=True)
+        qos = self.latched_qos if topic in self.latched else self.qos
+        self.subs[topic] = self.create_subscription(cls, topic, callback, qos, raw=True)
         self.get_logger().info(f"recording {topic} [{msgtype}]")
 
     def discover(self) -> None:

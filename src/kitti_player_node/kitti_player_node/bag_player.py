@@ -24,6 +24,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from vehicle_common.bag_files import BagError
 
+from vehicle_common import topics
+
 from .bag_replay import (
     BagMessage,
     bag_types,
@@ -46,6 +48,19 @@ QOS = QoSProfile(
 )
 
 
+def _qos(topic: str) -> QoSProfile:
+    """The replay QoS of a topic: :data:`QOS`, TRANSIENT_LOCAL for /tf_static (as tf2's static
+    broadcaster: a late subscriber still gets the rig's transforms)."""
+    if topic.rsplit("/", 1)[-1] in topics.TRANSIENT_LOCAL:
+        return QoSProfile(
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            history=HistoryPolicy.KEEP_LAST,
+            depth=1,
+        )
+    return QOS
+
+
 #: Default longest wait for a subscriber on every topic [s]: above the 2.4 s that discovery of
 #: a running process was seen to take (Fast DDS, loopback, docs: ros2-from-pip notes).
 DISCOVERY_TIME = 3.0
@@ -58,7 +73,8 @@ class BagPlayerNode(Node):
         """``types``: ``{output topic: type name}`` of everything that will be published."""
         super().__init__("bag_player", **kwargs)
         self.pubs = {
-            topic: self.create_publisher(message_class(t), topic, QOS) for topic, t in types.items()
+            topic: self.create_publisher(message_class(t), topic, _qos(topic))
+            for topic, t in types.items()
         }
         self.published = 0
 

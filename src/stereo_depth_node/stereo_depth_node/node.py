@@ -2,7 +2,9 @@
 
 Subscribes to the rectified stereo pair, its CameraInfos and ``/vehicles/detections_2d``; publishes
 ``/stereo/disparity`` (stereo_msgs/DisparityImage, invalid pixels -1.0), ``/stereo/points``
-(sensor_msgs/PointCloud2, off by default) and ``/vehicles/detections_3d``. Left and right images
+(sensor_msgs/PointCloud2, off by default) and ``/vehicles/detections_3d``; with the visual
+odometry, ``/stereo/odometry`` (nav_msgs/Odometry), odom -> camera (or base) on ``/tf`` and the
+rig on ``/tf_static`` (:mod:`.odometry_output`). Left and right images
 are paired, and detection arrays matched to their stereo frame, by exact header stamp through
 bounded caches (:mod:`.stamp_sync`); every detection array gets exactly one 3D array (empty when
 its stereo frame is lost or failed). All computation is in the pure core modules.
@@ -16,11 +18,13 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 import cv2
 import numpy as np
+from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import CameraInfo, PointCloud2
 from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
+from tf2_msgs.msg import TFMessage
 from vehicle_common.camera_motion import CameraMotion
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
@@ -45,6 +49,7 @@ from .disparity import (
     compute_disparity,
     match_band,
 )
+from .odometry_output import OdometryOutput, OdometryOutputParameters
 from .plausibility import GroundEstimator, PlausibilityParams, check_boxes
 from .ranging import (
     RangingParams,
@@ -184,6 +189,9 @@ class StereoDepthNode(Node):
         cv2.setNumThreads(p.num_threads)  # process-wide
         self.match_rows = (p.match_rows[0], p.match_rows[1])
         self.odometry = FrameToFrameOdometry() if p.visual_odometry else None
+        # its integration in odom: stereo/odometry, /tf, /tf_static (odometry_output.py)
+        odom_params = declare_config(self, OdometryOutputParameters)
+        self.odometry_out = OdometryOutput(odom_params) if p.visual_odometry else None
         # the odometry of a pair runs in this thread once the pair's disparity map is done
         # (the map is first: the ranging needs it), beside the ranging; only the publishing of
         # the 3D array waits for it (ARCHITECTURE.md, "A frame's path through the graph")
@@ -223,6 +231,15 @@ class StereoDepthNode(Node):
         if self.publish_points:
             self.pub_points = self.create_publisher(PointCloud2, TOPIC_POINTS, 5)
         self.pub_det3d = self.create_publisher(VehicleDetection3DArray, TOPIC_DETECTIONS_3D, 10)
+        self.pub_odometry = self.pub_tf = self.pub_tf_static = None
+        if self.odometry_out is not None:
+            if odom_params.publish_odometry:
+                self.pub_odometry = self.create_publisher(Odometry, topics.ODOMETRY, 10)
+            if odom_params.publish_tf:  # tf2's broadcaster QoS: depth 100, volatile
+                self.pub_tf = self.create_publisher(TFMessage, topics.TF, 100)
+            if odom_params.publish_static_tf:  # tf2's static broadcaster: the last one kept
+                latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+                self.pub_tf_static = self.create_publisher(TFMessage, topics.TF_STATIC, latched)
         # camera infos first: the executor runs ready callbacks in creation order, so a frame's
         # CameraInfo that arrives with its images is read before the pair is matched (else the
         # first frame was skipped for "no CameraInfo yet" in some runs)
@@ -282,10 +299,33 @@ class StereoDepthNode(Node):
         try:
             check_stereo_infos(self.left_info, self.right_info)  # one line naming the field
             self.geometry = StereoGeometry.from_camera_infos(self.left_info, self.right_info)
+            self._publish_rig()
         except ValueError as exc:
             self.geometry = None
             self._geometry_error = f"{TOPIC_LEFT_INFO}/{TOPIC_RIGHT_INFO}: {exc}"
             self.get_logger().warning(f"{self._geometry_error}; frames skipped until it changes")
+
+    def _publish_rig(self) -> None:
+        """The rig's fixed transforms on /tf_static (when its frames or baseline changed)."""
+        if self.pub_tf_static is None:
+            return
+        left, right = self.left_info.header, self.right_info.header
+        msg = self.odometry_out.rig(
+            stamp_ns(left), left.frame_id, right.frame_id, self.geometry.baseline
+        )
+        if msg is not None:
+            self.pub_tf_static.publish(msg)
+
+    def _publish_odometry(self, header, motion: CameraMotion | None) -> None:
+        """The frame's integrated odometry (stereo/odometry) and odom -> child (/tf), before its
+        3D array: a consumer of both finds the frame's transform when the array arrives."""
+        if self.odometry_out is None:
+            return
+        odom, tf = self.odometry_out.frame(stamp_ns(header), header.frame_id, motion)
+        if odom is not None and self.pub_odometry is not None:
+            self.pub_odometry.publish(odom)
+        if tf is not None and self.pub_tf is not None:
+            self.pub_tf.publish(tf)
 
     def _on_image(self, side: str, msg) -> None:
         stamp = stamp_ns(msg.header)
@@ -407,6 +447,7 @@ class StereoDepthNode(Node):
         """An empty 3D array for a detection array that cannot be ranged."""
         out = VehicleDetection3DArray()
         out.header = det_msg.header
+        self._publish_odometry(out.header, None)  # extrapolated: no pair, no motion
         self.pub_det3d.publish(out)
         self.frames.published()
 
@@ -457,6 +498,7 @@ class StereoDepthNode(Node):
                 continue
             score = d.score * c.plausibility if action == "score" else None
             out.detections.append(detection_3d_message(d, r, c, score))
+        self._publish_odometry(out.header, motion)
         self.pub_det3d.publish(out)
         self.trace("detections_3d_published", stamp)
         self.frames.published()

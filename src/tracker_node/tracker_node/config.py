@@ -32,6 +32,11 @@ NODE_NAME = "vehicle_tracker"
 TrackerConfigError = ParameterError
 
 
+#: Parameters of the ``vehicle_tracker`` node beside TrackerConfig's (node.py): the camera matrix
+#: of coasting tracks' boxes and the frame the tracks are published in
+NODE_PARAMETERS = ("camera_matrix", "tracks_frame")
+
+
 @dataclass
 class TrackerConfig:
     """Tracker parameters (units in the field comments; allowed values in ``param``). Defaults
@@ -142,7 +147,9 @@ class TrackerConfig:
     @classmethod
     def from_dict(cls, values: dict, source: str | None = None) -> TrackerConfig:
         """Build from a name -> value mapping; unknown names, wrong types or values raise
-        TrackerConfigError naming ``source`` and the parameter."""
+        TrackerConfigError naming ``source`` and the parameter. The node's own parameters
+        (:data:`NODE_PARAMETERS`: how it publishes, not how it tracks) are passed over."""
+        values = {k: v for k, v in values.items() if k not in NODE_PARAMETERS}
         return config_from_values(cls, values, source)
 
     @classmethod

@@ -1,7 +1,8 @@
 """Message conversions of the tracker: VehicleDetection3DArray -> DetectionBatch, TrackSet ->
-TrackedVehicleArray and RViz MarkerArray. Shared by the ``vehicle_tracker`` node and the offline
-tools that re-run the tracker on recorded messages (eval_node.filter_comparison). Message
-packages are imported when a message is built; no rclpy.
+TrackedVehicleArray, vision_msgs/Detection3DArray and RViz MarkerArray, in the camera's frame or
+moved into another one (``pose``: the camera's pose there, e.g. in ``odom``). Shared by the
+``vehicle_tracker`` node and the offline tools that re-run the tracker on recorded messages
+(eval_node.filter_comparison). Message packages are imported when a message is built; no rclpy.
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ from vehicle_common.box3d import box_corners, box_edges
 from vehicle_common.camera_frames import kitti_from_centre
 from vehicle_common.camera_motion import CameraMotion
 from vehicle_common.frame_messages import bbox_to_xyxy, read_transform, xyxy_to_bbox
+from vehicle_common.odometry import Pose
+from vehicle_common.vision_messages import detection_3d
 
 from .tracker import DetectionBatch, TrackSet
 
@@ -81,10 +84,58 @@ def camera_motion_from_msg(msg) -> tuple[CameraMotion | None, list[str]]:
     return CameraMotion(R, t, dt), []
 
 
-def tracks_to_msg(tracks: TrackSet, header):
-    """A TrackedVehicleArray with ``header`` from a TrackSet."""
+def heading_vectors(yaw: np.ndarray) -> np.ndarray:
+    """Unit heading vectors (N, 3) in the camera's optical frame of KITTI-convention yaws
+    (rotation about the camera's y axis, 0 = along x): ``(cos yaw, 0, -sin yaw)``."""
+    yaw = np.asarray(yaw, float)
+    return np.stack([np.cos(yaw), np.zeros_like(yaw), -np.sin(yaw)], axis=-1)
+
+
+def box_rotations(yaw: np.ndarray) -> np.ndarray:
+    """Box axes (N, 3, 3) in the camera's optical frame: x along the heading, y to the vehicle's
+    left, z up (the optical frame's -y)."""
+    x = heading_vectors(yaw)
+    z = np.broadcast_to([0.0, -1.0, 0.0], x.shape)
+    return np.stack([x, np.cross(z, x), z], axis=-1)
+
+
+class TrackGeometry:
+    """A TrackSet's geometry in the frame the camera's ``pose`` places it in (None: the camera's
+    optical frame, unchanged): positions, velocities (relative to the camera, and over the
+    ground), their covariances, box axes and yaw. In another frame the vectors are rotated and
+    positions moved; the yaw is the heading's angle about that frame's z axis (REP-103 frames
+    such as ``odom``: z up, 0 along x, counter-clockwise), in the optical frame it stays KITTI's
+    rotation about the camera's y axis."""
+
+    def __init__(self, tracks: TrackSet, pose: Pose | None = None):
+        self.position = np.asarray(tracks.position, float).reshape(-1, 3)
+        self.position_cov = np.asarray(tracks.position_cov, float).reshape(-1, 3, 3)
+        self.velocity = np.asarray(tracks.velocity, float).reshape(-1, 3)
+        self.velocity_cov = np.asarray(tracks.velocity_cov, float).reshape(-1, 3, 3)
+        self.ground = np.asarray(tracks.velocity_over_ground, float).reshape(-1, 3)
+        self.ground_cov = np.asarray(tracks.velocity_over_ground_cov, float).reshape(-1, 3, 3)
+        self.yaw = np.asarray(tracks.yaw, float).reshape(-1)
+        self.box_rotation = box_rotations(self.yaw)
+        if pose is None:
+            return
+        R = pose.rotation
+        self.position = pose.apply(self.position)
+        self.position_cov = R @ self.position_cov @ R.T
+        self.velocity = self.velocity @ R.T
+        self.velocity_cov = R @ self.velocity_cov @ R.T
+        self.ground = self.ground @ R.T  # NaN (unknown) stays NaN
+        self.ground_cov = R @ self.ground_cov @ R.T
+        self.box_rotation = R @ self.box_rotation
+        heading = heading_vectors(self.yaw) @ R.T
+        self.yaw = np.arctan2(heading[:, 1], heading[:, 0])
+
+
+def tracks_to_msg(tracks: TrackSet, header, pose: Pose | None = None):
+    """A TrackedVehicleArray with ``header`` from a TrackSet (``pose``: the camera's pose in the
+    header's frame when that is not the camera's, :class:`TrackGeometry`)."""
     from stereo_vehicle_msgs.msg import TrackedVehicle, TrackedVehicleArray
 
+    geo = TrackGeometry(tracks, pose)
     out = TrackedVehicleArray()
     out.header = header
     for i in range(len(tracks)):
@@ -93,21 +144,20 @@ def tracks_to_msg(tracks: TrackSet, header):
         v.class_id = tracks.class_id[i]
         v.state = int(tracks.state[i])
         v.confidence = float(np.clip(tracks.score[i], 0.0, 1.0))  # detection score x track conf.
-        v.position.x, v.position.y, v.position.z = (float(a) for a in tracks.position[i])
-        v.position_covariance = [float(a) for a in tracks.position_cov[i].ravel()]
-        v.velocity.x, v.velocity.y, v.velocity.z = (float(a) for a in tracks.velocity[i])
-        v.velocity_covariance = [float(a) for a in tracks.velocity_cov[i].ravel()]
-        g = tracks.velocity_over_ground[i]
+        v.position.x, v.position.y, v.position.z = (float(a) for a in geo.position[i])
+        v.position_covariance = [float(a) for a in geo.position_cov[i].ravel()]
+        v.velocity.x, v.velocity.y, v.velocity.z = (float(a) for a in geo.velocity[i])
+        v.velocity_covariance = [float(a) for a in geo.velocity_cov[i].ravel()]
+        g = geo.ground[i]
         v.velocity_over_ground.x, v.velocity_over_ground.y, v.velocity_over_ground.z = (
             float(a) for a in g
         )
         if np.isfinite(g).all():
-            gc = tracks.velocity_over_ground_cov[i].ravel()
-            v.velocity_over_ground_covariance = [float(a) for a in gc]
+            v.velocity_over_ground_covariance = [float(a) for a in geo.ground_cov[i].ravel()]
         else:  # unknown (no camera motion yet): sensor_msgs' convention
             v.velocity_over_ground_covariance = [-1.0] + [0.0] * 8
         v.size.x, v.size.y, v.size.z = (float(a) for a in tracks.size[i])
-        v.yaw = float(tracks.yaw[i])
+        v.yaw = float(geo.yaw[i])
         v.orientation_bin = int(tracks.orientation_bin[i])
         b = tracks.bbox[i]
         if np.isfinite(b).all():
@@ -118,18 +168,53 @@ def tracks_to_msg(tracks: TrackSet, header):
     return out
 
 
+#: Track states published as vision_msgs detections (tentative tracks stay on the project's
+#: topic, with their state: vision_msgs has no field for it)
+VISION_STATES = (1, 2)  # TrackedVehicle.STATE_CONFIRMED, STATE_COASTING
+
+
+def vision_tracks_message(tracks: TrackSet, header, pose: Pose | None = None):
+    """vision_msgs/Detection3DArray of the confirmed and coasting tracks, with ``header``
+    (mapping: :mod:`vehicle_common.vision_messages`; ``pose`` as in :func:`tracks_to_msg`)."""
+    from vision_msgs.msg import Detection3DArray
+
+    geo = TrackGeometry(tracks, pose)
+    out = Detection3DArray(header=header)
+    for i in range(len(tracks)):
+        if int(tracks.state[i]) not in VISION_STATES:
+            continue
+        out.detections.append(
+            detection_3d(
+                str(int(tracks.track_id[i])),
+                tracks.class_id[i],
+                float(np.clip(tracks.score[i], 0.0, 1.0)),
+                geo.position[i],
+                geo.box_rotation[i],
+                tracks.size[i],
+                geo.position_cov[i],
+                header,
+            )
+        )
+    return out
+
+
 #: Marker lifetime [s]: five frame periods of the KITTI camera (10 Hz), so that boxes vanish
 #: soon after the tracker stops publishing instead of staying in RViz for ever.
 MARKER_LIFETIME_S = 0.5
 
 
 def markers_for(
-    tracks: TrackSet, header, ended_ids, lifetime_s: float = MARKER_LIFETIME_S
+    tracks: TrackSet,
+    header,
+    ended_ids,
+    lifetime_s: float = MARKER_LIFETIME_S,
+    pose: Pose | None = None,
 ) -> object:
     """MarkerArray: a DELETEALL first (clears boxes left by an earlier run or a restarted
     tracker), then per track a LINE_LIST box, a TEXT_VIEW_FACING id label and an ARROW for the
     velocity (over the ground when known, else relative to the camera), each living
-    ``lifetime_s``; DELETE markers for the tracks in ``ended_ids``."""
+    ``lifetime_s``; DELETE markers for the tracks in ``ended_ids``. ``pose``: the camera's pose
+    in the header's frame when that is not the camera's (every point moved there)."""
     from builtin_interfaces.msg import Duration
     from geometry_msgs.msg import Point
     from visualization_msgs.msg import Marker, MarkerArray
@@ -141,6 +226,12 @@ def markers_for(
     arr.markers.append(clear)
     sec = int(lifetime_s)
     lifetime = Duration(sec=sec, nanosec=int(round((lifetime_s - sec) * 1e9)))
+
+    move = pose or Pose()
+
+    def point(p):
+        x, y, z = (float(a) for a in move.apply(p))
+        return Point(x=x, y=y, z=z)
 
     def base(ns, mid, kind):
         m = Marker()
@@ -161,11 +252,9 @@ def markers_for(
         box.color.r, box.color.g, box.color.b, box.color.a = r, g, b, 1.0
         for a, e in box_edges():
             for k in (a, e):
-                box.points.append(
-                    Point(x=float(corners[k, 0]), y=float(corners[k, 1]), z=float(corners[k, 2]))
-                )
+                box.points.append(point(corners[k]))
         text = base("labels", mid, Marker.TEXT_VIEW_FACING)
-        text.pose.position = Point(x=float(c[0]), y=float(c[1] - h / 2 - 0.3), z=float(c[2]))
+        text.pose.position = point((c[0], c[1] - h / 2 - 0.3, c[2]))
         text.scale.z = 0.6
         text.color.r = text.color.g = text.color.b = text.color.a = 1.0
         text.text = f"{int(tracks.track_id[i])}"
@@ -173,10 +262,7 @@ def markers_for(
         v = tracks.velocity_over_ground[i]  # the car's own motion when known
         if not np.isfinite(v).all():
             v = tracks.velocity[i]
-        arrow.points = [
-            Point(x=float(c[0]), y=float(c[1]), z=float(c[2])),
-            Point(x=float(c[0] + v[0]), y=float(c[1] + v[1]), z=float(c[2] + v[2])),
-        ]
+        arrow.points = [point(c), point(np.asarray(c, float) + v)]
         arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.1, 0.2, 0.3
         arrow.color.r, arrow.color.g, arrow.color.b, arrow.color.a = r, g, b, 1.0
         arr.markers += [box, text, arrow]

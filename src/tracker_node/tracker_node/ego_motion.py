@@ -20,35 +20,9 @@ its time span (:func:`extrapolate`). Pure numpy.
 from __future__ import annotations
 
 import numpy as np
-from vehicle_common.camera_motion import CameraMotion
+from vehicle_common.camera_motion import CameraMotion, extrapolate
 
-
-def _rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vector (axis x angle) of a rotation matrix."""
-    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
-    angle = float(np.arccos(c))
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if angle < 1e-9:
-        return 0.5 * w
-    return angle / (2.0 * np.sin(angle)) * w
-
-
-def _rotation(rv: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (Rodrigues)."""
-    angle = float(np.linalg.norm(rv))
-    if angle < 1e-12:
-        return np.eye(3)
-    k = rv / angle
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
-
-
-def extrapolate(motion: CameraMotion, dt: float) -> CameraMotion:
-    """``motion`` scaled to the time span ``dt`` (constant twist: rotation vector and
-    translation times dt / motion.dt): the camera keeps moving as it did."""
-    s = float(dt) / float(motion.dt)
-    rot = _rotation(s * _rotvec(np.asarray(motion.rotation, float)))
-    return CameraMotion(rot, s * np.asarray(motion.translation, float), float(dt))
+__all__ = ["extrapolate", "rotate_covariances", "static_velocity_before"]  # extrapolate: shared
 
 
 def static_velocity_before(motion: CameraMotion, points: np.ndarray, dt: float) -> np.ndarray:

@@ -7,6 +7,14 @@ header. Coasting tracks get the projection of their 3D box as 2D box; the camera
 from the ``camera_matrix`` parameter (12 numbers, the left camera's P; all zeros = unset) or else
 from ``stereo/left/camera_info``. Topic names are relative (:mod:`vehicle_common.topics`).
 QoS of all topics: RELIABLE, KEEP_LAST, depth 10, VOLATILE.
+
+The tracks also go out as vision_msgs/Detection3DArray on ``vehicles/vision/tracks`` (confirmed
+and coasting tracks, built while someone subscribes). ``tracks_frame`` (parameter; "" = the
+input's frame, the left camera's optical frame) publishes tracks, markers and vision tracks in
+another frame, e.g. ``odom``: the camera's pose there at each array's stamp comes from /tf and
+/tf_static (:class:`~vehicle_common.odometry_messages.TransformTree`), and, when a frame's
+transform is not there (yet), from the last one it had carried on with the arrays' camera
+motions, as the stereo node integrates them (:mod:`vehicle_common.odometry`).
 """
 
 from __future__ import annotations
@@ -15,9 +23,10 @@ import sys
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo
 from stereo_vehicle_msgs.msg import TrackedVehicleArray, VehicleDetection3DArray
+from tf2_msgs.msg import TFMessage
 from vehicle_common.frame_accounting import FrameCounter
 from vehicle_common.frame_messages import stamp_ns
 from vehicle_common.frame_trace import frame_tracer
@@ -27,12 +36,21 @@ from vehicle_common.node_parameters import (
     declare_config,
 )
 from vehicle_common.node_runtime import NodeHealth, apply_process_settings, run_node
+from vehicle_common.odometry import OdometryIntegrator
+from vehicle_common.odometry_messages import TransformTree
+from vision_msgs.msg import Detection3DArray
 from visualization_msgs.msg import MarkerArray
 
 from vehicle_common import topics
 
 from .config import NODE_NAME, TrackerConfig
-from .conversions import camera_motion_from_msg, detections_from_msg, markers_for, tracks_to_msg
+from .conversions import (
+    camera_motion_from_msg,
+    detections_from_msg,
+    markers_for,
+    tracks_to_msg,
+    vision_tracks_message,
+)
 from .tracker import DetectionBatch, Tracker
 
 QOS_DEPTH = 10
@@ -51,6 +69,8 @@ class VehicleTrackerNode(Node):
         )
         if len(cam) != 12:
             raise ParameterError("camera_matrix", f"expected 12 numbers, got {len(cam)}")
+        tracks_frame = self.declare_parameter("tracks_frame", "").value
+        self.tracks_frame = check_value("tracks_frame", tracks_frame, "")
         self.tracker = Tracker(self.config)
         if any(cam):
             self.tracker.set_projection(np.asarray(cam, float).reshape(3, 4))
@@ -61,6 +81,19 @@ class VehicleTrackerNode(Node):
         )
         self.pub = self.create_publisher(TrackedVehicleArray, topics.TRACKS, qos)
         self.marker_pub = self.create_publisher(MarkerArray, topics.TRACK_MARKERS, qos)
+        self.vision_pub = self.create_publisher(Detection3DArray, topics.VISION_TRACKS, qos)
+        self.transforms = None
+        if self.tracks_frame:
+            # the camera's pose in tracks_frame: /tf and /tf_static (subscribed before the 3D
+            # arrays: a frame's transform, published first, is read first), carried on with the
+            # arrays' camera motions where a frame's transform is missing
+            self.transforms = TransformTree()
+            self.pose_integrator = OdometryIntegrator()
+            self.frames_without_tf = 0
+            self._warned_frames: set[str] = set()
+            self.create_subscription(TFMessage, topics.TF, self.on_tf, 100)
+            latched = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            self.create_subscription(TFMessage, topics.TF_STATIC, self.on_tf_static, latched)
         self.sub = self.create_subscription(
             VehicleDetection3DArray, topics.DETECTIONS_3D, self.on_detections, qos
         )
@@ -82,6 +115,40 @@ class VehicleTrackerNode(Node):
         P[:, 3] = 0.0  # tracks are in this camera's own optical frame
         self.tracker.set_projection(P, (msg.width, msg.height))
 
+    def on_tf(self, msg: TFMessage, static: bool = False) -> None:
+        try:
+            self.transforms.add_message(msg, static)
+        except ValueError as exc:
+            name = topics.TF_STATIC if static else topics.TF
+            self.get_logger().warning(f"{name}: {exc}; ignored")
+
+    def on_tf_static(self, msg: TFMessage) -> None:
+        self.on_tf(msg, static=True)
+
+    def _camera_pose(self, header, motion):
+        """The camera's pose in ``tracks_frame`` at the array's stamp (None: unknown yet)."""
+        stamp = stamp_ns(header)
+        pose = self.transforms.lookup(self.tracks_frame, header.frame_id, stamp)
+        integrator = self.pose_integrator
+        if pose is not None:
+            if integrator.last is None or stamp >= integrator.last.stamp_ns:
+                integrator.update(stamp, motion)  # keeps its twist for the frames without tf
+            integrator.anchor(stamp, pose)
+            return pose
+        self.frames_without_tf += 1
+        if integrator.last is None:
+            if header.frame_id not in self._warned_frames:
+                self._warned_frames.add(header.frame_id)
+                self.get_logger().warning(
+                    f"no transform {self.tracks_frame} -> {header.frame_id} on {topics.TF} yet;"
+                    f" tracks published in {header.frame_id} until there is one"
+                )
+            return None
+        try:
+            return integrator.update(stamp, motion).pose
+        except ValueError:  # a stamp before the last one: no pose for it
+            return None
+
     def on_detections(self, msg: VehicleDetection3DArray) -> None:
         self.frames.received()
         try:
@@ -94,13 +161,20 @@ class VehicleTrackerNode(Node):
             self.get_logger().warning(f"{topics.DETECTIONS_3D}: {p}")
         stamp = stamp_ns(msg.header) * 1e-9
         tracks = self.tracker.step(dets, stamp, motion)
-        self.pub.publish(tracks_to_msg(tracks, msg.header))
+        header, pose = msg.header, None
+        if self.transforms is not None:
+            pose = self._camera_pose(msg.header, motion)
+            if pose is not None:
+                header = type(msg.header)(stamp=msg.header.stamp, frame_id=self.tracks_frame)
+        self.pub.publish(tracks_to_msg(tracks, header, pose))
         self.trace("tracks_published", stamp_ns(msg.header))
         self.frames.published()
+        if self.vision_pub.get_subscription_count() > 0:
+            self.vision_pub.publish(vision_tracks_message(tracks, header, pose))
         ids = {int(t) for t in tracks.track_id}
         ended = sorted(self.shown_ids - ids)
         self.shown_ids = ids
-        self.marker_pub.publish(markers_for(tracks, msg.header, ended))
+        self.marker_pub.publish(markers_for(tracks, header, ended, pose=pose))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -3,7 +3,9 @@
 Both the project's process launcher (``stereo_tracking_launch``) and the standard ROS launch file
 (``launch/stereo_tracking.launch.py``, for users with a full ROS 2 install) build the graph from
 this description with :func:`plan` (the detector's subscriptions from its ``backend`` parameter,
-the player's from its ``lockstep``, the player's ``wait_for_topics`` from every edge of the graph,
+the player's from its ``lockstep``, the stereo node's odometry and TF outputs from its
+``visual_odometry`` / ``publish_*`` parameters, the tracker's TF subscriptions from its
+``tracks_frame``, the player's ``wait_for_topics`` from every edge of the graph,
 the latest-frame nodes' ``frame_queue`` from the player's ``lockstep_window``), so the two cannot
 drift apart. Topic names are relative; both launchers take a namespace that moves the graph.
 """
@@ -60,6 +62,9 @@ TRACKS = topics.TRACKS
 TRACK_MARKERS = topics.TRACK_MARKERS
 DISPARITY = topics.DISPARITY
 CLOCK = topics.CLOCK
+ODOMETRY = topics.ODOMETRY
+TF = topics.TF
+TF_STATIC = topics.TF_STATIC
 IMAGES = (LEFT_IMAGE, RIGHT_IMAGE)
 
 PLAYER = NodeSpec(
@@ -77,7 +82,7 @@ DETECTOR = NodeSpec(
     package="detector_node",
     executable="vehicle_detector",
     subscribes=(LEFT_IMAGE,),
-    publishes=(DETECTIONS_2D,),
+    publishes=(DETECTIONS_2D, topics.VISION_DETECTIONS_2D),
     latest_frame=True,
 )
 STEREO = NodeSpec(
@@ -85,7 +90,7 @@ STEREO = NodeSpec(
     package="stereo_depth_node",
     executable="stereo_depth",
     subscribes=(LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO, DETECTIONS_2D),
-    publishes=(DETECTIONS_3D, DISPARITY),
+    publishes=(DETECTIONS_3D, DISPARITY, ODOMETRY, TF, TF_STATIC),
     latest_frame=True,
 )
 TRACKER = NodeSpec(
@@ -93,7 +98,7 @@ TRACKER = NodeSpec(
     package="tracker_node",
     executable="vehicle_tracker",
     subscribes=(DETECTIONS_3D, LEFT_INFO),  # camera info: 2D boxes of coasting tracks
-    publishes=(TRACKS, TRACK_MARKERS),
+    publishes=(TRACKS, TRACK_MARKERS, topics.VISION_TRACKS),
 )
 RECORDER = NodeSpec(
     name="bag_recorder",
@@ -141,6 +146,26 @@ def with_recorded_images(nodes: list[NodeSpec], include_images: bool) -> list[No
         return nodes
     spec = replace(RECORDER, subscribes=(*RECORDER.subscribes, *IMAGES))
     return [spec if n.name == RECORDER.name else n for n in nodes]
+
+
+def with_odometry_outputs(
+    nodes: list[NodeSpec], odometry: bool, tf: bool, static_tf: bool
+) -> list[NodeSpec]:
+    """``nodes`` with the stereo node's odometry (``stereo/odometry``), ``tf`` and ``tf_static``
+    publishers only where its parameters create them (``visual_odometry`` and each
+    ``publish_*``): an edge nobody publishes would keep the player waiting."""
+    off = {ODOMETRY: not odometry, TF: not tf, TF_STATIC: not static_tf}
+    spec = replace(STEREO, publishes=tuple(t for t in STEREO.publishes if not off.get(t, False)))
+    return [spec if n.name == STEREO.name else n for n in nodes]
+
+
+def with_tracks_frame(nodes: list[NodeSpec], tracks_frame: str) -> list[NodeSpec]:
+    """``nodes`` with the tracker's /tf and /tf_static subscriptions when it publishes its
+    tracks in another frame than the camera's (``tracks_frame`` not "")."""
+    if not tracks_frame:
+        return list(nodes)
+    spec = replace(TRACKER, subscribes=(*TRACKER.subscribes, TF, TF_STATIC))
+    return [spec if n.name == TRACKER.name else n for n in nodes]
 
 
 def with_image_transport(nodes: list[NodeSpec], transport: str) -> list[NodeSpec]:
@@ -241,9 +266,16 @@ def plan(
     lockstep = as_bool(value(PLAYER, "lockstep", False))
     transport = str(value(PLAYER, "image_transport", "raw"))
     images = as_bool(value(RECORDER, "include_images", False))
+    odometry = as_bool(value(STEREO, "visual_odometry", True))
+    outputs = [
+        odometry and as_bool(value(STEREO, f"publish_{k}", True))
+        for k in ("odometry", "tf", "static_tf")
+    ]
+    tracks_frame = str(value(TRACKER, "tracks_frame", "") or "")
 
     def shaped(specs: list[NodeSpec]) -> list[NodeSpec]:
         specs = with_lockstep(with_detector_backend(list(specs), backend), lockstep)
+        specs = with_tracks_frame(with_odometry_outputs(specs, *outputs), tracks_frame)
         return with_image_transport(with_recorded_images(specs, images), transport)
 
     nodes = shaped(nodes)

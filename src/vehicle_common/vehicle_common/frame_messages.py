@@ -117,9 +117,8 @@ def kitti_objects_from_message(msg) -> list[KittiObject]:
     ]
 
 
-def write_transform(rotation, translation, transform) -> None:
-    """Fill a geometry_msgs/Transform from a 3x3 rotation matrix and a translation (3,) [m]
-    (the quaternion with w >= 0)."""
+def quaternion_from_matrix(rotation) -> tuple[float, float, float, float]:
+    """(w, x, y, z) of a 3x3 rotation matrix, w >= 0."""
     R = np.asarray(rotation, float).reshape(3, 3)
     # Shepperd's method: branch on the largest of w, x, y, z for a stable square root
     tr = np.trace(R)
@@ -136,27 +135,55 @@ def write_transform(rotation, translation, transform) -> None:
         v[m] = (R[m, i] + R[i, m]) / s
         q = ((R[m, j] - R[j, m]) / s, *v)
     w, x, y, z = np.asarray(q) * (1.0 if q[0] >= 0 else -1.0)
-    r = transform.rotation
-    r.w, r.x, r.y, r.z = float(w), float(x), float(y), float(z)
+    return float(w), float(x), float(y), float(z)
+
+
+def _write_quaternion(rotation, q) -> None:
+    q.w, q.x, q.y, q.z = quaternion_from_matrix(rotation)
+
+
+def write_transform(rotation, translation, transform) -> None:
+    """Fill a geometry_msgs/Transform from a 3x3 rotation matrix and a translation (3,) [m]
+    (the quaternion with w >= 0)."""
+    _write_quaternion(rotation, transform.rotation)
     t = transform.translation
     t.x, t.y, t.z = (float(v) for v in np.asarray(translation, float).reshape(3))
 
 
-def read_transform(transform) -> tuple[np.ndarray, np.ndarray]:
-    """(3x3 rotation, translation (3,)) of a geometry_msgs/Transform; the quaternion is
-    normalised. ValueError when it is not finite or has zero norm."""
-    r, t = transform.rotation, transform.translation
-    q = np.array([r.w, r.x, r.y, r.z], float)
-    tv = np.array([t.x, t.y, t.z], float)
+def write_pose(rotation, translation, pose) -> None:
+    """Fill a geometry_msgs/Pose (orientation w >= 0) as :func:`write_transform` does a
+    Transform."""
+    _write_quaternion(rotation, pose.orientation)
+    p = pose.position
+    p.x, p.y, p.z = (float(v) for v in np.asarray(translation, float).reshape(3))
+
+
+def rotation_from_quaternion(w: float, x: float, y: float, z: float) -> np.ndarray:
+    """3x3 rotation of a quaternion (normalised here). ValueError when it is not finite or has
+    zero norm."""
+    q = np.array([w, x, y, z], float)
     n = float(np.linalg.norm(q))
-    if not (np.isfinite(q).all() and np.isfinite(tv).all()) or n == 0.0:
-        raise ValueError("transform is not finite or its quaternion is zero")
+    if not np.isfinite(q).all() or n == 0.0:
+        raise ValueError("quaternion is not finite or zero")
     w, x, y, z = q / n
-    R = np.array(
+    return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
             [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
         ]
     )
+
+
+def read_transform(transform) -> tuple[np.ndarray, np.ndarray]:
+    """(3x3 rotation, translation (3,)) of a geometry_msgs/Transform; the quaternion is
+    normalised. ValueError when it is not finite or has zero norm."""
+    r, t = transform.rotation, transform.translation
+    tv = np.array([t.x, t.y, t.z], float)
+    if not np.isfinite(tv).all():
+        raise ValueError("transform is not finite or its quaternion is zero")
+    try:
+        R = rotation_from_quaternion(r.w, r.x, r.y, r.z)
+    except ValueError:
+        raise ValueError("transform is not finite or its quaternion is zero") from None
     return R, tv

@@ -20,6 +20,15 @@ TRACKS = "vehicles/tracks"
 TRACK_MARKERS = "vehicles/track_markers"
 DISPARITY = "stereo/disparity"
 POINTS = "stereo/points"
+#: the visual odometry (nav_msgs/Odometry) and the transforms (REP-105): relative like the rest,
+#: so "tf" is tf2's /tf without a namespace and /rig2/tf in one (a second rig's frames must not
+#: mix into the first's tree; remap tf:=/tf and set frame names apart to share one tree)
+ODOMETRY = "stereo/odometry"
+TF = "tf"
+TF_STATIC = "tf_static"
+#: vision_msgs (4.x) beside the project's messages: the 2D detections and the tracks
+VISION_DETECTIONS_2D = "vehicles/vision/detections_2d"
+VISION_TRACKS = "vehicles/vision/tracks"
 #: image_transport's convention: sensor_msgs/CompressedImage on ``<image topic>/compressed``
 COMPRESSED_SUFFIX = "/compressed"
 LEFT_IMAGE_COMPRESSED = LEFT_IMAGE + COMPRESSED_SUFFIX
@@ -41,6 +50,11 @@ ALL = (
     POINTS,
     LEFT_IMAGE_COMPRESSED,
     RIGHT_IMAGE_COMPRESSED,
+    ODOMETRY,
+    TF,
+    TF_STATIC,
+    VISION_DETECTIONS_2D,
+    VISION_TRACKS,
 )
 
 #: the message type of every topic (``package/msg/Type``)
@@ -59,7 +73,15 @@ TYPES = {
     POINTS: "sensor_msgs/msg/PointCloud2",
     LEFT_IMAGE_COMPRESSED: "sensor_msgs/msg/CompressedImage",
     RIGHT_IMAGE_COMPRESSED: "sensor_msgs/msg/CompressedImage",
+    ODOMETRY: "nav_msgs/msg/Odometry",
+    TF: "tf2_msgs/msg/TFMessage",
+    TF_STATIC: "tf2_msgs/msg/TFMessage",
+    VISION_DETECTIONS_2D: "vision_msgs/msg/Detection2DArray",
+    VISION_TRACKS: "vision_msgs/msg/Detection3DArray",
 }
+#: topics whose publishers keep their last message for late subscribers (TRANSIENT_LOCAL, as
+#: tf2's static broadcaster); their subscribers (the recorder) ask for it too
+TRANSIENT_LOCAL = (TF_STATIC,)
 #: what the bag recorder records by default (the graph's recorder node subscribes to these)
 RECORDED = (
     LEFT_INFO,
@@ -70,6 +92,9 @@ RECORDED = (
     DETECTIONS_3D,
     TRACKS,
     TRACK_MARKERS,
+    ODOMETRY,
+    TF,
+    TF_STATIC,
 )
 #: large image-like topics, recorded only on request (the recorder's ``include_images``)
 RECORDED_IMAGES = (LEFT_IMAGE, RIGHT_IMAGE, DISPARITY, POINTS)
