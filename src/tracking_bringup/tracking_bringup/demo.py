@@ -203,9 +203,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         # the progress display's subscription is an edge the player waits for too
         processes = graph_processes(
-            graph.PIPELINE, args.params, overrides, extra_subscriptions={graph.TRACKS: 1}
+            graph.PIPELINE,
+            args.params,
+            overrides,
+            extra_subscriptions={graph.TRACKS: 1},
+            params_out=out / "logs" / "parameters.yaml",
         )
-    except LaunchError as exc:
+    except (LaunchError, ValueError) as exc:
         return _error(str(exc))
 
     print(
@@ -222,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
         launcher.wait(until_finished=True)
     except LaunchError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 1
+        return exc.exit_code  # 2: a node refused its parameters or input (its one line)
     except KeyboardInterrupt:
         print("[demo] interrupted", file=sys.stderr)
         return 130
