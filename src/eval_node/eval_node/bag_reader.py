@@ -22,6 +22,7 @@ from vehicle_common.frame_messages import bbox_to_xyxy, kitti_objects_from_messa
 from vehicle_common.kitti import KittiObject
 from vehicle_common.orientation_bins import bin_to_alpha
 
+from eval_node.repeated_stamps import mixed_runs_hint
 from vehicle_common import topics
 
 #: the graph's topics as recorded without a namespace (see :func:`bag_namespace`)
@@ -150,6 +151,7 @@ def read_run(
     gts: dict[int, object] = {}
     msgs: dict[str, dict[int, tuple[object, int]]] = {t: {} for t in name}
     P_left, image_size, info_seen = None, None, None
+    repeated: dict[str, int] = {}  # topic -> stamps seen again (two runs in one bag)
     if not conns:
         reader.close()
         raise BagReadError(f"{path}: none of the pipeline's topics ({', '.join(sorted(wanted))})")
@@ -170,11 +172,19 @@ def read_run(
                 info_seen = msg
                 continue
             stamp = stamp_ns(msg.header)
+            if stamp in msgs[topic]:
+                repeated[topic] = repeated.get(topic, 0) + 1
             if topic == GT_TOPIC:
                 gts[stamp] = msg
             msgs[topic][stamp] = (msg, int(t_ns))
     finally:
         reader.close()
+    if repeated:
+        topic, n = max(repeated.items(), key=lambda kv: kv[1])
+        raise BagReadError(
+            f"{path}: mixes more than one run: {name[topic]} holds {n} stamp(s) more than once "
+            f"(one message per frame and stamp in a run); {mixed_runs_hint()}"
+        )
 
     sequence = ""
     frames: dict[int, RecordedFrame] = {}
