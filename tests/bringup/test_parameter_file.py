@@ -185,3 +185,13 @@ def test_launcher_refuses_with_one_line_and_exit_2(tmp_path, args, file_text, me
     assert len(lines) == 1 and lines[0].startswith("error: "), result.stderr
     assert message in lines[0]
     assert "Traceback" not in result.stdout + result.stderr
+
+
+def test_demo_refuses_a_bad_parameter_file_with_one_line(tmp_path, capsys):
+    from tracking_bringup import demo
+
+    bad = _write(tmp_path, "vehicle_trackr:\n  ros__parameters:\n    min_hits: 3\n")
+    assert demo.main(["--params", str(bad), "--output", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "(did you mean vehicle_tracker?)" in err[0]
+    assert not (tmp_path / "out").exists()

@@ -169,6 +169,10 @@ def main(argv: list[str] | None = None) -> int:
         return _error("--frames: must be >= 0")
     if not Path(args.params).is_file():
         return _error(f"{args.params}: parameter file not found")
+    try:
+        graph.file_parameters(args.params)  # one line for a file the launcher cannot use
+    except ValueError as exc:
+        return _error(str(exc))
 
     from vehicle_common.kitti import KittiFormatError
 
