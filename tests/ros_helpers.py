@@ -1,4 +1,4 @@
-"""Helpers shared by the node tests (rclpy, no fixtures)."""
+"""Helpers shared by the node and graph tests (rclpy, rosbags; no fixtures)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 
 def spin_until(executor, cond, timeout: float = 10.0) -> bool:
@@ -33,3 +34,16 @@ def start_script(script) -> tuple[subprocess.Popen, list[str], threading.Thread]
     reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
     reader.start()
     return proc, lines, reader
+
+
+def bag_counts(bag: Path, namespace: str = "") -> dict[str, int]:
+    """Messages per topic of a recorded graph in ``namespace``, by the graph's relative names
+    (the bag holds the resolved ones)."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        return {
+            c.topic.removeprefix(namespace + "/"): c.msgcount
+            for c in reader.connections
+            if c.topic.startswith(namespace + "/")
+        }

@@ -141,7 +141,13 @@ def test_launch_file_and_launcher_agree_on_namespace_wait_for_topics_and_oracle(
         assert (f"__ns:={namespace}" in ns_args) == bool(namespace)
         extra = {k: str(v) for d in node.kwargs["parameters"][1:] for k, v in d.items()}
         assert extra == _argv_parameters(proc.argv)
-        assert node.kwargs["parameters"][0] == str(params_file)
+        # both hand every node the file's section under its fully qualified name (rcl reads a
+        # plain "vehicle_tracker:" section as /vehicle_tracker only: issue #35)
+        given = yaml.safe_load(Path(node.kwargs["parameters"][0]).read_text())
+        launched = proc.argv[proc.argv.index("--params-file") + 1]
+        assert given == yaml.safe_load(Path(launched).read_text())
+        fqn = f"{namespace}/{node.kwargs['name']}"
+        assert given[fqn]["ros__parameters"] == params[node.kwargs["name"]]["ros__parameters"]
         # the readiness check looks for the namespaced topics
         assert all(t.startswith(namespace + "/") for t in (*proc.subscribes, *proc.publishes))
     player = _argv_parameters(processes[0].argv)["wait_for_topics"]

@@ -73,6 +73,37 @@ BAD_STARTS = [
         ["-p", "keep_freed_memory:=maybe"],
         ["keep_freed_memory", "expected"],
     ),
+    # a parameter the node does not have (misspelled): ROS leaves it unused without a word
+    (
+        "tracker_node.node",
+        "vehicle_tracker",
+        ["-p", "min_hit:=5"],
+        ["min_hit: unknown parameter of this node (did you mean min_hits?)"],
+    ),
+    (
+        "detector_node.node",
+        "vehicle_detector",
+        ["-p", "score_treshold:=0.5"],
+        ["score_treshold: unknown parameter", "(did you mean score_threshold?)"],
+    ),
+    (
+        "stereo_depth_node.node",
+        "stereo_depth",
+        ["-p", "num_thread:=1"],
+        ["num_thread: unknown parameter", "(did you mean num_threads?)"],
+    ),
+    (
+        "kitti_player_node.node",
+        "kitti_player",
+        ["-p", "lockstep_timout:=5.0"],
+        ["lockstep_timout: unknown parameter", "(did you mean lockstep_timeout?)"],
+    ),
+    (
+        "eval_node.recorder",
+        "bag_recorder",
+        ["-p", "compresion:=zstd"],
+        ["compresion: unknown parameter", "(did you mean compression?)"],
+    ),
 ]
 
 
@@ -96,6 +127,61 @@ def test_a_bad_parameter_stops_the_node_with_one_line_and_exit_2(
     assert lines[0].startswith(f"error: {node}: parameter ")
     for w in words:
         assert w in lines[0], lines[0]
+
+
+def test_a_misspelled_parameter_in_a_parameter_file_is_one_line(tmp_path):
+    params = tmp_path / "params.yaml"
+    params.write_text("vehicle_detector:\n  ros__parameters:\n    score_treshold: 0.5\n")
+    r = subprocess.run(
+        [sys.executable, "-m", "detector_node.node", "--ros-args", "--params-file", str(params)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 2, r.stderr[-2000:]
+    assert r.stderr.strip().splitlines() == [
+        "error: vehicle_detector: parameter score_treshold: unknown parameter of this node "
+        "(did you mean score_threshold?)"
+    ]
+
+
+@pytest.mark.parametrize(
+    ("module", "node", "ros_args", "line"),
+    [
+        (
+            "tracker_node.node",
+            "vehicle_tracker",
+            ["-p", "min_hits:="],
+            "error: vehicle_tracker: Couldn't parse parameter override rule: '-p min_hits:='",
+        ),
+        (
+            "kitti_player_node.node",
+            "kitti_player",
+            ["-r", "__ns:=/rig-2"],
+            "error: kitti_player: Couldn't parse remap rule: '-r __ns:=/rig-2' (Expected lexeme",
+        ),
+        (
+            "eval_node.recorder",
+            "bag_recorder",
+            ["--params-file", "BAD"],
+            "error: bag_recorder: Couldn't parse params file: '--params-file BAD' (Error parsing",
+        ),
+    ],
+)
+def test_ros_arguments_rcl_refuses_are_one_line(tmp_path, module, node, ros_args, line):
+    """rclpy raises rcl's refusal of the command line as a traceback: one line instead."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("vehicle_tracker:\n  ros__parameters:\n    min_hits: [1,\n")
+    args = [str(bad) if a == "BAD" else a for a in ros_args]
+    r = subprocess.run(
+        [sys.executable, "-m", module, "--ros-args", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 2, r.stderr[-2000:]
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(line.replace("BAD", str(bad))), r.stderr
 
 
 def test_yaml_integer_for_a_float_is_accepted_by_the_node(tmp_path, rclpy_context):

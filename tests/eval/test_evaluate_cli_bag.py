@@ -240,3 +240,44 @@ def test_evaluate_bag_with_label_files(tmp_path):
     assert res["tracking"]["fn"] == 0 and res["tracking"]["fp"] == len(rows) - len(rows) // 2
     with pytest.raises(Exception, match="0007.txt"):
         evaluate_bag(tmp_path / "bag", labels_dir=labels, sequence="0007", run_filters=False)
+
+
+def test_evaluate_refuses_a_bag_that_mixes_two_runs(tmp_path):
+    """Two graphs on one ROS domain without namespaces record each other's frames: the same
+    stamps twice on every per-frame topic (issue #35: `evaluate bag` scored such a bag, MOTA
+    9.8, without a word). One line naming the topic, exit 2; a bag of one run is read."""
+    run = make_messages()
+    second = make_messages(track_offset_x=3.0)
+    from eval_node.bag_writer import write_bag
+
+    write_bag(tmp_path / "mixed", sorted(run + second, key=lambda m: m[2]))
+    p = subprocess.run(
+        [sys.executable, "-m", "eval_node.cli", "bag", str(tmp_path / "mixed")],
+        capture_output=True,
+        text=True,
+    )
+    assert p.returncode == 2, p.stdout + p.stderr
+    lines = [x for x in p.stderr.splitlines() if x.strip() and "reading bag" not in x]  # progress
+    assert len(lines) == 1, p.stderr
+    assert lines[0].startswith(f"error: {tmp_path / 'mixed'}: mixes more than one run: ")
+    assert f"holds {N_FRAMES} stamp(s) more than once" in lines[0]
+    assert "--namespace" in lines[0]
+    from eval_node.bag_reader import read_run
+
+    assert len(read_run(make_bag(tmp_path / "one")).frames) == N_FRAMES
+
+
+def test_repeated_stamps_of_serialized_headers():
+    from eval_node.repeated_stamps import RepeatedStamps, header_stamp
+    from rclpy.serialization import serialize_message
+    from stereo_vehicle_msgs.msg import TrackedVehicleArray
+
+    msg = TrackedVehicleArray()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 300_000_000
+    assert header_stamp(serialize_message(msg)) == 12_300_000_000
+    assert header_stamp(b"\x00\x01") is None
+    seen = RepeatedStamps(keep=3)
+    assert [seen.add("/t", s) for s in (1, 2, 3, 2, 4)] == [False, False, False, True, False]
+    assert seen.repeats == {"/t": 1}
+    assert not seen.add("/t", 1)  # forgotten: only the last 3 stamps are kept
+    assert not seen.add("/other", 2)

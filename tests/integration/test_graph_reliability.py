@@ -1,9 +1,12 @@
 """Reliability of the whole graph as separate processes, on real KITTI 0005 (16 frames) with the
-oracle detector (fast start-up): every edge ready before frame 0 even when all nodes start at
-once, the frame in flight drained at Ctrl-C, no traceback on SIGTERM, no frame lost silently."""
+oracle detector (fast start-up): the frame in flight drained at Ctrl-C, no traceback on SIGTERM,
+no frame lost silently (every edge ready before frame 0 when all nodes start at once:
+test_namespaced_graph.py)."""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
 import subprocess
 import sys
@@ -15,23 +18,12 @@ import pytest
 from tracking_bringup.environment import PARAMS_FILE
 from tracking_bringup.launcher import GraphLauncher, graph_processes
 
+from tests.ros_helpers import bag_counts
 from tracking_bringup import graph
 
 pytestmark = pytest.mark.slow
 
 FRAMES_0005 = 16
-
-
-def _bag_counts(bag: Path, namespace: str = "") -> dict[str, int]:
-    """Messages per topic, by the graph's relative names (the bag holds the resolved ones)."""
-    from rosbags.highlevel import AnyReader
-
-    with AnyReader([bag]) as reader:
-        return {
-            c.topic.removeprefix(namespace + "/"): c.msgcount
-            for c in reader.connections
-            if c.topic.startswith(namespace + "/")
-        }
 
 
 def _overrides(root: Path, bag: Path, *extra: str) -> list[str]:
@@ -51,32 +43,6 @@ def _wait_for(path: Path, text: str, timeout: float = 90.0) -> None:
             return
         time.sleep(0.1)
     raise AssertionError(f"{text!r} not in {path} after {timeout} s")
-
-
-def test_simultaneous_start_loses_no_frame(kitti_tracking_root, tmp_path):
-    """All nodes started at once, as ``ros2 launch`` does, with the parameters the launch file
-    gives (``graph.plan``): the player publishes frame 0 only when every edge is
-    matched (stereo -> tracker, tracker -> recorder, tracker -> player, ...), so all 16 frames
-    are tracked and lockstep never times out. (Before: 15/16 and a 10 s lockstep timeout.)
-    The graph runs in a namespace: the edges are the namespaced topics the nodes report."""
-    bag = tmp_path / "bag"
-    namespace = "/rig2"
-    processes = graph_processes(
-        graph.PIPELINE,
-        PARAMS_FILE,
-        _overrides(kitti_tracking_root, bag, "kitti_player.lockstep:=true"),
-        namespace=namespace,
-    )
-    launcher = GraphLauncher(processes, tmp_path / "logs", staged=False, ready_timeout=120)
-    with launcher:
-        launcher.wait(until_finished=True)
-    assert launcher.drained is True
-    counts = _bag_counts(bag, namespace)
-    for topic in (graph.GROUND_TRUTH, graph.DETECTIONS_2D, graph.DETECTIONS_3D, graph.TRACKS):
-        assert counts.get(topic) == FRAMES_0005, (topic, counts)
-    player_log = (tmp_path / "logs" / "kitti_player.log").read_text()
-    assert f"done: {FRAMES_0005} frames published, 0 dropped, 0 lockstep timeouts" in player_log
-    assert "every edge of the graph matched" in player_log
 
 
 def test_sigint_drains_the_frame_in_flight(kitti_tracking_root, tmp_path):
@@ -118,7 +84,7 @@ def test_sigint_drains_the_frame_in_flight(kitti_tracking_root, tmp_path):
         proc.kill()
     assert proc.returncode == 0, output
     assert "frames still in flight" not in output
-    counts = _bag_counts(bag)
+    counts = bag_counts(bag)
     inputs = counts.get(graph.GROUND_TRUTH, 0)
     assert inputs >= 1, counts
     for topic in (graph.DETECTIONS_2D, graph.DETECTIONS_3D, graph.TRACKS):
@@ -166,3 +132,139 @@ def test_sigterm_mid_stream_no_traceback_and_frames_accounted(kitti_tracking_roo
     assert detector.received >= 5 and detector.pending == 0
     assert detector.published + detector.dropped == detector.received
     assert player.published >= detector.received
+
+
+def _child_pid(parent: int, executable: str) -> int | None:
+    """The pid of ``parent``'s child process running ``executable``."""
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            argv = (d / "cmdline").read_bytes().split(b"\0")
+        except (OSError, IndexError, ValueError):
+            continue
+        if ppid == parent and any(
+            Path(a.decode(errors="replace")).name == executable for a in argv
+        ):
+            return int(d.name)
+    return None
+
+
+def test_frozen_node_is_named_and_fails_the_run(kitti_tracking_root, tmp_path):
+    """``kill -STOP`` of stereo_depth while frames flow: the launcher names it within seconds
+    (its reports on /diagnostics stop while the other nodes' go on), kills it and exits 1; the
+    rest of the graph stops cleanly and the bag is closed. (Before: the launcher ran on through
+    lockstep timeouts, 147 s, then SIGKILLed it and exited 0 with 4 of 16 frames tracked.)"""
+    bag = tmp_path / "bag"
+    logs = tmp_path / "logs"
+    cmd = [str(Path(sys.executable).with_name("stereo_tracking_launch")), "--log-dir", str(logs)]
+    for ov in _overrides(kitti_tracking_root, bag, "kitti_player.loop:=true"):
+        cmd += ["-p", ov]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    ready = threading.Event()
+
+    def read_output():
+        for line in proc.stdout:
+            lines.append(line)
+            if "graph ready" in line:
+                ready.set()
+
+    threading.Thread(target=read_output, daemon=True).start()
+    stereo = None
+    try:
+        assert ready.wait(120), "".join(lines)
+        _wait_for(logs / "kitti_player.log", "every edge of the graph matched")
+        stereo = _child_pid(proc.pid, "stereo_depth")
+        assert stereo is not None
+        os.kill(stereo, signal.SIGSTOP)
+        t0 = time.monotonic()
+        proc.wait(timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        if stereo is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(stereo, signal.SIGKILL)
+    output = "".join(lines)
+    assert proc.returncode == 1, output
+    assert "error: node 'stereo_depth' stopped making progress: no report on /diagnostics" in (
+        output
+    )
+    assert "stopped (T)" in output
+    assert took < 30, (took, output)  # 5 s to notice, then the others stop cleanly
+    assert not Path(f"/proc/{stereo}").exists() or "Z" in Path(f"/proc/{stereo}/stat").read_text()
+    assert "unclean exit" not in output  # every other node stopped cleanly
+    assert bag_counts(bag).get(graph.GROUND_TRUTH, 0) >= 1  # closed and readable
+
+
+def _launch(root: Path, bag: Path, *args: str, cwd: Path, **popen) -> subprocess.Popen:
+    cmd = [str(Path(sys.executable).with_name("stereo_tracking_launch")), *args]
+    for ov in _overrides(root, bag):
+        cmd += ["-p", ov]
+    return subprocess.Popen(
+        cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **popen
+    )
+
+
+def test_failed_start_then_a_rerun_with_the_same_output(kitti_tracking_root, tmp_path):
+    """A misspelled player parameter: the player refuses it at start-up, once the recorder has
+    opened the bag; the launcher prints the player's one line, with the closest valid name, and
+    exits 2 (before: the parameter was ignored without a word, and a node that stopped at
+    start-up made the launcher exit 1 where the README promises 2). The rerun, same output and
+    the default log folder: the empty bag the failed start left is replaced (before: 'exists
+    already'), each run has its own log folder, and nothing of the first run is in the second's
+    logs (before: one folder, appended to)."""
+    bag = tmp_path / "bag"
+    first = _launch(kitti_tracking_root, bag, "-p", "kitti_player.lockstep_timout:=5", cwd=tmp_path)
+    out = first.communicate(timeout=180)[0]
+    assert first.returncode == 2, out
+    assert out.strip().splitlines() == [
+        "error: kitti_player: parameter lockstep_timout: unknown parameter of this node "
+        "(did you mean lockstep_timeout?)"
+    ]
+    assert bag.is_dir()  # opened by the recorder, empty
+    second = _launch(kitti_tracking_root, bag, cwd=tmp_path)
+    out = second.communicate(timeout=180)[0]
+    assert second.returncode == 0, out
+    assert bag_counts(bag).get(graph.TRACKS) == FRAMES_0005
+    runs = sorted((tmp_path / "output" / "logs").iterdir())
+    assert len(runs) == 2, runs
+    assert "lockstep_timout" in (runs[0] / "kitti_player.log").read_text()
+    for log in runs[1].glob("*.log"):
+        assert "lockstep_timout" not in log.read_text(), log
+    assert "replaced an empty bag" in (runs[1] / "bag_recorder.log").read_text()
+    written = (runs[1] / "parameters.yaml").read_text()  # this run's exact parameters
+    assert "/vehicle_tracker:" in written and "min_hits: 3" in written
+
+
+def test_two_graphs_on_one_domain_without_namespaces_are_caught(kitti_tracking_root, tmp_path):
+    """Two graphs on one ROS domain, neither in its own namespace: each graph's nodes take the
+    other's frames too. The launchers warn, a lockstep player gets two answers for its frames
+    and fails the run naming the cause, and `evaluate bag` refuses every bag, which holds both
+    runs (before: both ran to the end and `evaluate bag` gave MOTA 9.8 without a word)."""
+    procs = {}
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        procs[name] = _launch(kitti_tracking_root, tmp_path / f"bag_{name}", cwd=tmp_path / name)
+    outs = {name: p.communicate(timeout=240)[0] for name, p in procs.items()}
+    failed = [n for n, p in procs.items() if p.returncode == 1]
+    assert failed, outs
+    for name in failed:
+        assert (
+            "error: node 'kitti_player' died (exit code 1): kitti_player: /vehicles/tracks: "
+            in (outs[name])
+        )
+        assert "another graph publishes on this ROS domain" in outs[name]
+    for name in procs:
+        bag = tmp_path / f"bag_{name}"
+        result = subprocess.run(
+            [sys.executable, "-m", "eval_node.cli", "bag", str(bag)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert result.returncode == 2, (name, result.stdout, result.stderr, outs)
+        assert f"error: {bag}: mixes more than one run" in result.stderr

@@ -253,3 +253,19 @@ def test_frame_prefetcher_close_stops_a_running_preload():
     pre.close()
     assert time.monotonic() - t0 < 1.0
     assert pre.preloaded and pre.preload_result()[0] < 10
+
+
+def test_lockstep_answers_reveal_a_second_graph():
+    """One answer per published frame: a second answer for a stamp, or one for a frame this
+    player never published, is another graph's tracker on the lockstep topic."""
+    from kitti_player_node.playback import LockstepAnswers
+
+    answers = LockstepAnswers(keep=3)
+    for stamp in (10, 20, 30):
+        answers.published(stamp)
+    assert answers.answer(10) is None and answers.answer(20) is None
+    assert "a second answer for the frame stamped" in answers.answer(20)
+    assert "a frame this player did not publish" in answers.answer(25)
+    answers.published(40)  # 10 is forgotten; an answer older than what is kept is not judged
+    assert answers.answer(5) is None
+    assert answers.answer(40) is None

@@ -249,12 +249,16 @@ def test_main_replays_into_graph_and_rejects_bad_input(rclpy_context, tmp_path, 
 
     argv = [str(bag), "--topics", "/chatter", "--rate", "0", "--wait-for-subscribers", "1"]
     want = [m.data for m in msgs if m.topic == "/chatter"]
-    assert _main_delivers(rclpy_context, argv, "/chatter", "std_msgs/msg/String") == want
+    assert _main_delivers(rclpy_context, argv, "/chatter", "std_msgs/msg/String", want) == want
 
 
-def _main_delivers(context, argv: list[str], topic: str, type_name: str) -> list[bytes]:
+def _main_delivers(
+    context, argv: list[str], topic: str, type_name: str, want: list[bytes]
+) -> list[bytes]:
     """Run bag_player's main(argv) in a thread (its own context) with a raw subscriber on
-    ``topic`` in ``context``; returns what arrived once main() returned 0."""
+    ``topic`` in ``context``; returns what arrived once main() returned 0 (main waits until
+    the reliable subscriber acknowledged everything, so the executor is only spun until
+    ``len(want)`` messages were taken, or 10 s)."""
     from kitti_player_node.bag_player import main
     from rclpy.executors import SingleThreadedExecutor
 
@@ -266,7 +270,7 @@ def _main_delivers(context, argv: list[str], topic: str, type_name: str) -> list
     thread.start()
     try:
         _spin_until(ex, lambda: not thread.is_alive(), 30)
-        _spin_until(ex, lambda: False, 0.3)  # the last messages
+        _spin_until(ex, lambda: len(got) >= len(want), 10)
         thread.join(5)
         assert result.get("rc") == 0
         return [d for _, d in got]
@@ -290,7 +294,7 @@ def test_readme_remap_command_line(rclpy_context, tmp_path):
     argv += ["--topics", "/vehicles/tracks"]
     want = [m.data for m in msgs if m.topic == "/vehicles/tracks"]
     type_name = "stereo_vehicle_msgs/msg/TrackedVehicleArray"
-    assert _main_delivers(rclpy_context, argv, "/replayed/tracks", type_name) == want
+    assert _main_delivers(rclpy_context, argv, "/replayed/tracks", type_name, want) == want
 
 
 def test_ready_to_play_policy():
@@ -303,10 +307,17 @@ def test_ready_to_play_policy():
     # a topic nobody subscribes to: wait for discovery, then go
     assert not ready_to_play({"/a": 1, "/b": 0}, {"/a": 1, "/b": 0}, 2.9, 3.0)
     assert ready_to_play({"/a": 1, "/b": 0}, {"/a": 1, "/b": 0}, 3.0, 3.0)
+    # the default wait covers two of Fast DDS's default 3 s announcement periods
+    from kitti_player_node.bag_player import DISCOVERY_TIME
+
+    assert DISCOVERY_TIME > 2 * 3.0
 
 
-def _timed_bag(tmp_path, n: int = 20, period_ns: int = 100_000_000) -> tuple[Path, list[bytes]]:
-    """``n`` String messages on /chatter, ``period_ns`` apart, and one on /unheard."""
+def _timed_bag(
+    tmp_path, n: int = 20, period_ns: int = 100_000_000, unheard: bool = True
+) -> tuple[Path, list[bytes]]:
+    """``n`` String messages on /chatter, ``period_ns`` apart, and (``unheard``) one on
+    /unheard."""
     from rclpy.serialization import serialize_message
     from std_msgs.msg import String
 
@@ -315,7 +326,8 @@ def _timed_bag(tmp_path, n: int = 20, period_ns: int = 100_000_000) -> tuple[Pat
         BagMessage("/chatter", "std_msgs/msg/String", T0 + i * period_ns, d)
         for i, d in enumerate(data)
     ]
-    msgs.append(BagMessage("/unheard", "std_msgs/msg/String", T0, data[0]))
+    if unheard:
+        msgs.append(BagMessage("/unheard", "std_msgs/msg/String", T0, data[0]))
     return _write_rosbag2(tmp_path / "timed", sorted(msgs, key=lambda m: m.timestamp_ns)), data
 
 
@@ -333,17 +345,39 @@ def _player_process(bag, *extra):
     )
 
 
+def _collect(proc, lines: list[str]) -> threading.Thread:
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+    reader.start()
+    return reader
+
+
+def _wait_for_line(lines: list[str], text: str, proc, timeout: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not any(text in line for line in lines):
+        assert time.monotonic() < deadline and proc.poll() is None, "".join(lines)
+        time.sleep(0.02)
+
+
+def _stop(*procs) -> None:
+    for proc in procs:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 @pytest.mark.parametrize("late", [False, True])
 def test_default_replay_loses_nothing_to_a_running_subscriber(rclpy_context, tmp_path, late):
     """A player process at rate 1.0 with default options delivers every message to a subscriber
-    that runs before it starts (late=False) or whose subscription appears 0.6 s after the player
-    began waiting (late=True: a slow discovery; without waiting the first messages are lost);
-    /unheard has no subscriber and does not hold the replay back for ever."""
+    that runs before it starts (late=False) or whose subscription appears once the player is
+    waiting (late=True: its participant runs before, the subscription comes during the wait);
+    the player says it matched /chatter before playing, and /unheard, which nobody subscribes
+    to, holds the replay back only for the discovery wait."""
     from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import String
 
     bag, data = _timed_bag(tmp_path)
-    from rclpy.node import Node
-
     ex = SingleThreadedExecutor(context=rclpy_context)
     # this process takes part in the graph before the player starts (its participant exists)
     anchor = Node("replay_test_anchor", context=rclpy_context)
@@ -353,31 +387,74 @@ def test_default_replay_loses_nothing_to_a_running_subscriber(rclpy_context, tmp
         ex.add_node(sub)
     proc = _player_process(bag)
     lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
-    reader.start()
+    reader = _collect(proc, lines)
     try:
         if late:
-            deadline = time.monotonic() + 20
-            while not any("waiting up to" in line for line in lines):
-                assert time.monotonic() < deadline and proc.poll() is None, "".join(lines)
-                time.sleep(0.02)
-            time.sleep(0.6)
+            _wait_for_line(lines, "waiting up to", proc)
             sub, got = _raw_subscriber(rclpy_context, {"/chatter": "std_msgs/msg/String"})
             ex.add_node(sub)
-        _spin_until(ex, lambda: len(got) == len(data) and proc.poll() is not None, 30)
+        _spin_until(ex, lambda: len(got) == len(data) and proc.poll() is not None, 40)
         assert proc.wait(10) == 0
         reader.join(5)
-        from rclpy.serialization import deserialize_message
-        from std_msgs.msg import String
-
         texts = [deserialize_message(d, String).data for _, d in got]  # (DDS pads the CDR)
         assert texts == [f"m{i}" for i in range(len(data))], "".join(lines)
-        assert any("no subscriber on /unheard" in line for line in lines)
+        log = "".join(lines)
+        assert "subscribers matched after" in log and "/chatter (1)" in log, log
+        assert log.index("/chatter (1)") < log.index("playing ")
+        assert "no subscriber on /unheard; playing anyway" in log
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        _stop(proc)
         ex.shutdown()
         anchor.destroy_node()
         if sub is not None:
             sub.destroy_node()
+
+
+def test_replay_waits_for_a_subscriber_that_announces_itself_late(tmp_path):
+    """Issue #35's failure, made deterministic: a subscriber process runs before the player, and
+    its DDS participant announces itself every 6 s instead of Fast DDS's default 3 s (as a
+    loaded machine delays the 3 s announcements). A running participant answers a new one only
+    with its next periodic announcement, so the player is told of the subscriber 3-5 s after it
+    starts (the former 3 s discovery wait logged 'no subscriber on /chatter; playing anyway' and
+    the subscriber got nothing); with default options every message must arrive, in order."""
+    import contextlib
+    import os
+    import subprocess
+    import sys
+
+    project_profile = Path(os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"]).read_text()
+    anchor = "<useBuiltinTransports>false</useBuiltinTransports>"
+    assert anchor in project_profile
+    slow = project_profile.replace(
+        anchor,
+        anchor + "<builtin><discovery_config><leaseAnnouncement><sec>6</sec></leaseAnnouncement>"
+        "</discovery_config></builtin>",
+    )
+    (tmp_path / "slow.xml").write_text(slow)
+    bag, data = _timed_bag(tmp_path, n=10, unheard=False)
+    env = dict(os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=str(tmp_path / "slow.xml"))
+    listener = subprocess.Popen(
+        [sys.executable, str(Path(__file__).with_name("raw_listener.py")), "/chatter", "10"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    heard: list[str] = []
+    player = None
+    try:
+        _collect(listener, heard)
+        _wait_for_line(heard, "ready", listener)
+        player = _player_process(bag)
+        lines: list[str] = []
+        _collect(player, lines)
+        assert player.wait(40) == 0, "".join(lines)
+        with contextlib.suppress(subprocess.TimeoutExpired):  # all acknowledged: seconds at most
+            listener.wait(10)
+        _stop(listener)
+        log = "".join(lines)
+        got = [line.split("heard: ", 1)[1].strip() for line in heard if "heard: " in line]
+        assert got == [f"m{i}" for i in range(10)], log
+        assert "subscribers matched after" in log and "no subscriber" not in log, log
+    finally:
+        _stop(player, listener)

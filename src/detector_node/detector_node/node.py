@@ -21,9 +21,10 @@ from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import kitti_objects_from_message, stamp_ns
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_size, image_to_rgb
-from vehicle_common.image_transport import subscribe_image
+from vehicle_common.image_transport import ImageTransportParameters, subscribe_image
 from vehicle_common.node_parameters import (
     ParameterError,
+    check_overrides,
     declare_config,
     param,
 )
@@ -78,6 +79,8 @@ class VehicleDetectorNode(Node):
         apply_process_settings(self)  # first: the threads started below inherit it
         self.trace = frame_tracer(NODE_NAME)  # per-frame trace points (VEHICLE_TRACE_DIR)
         self.params = p = declare_config(self, DetectorParameters)
+        declare_config(self, ImageTransportParameters)  # read by subscribe_image below
+        check_overrides(self)  # every parameter is declared: refuse one the node has not
         self.backend = p.backend
         types = tuple(p.vehicle_types)
         self.frames = FrameCounter()  # images in, detection arrays out, images skipped

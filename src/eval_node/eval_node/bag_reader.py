@@ -27,6 +27,7 @@ from vehicle_common.odometry import Pose
 from vehicle_common.odometry_messages import TransformTree
 from vehicle_common.orientation_bins import bin_to_alpha
 
+from eval_node.repeated_stamps import mixed_runs_hint
 from vehicle_common import topics
 
 #: the graph's topics as recorded without a namespace (see :func:`bag_namespace`)
@@ -201,6 +202,7 @@ def read_run(
     msgs: dict[str, dict[int, tuple[object, int]]] = {t: {} for t in name}
     P_left, image_size, info_seen = None, None, None
     transforms = TransformTree(history=10**9)  # every recorded stamp
+    repeated: dict[str, int] = {}  # topic -> stamps seen again (two runs in one bag)
     if not conns:
         reader.close()
         raise BagReadError(f"{path}: none of the pipeline's topics ({', '.join(sorted(wanted))})")
@@ -227,11 +229,19 @@ def read_run(
                     raise BagReadError(f"{path}: {conn.topic}: {exc}") from None
                 continue
             stamp = stamp_ns(msg.header)
+            if stamp in msgs[topic]:
+                repeated[topic] = repeated.get(topic, 0) + 1
             if topic == GT_TOPIC:
                 gts[stamp] = msg
             msgs[topic][stamp] = (msg, int(t_ns))
     finally:
         reader.close()
+    if repeated:
+        topic, n = max(repeated.items(), key=lambda kv: kv[1])
+        raise BagReadError(
+            f"{path}: mixes more than one run: {name[topic]} holds {n} stamp(s) more than once "
+            f"(one message per frame and stamp in a run); {mixed_runs_hint()}"
+        )
 
     sequence = ""
     frames: dict[int, RecordedFrame] = {}

@@ -46,6 +46,34 @@ class BagWriterError(RuntimeError):
     """A bag cannot be written (existing output, unknown message type...)."""
 
 
+def empty_bag_files(path: Path) -> list[Path] | None:
+    """The files of ``path`` when it is a bag folder that holds no message, as a recorder
+    leaves it when the graph's start failed (only its own ``<name>_<i>.mcap`` files and
+    ``metadata.yaml``; an empty folder too), else None: anything else, or a file that cannot
+    be read, counts as recorded data."""
+    import re
+
+    from vehicle_common.bag_files import BagError, open_reader
+
+    if not path.is_dir() or path.is_symlink():
+        return None
+    files = sorted(path.iterdir())
+    own = re.compile(rf"{re.escape(path.name)}_\d+\.mcap")
+    mcaps = [f for f in files if own.fullmatch(f.name) and f.is_file() and not f.is_symlink()]
+    if len(mcaps) + (path / "metadata.yaml").is_file() != len(files):
+        return None
+    if not mcaps:
+        return [] if not files else None  # an empty folder, or metadata.yaml alone
+    try:
+        reader = open_reader(path, warn=lambda _text: None)
+    except BagError:
+        return None
+    try:
+        return files if sum(c.msgcount for c in reader.connections) == 0 else None
+    finally:
+        reader.close()
+
+
 class BagWriter:
     """A rosbag2 (v9, MCAP) bag being written from serialized messages.
 
@@ -81,8 +109,19 @@ class BagWriter:
             raise BagWriterError(f"max_bag_size: {max_bag_size} < 0")
         if not flush_period >= 0:  # (NaN too)
             raise BagWriterError(f"flush_period: {flush_period} is not >= 0")
+        #: an existing bag at ``path`` without a single message (left by a start that failed)
+        #: was replaced; a bag that holds messages is never touched
+        self.replaced_empty = False
         if self.path.exists():
-            raise BagWriterError(f"{self.path}: exists already, not overwriting")
+            empty = empty_bag_files(self.path)
+            if empty is None:
+                raise BagWriterError(
+                    f"{self.path}: exists already and is not an empty bag, not overwriting"
+                )
+            for f in empty:
+                f.unlink()
+            self.path.rmdir()
+            self.replaced_empty = True
         self.compression = compression
         self.compression_mode = compression_mode if compression == "zstd" else ""
         self.max_bag_size = int(max_bag_size)

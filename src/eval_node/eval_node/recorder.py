@@ -23,18 +23,24 @@ import rclpy
 import rclpy.executors
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from vehicle_common.image_transport import SUBSCRIBER_TRANSPORTS
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
     ParameterError,
+    check_overrides,
     declare_config,
     param,
     parameter_error_line,
 )
-from vehicle_common.node_runtime import apply_process_settings
+from vehicle_common.node_runtime import apply_process_settings, init_rclpy
 
 from eval_node.bag_writer import COMPRESSION_MODES, BagWriter, BagWriterError
+from eval_node.repeated_stamps import (
+    FRAME_TOPICS,
+    RepeatedStamps,
+    header_stamp,
+    mixed_runs_hint,
+)
 from vehicle_common import topics as graph_topics
 
 NODE_NAME = "bag_recorder"
@@ -113,6 +119,7 @@ class BagRecorderNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         apply_process_settings(self)  # first: the threads started below inherit it
         p = declare_config(self, RecorderParameters)
+        check_overrides(self)  # every parameter is declared: refuse one the node has not
         self.output = p.output or default_output()
         # flush_period: a writer thread puts chunks on disk (fsync off the executor thread)
         self.writer = BagWriter(
@@ -122,6 +129,11 @@ class BagRecorderNode(Node):
             p.max_bag_size,
             flush_period=p.flush_period,
         )
+        if self.writer.replaced_empty:
+            self.get_logger().info(
+                f"bag {self.output}: replaced an empty bag (no message recorded) left there by "
+                "a start that failed"
+            )
         self.wanted = {
             self.resolve_topic_name(name): msgtype
             for name, msgtype in parse_topics(p.topics, p.include_images, p.image_transport).items()
@@ -142,6 +154,9 @@ class BagRecorderNode(Node):
         )
         self.subs = {}
         self._last_ns = 0
+        #: the per-frame topics (resolved) whose stamps must not repeat
+        self.frame_topics = {self.resolve_topic_name(t) for t in FRAME_TOPICS}
+        self.stamps = RepeatedStamps()
         self.discover()
         self.create_timer(p.discovery_period, self.discover)
         self.get_logger().info(f"bag {self.output}: waiting for {len(self.wanted)} topics")
@@ -155,14 +170,30 @@ class BagRecorderNode(Node):
             self.wanted.pop(topic, None)
             return
 
+        frame_topic = topic in self.frame_topics
+
         def callback(data: bytes, topic: str = topic) -> None:
             now = max(time.time_ns(), self._last_ns)
             self._last_ns = now
             self.writer.write(topic, data, now)
+            if frame_topic:
+                self._check_stamp(topic, data)
 
         qos = self.latched_qos if topic in self.latched else self.qos
         self.subs[topic] = self.create_subscription(cls, topic, callback, qos, raw=True)
         self.get_logger().info(f"recording {topic} [{msgtype}]")
+
+    def _check_stamp(self, topic: str, data: bytes) -> None:
+        """Warn (once per topic) when a frame's stamp arrives twice: another graph publishes
+        on this topic (:mod:`eval_node.repeated_stamps`)."""
+        stamp = header_stamp(bytes(data[:12]))
+        if stamp is None or not self.stamps.add(topic, stamp) or self.stamps.repeats[topic] > 1:
+            return
+        self.get_logger().warning(
+            f"{topic}: a second message stamped {stamp * 1e-9:.3f} s "
+            f"({self.count_publishers(topic)} publishers): this bag mixes runs and `evaluate "
+            f"bag` will refuse it; {mixed_runs_hint()}"
+        )
 
     def discover(self) -> None:
         pending = [t for t in self.wanted if t not in self.subs]
@@ -191,7 +222,8 @@ class BagRecorderNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the recorder until SIGINT/SIGTERM; exit code 2 for a bad parameter or output."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_rclpy(args, NODE_NAME):
+        return EXIT_BAD_PARAMETER
     try:
         node = BagRecorderNode()
     except ParameterError as exc:

@@ -7,9 +7,12 @@ converted is refused with one line. Original timing scaled by ``--rate`` (0 = as
 possible), optional topic selection, remapping (kitti2bag's topics onto the graph's: docs/bags.md)
 and looping. Reading, conversion and pacing live in :mod:`.bag_replay`.
 
-By default the replay starts once every topic's subscribers are matched (at most
-``--discovery-time`` seconds for topics nobody subscribes to), so that a subscriber already
-running gets every message; ``--immediate`` starts at once, as ``ros2 bag play`` does.
+By default the replay starts once every topic's subscribers are matched, so that a subscriber
+already running gets every message: at once when every topic has a matched subscriber, else
+after ``--discovery-time`` seconds (7: a running participant may announce itself only that late,
+see :data:`DISCOVERY_TIME`), and never before every subscriber the graph knows is matched.
+``--immediate`` starts at once, as ``ros2 bag play`` does (it loses what is published before its
+publishers are matched; its ``--delay`` is the fixed wait).
 """
 
 from __future__ import annotations
@@ -61,9 +64,12 @@ def _qos(topic: str) -> QoSProfile:
     return QOS
 
 
-#: Default longest wait for a subscriber on every topic [s]: above the 2.4 s that discovery of
-#: a running process was seen to take (Fast DDS, loopback, docs: ros2-from-pip notes).
-DISCOVERY_TIME = 3.0
+#: Default wait [s] for a subscriber on a topic that none is known to subscribe to. A running
+#: Fast DDS participant answers a newly started one only with its next periodic announcement
+#: (every 3 s by default): measured here, a running subscriber saw each new player exactly at
+#: its own 3.000 s ticks, so discovery took 0-3 s, and more than 3 s on a loaded machine (the
+#: former 3 s wait lost the first messages in 4 of 8 runs under load). Two periods and a second.
+DISCOVERY_TIME = 7.0
 
 
 class BagPlayerNode(Node):
@@ -91,16 +97,16 @@ class BagPlayerNode(Node):
             time.sleep(0.02)
         return False
 
-    def wait_for_matching(self, discovery_s: float, timeout_s: float) -> list[str]:
-        """Wait until :func:`ready_to_play` (or ``timeout_s``); returns the output topics that
-        still have no matched subscription."""
+    def wait_for_matching(self, discovery_s: float, timeout_s: float) -> dict[str, int]:
+        """Wait until :func:`ready_to_play` (or ``timeout_s``); returns the matched
+        subscriptions per output topic."""
         start = time.monotonic()
         while True:
             elapsed = time.monotonic() - start
             matched = {t: p.get_subscription_count() for t, p in self.pubs.items()}
             known = {t: self.count_subscribers(t) for t in self.pubs}
             if ready_to_play(matched, known, elapsed, discovery_s) or elapsed >= timeout_s:
-                return [t for t, n in matched.items() if n == 0]
+                return matched
             time.sleep(0.02)
 
     def wait_for_acks(self, timeout_s: float) -> bool:
@@ -129,7 +135,8 @@ def _parser() -> argparse.ArgumentParser:
         type=float,
         default=DISCOVERY_TIME,
         help="without --wait-for-subscribers: wait up to this long [s] for a subscriber on "
-        "every topic before playing (all subscribers the graph knows are always matched first)",
+        "every topic before playing (all subscribers the graph knows are always matched first; "
+        "a running DDS participant may announce itself only 3 s after this one starts)",
     )
     ap.add_argument(
         "--immediate",
@@ -200,9 +207,16 @@ def main(argv: list[str] | None = None) -> int:
                 f"waiting up to {args.discovery_time} s for a subscriber on each of "
                 f"{len(types)} topics (--immediate: start at once)"
             )
-            unmatched = node.wait_for_matching(args.discovery_time, args.wait_timeout)
-            if unmatched:
-                log.info(f"no subscriber on {', '.join(sorted(unmatched))}; playing anyway")
+            start = time.monotonic()
+            limit = max(args.wait_timeout, args.discovery_time)
+            matched = node.wait_for_matching(args.discovery_time, limit)
+            waited = time.monotonic() - start
+            heard = [f"{t} ({n})" for t, n in sorted(matched.items()) if n]
+            if heard:
+                log.info(f"subscribers matched after {waited:.1f} s: {', '.join(heard)}")
+            unheard = sorted(t for t, n in matched.items() if n == 0)
+            if unheard:
+                log.info(f"no subscriber on {', '.join(unheard)}; playing anyway")
         log.info(f"playing {args.bag}: {len(types)} topics at rate {args.rate}")
         while True:
             messages = iter_bag(args.bag, topics, remap)

@@ -216,8 +216,10 @@ def ready_to_play(
     ``matched``: subscriptions matched per output topic; ``known``: subscriptions the ROS graph
     knows per topic (discovery can know of one before its publisher has matched it). Ready when
     every known subscription is matched and every topic has one; after ``discovery_s`` seconds
-    topics nobody subscribes to no longer hold the start back (discovery of a running process
-    takes up to ~2.4 s with Fast DDS on loopback, docs: ros2-from-pip notes)."""
+    topics nobody subscribes to no longer hold the start back. A running Fast DDS participant
+    answers a newcomer only with its next periodic announcement (every 3 s by default), so a
+    subscriber that runs before the replay can stay unknown for that long, and longer on a loaded
+    machine: ``discovery_s`` must cover it (``bag_player.DISCOVERY_TIME``)."""
     if any(matched.get(t, 0) < n for t, n in known.items()):
         return False
     return all(n > 0 for n in matched.values()) or elapsed_s >= discovery_s

@@ -17,7 +17,6 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, TrackedVehicleArray
@@ -38,6 +37,7 @@ from vehicle_common.kitti import KittiFormatError, TrackingSequence, check_stere
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
     ParameterError,
+    check_overrides,
     declare_config,
     param,
     parameter_error_line,
@@ -47,6 +47,7 @@ from vehicle_common.node_runtime import (
     NodeHealth,
     StopRequest,
     apply_process_settings,
+    init_rclpy,
     reports_from_message,
     spin_until_stopped,
 )
@@ -56,6 +57,7 @@ from vehicle_common import graph_readiness, topics
 from .playback import (
     FrameEvent,
     FramePrefetcher,
+    LockstepAnswers,
     PlaybackScheduler,
     add_snr_noise,
     frame_noise_rng,
@@ -131,6 +133,7 @@ class KittiPlayerNode(Node):
         apply_process_settings(self)  # first: the threads started below inherit it
         self.trace = frame_tracer(NODE_NAME)  # per-frame trace points (VEHICLE_TRACE_DIR)
         self.params = p = dataclasses.asdict(declare_config(self, PlayerParameters))
+        check_overrides(self)  # every parameter is declared: refuse one the node has not
         if not p["dataset_root"]:
             raise ParameterError("dataset_root", "not set")
         self.sequence = TrackingSequence.open(p["dataset_root"], p["sequence"])
@@ -174,6 +177,9 @@ class KittiPlayerNode(Node):
             )
         self.done = False
         self.error: str | None = None
+        #: the run cannot go on (another graph on the lockstep topic): main() exits 1
+        self.fatal: str | None = None
+        self.answers = LockstepAnswers()  # one answer per published frame
         self._started = False
         self._summary_logged = False
         self._last_wait_log = 0.0
@@ -240,6 +246,16 @@ class KittiPlayerNode(Node):
 
     def _on_lockstep(self, msg: TrackedVehicleArray) -> None:
         stamp = stamp_ns(msg.header)
+        problem = self.answers.answer(stamp)
+        if problem is not None and self.fatal is None:
+            topic = self.resolve_topic_name(self.params["lockstep_topic"])
+            self.fatal = (
+                f"{NODE_NAME}: {topic}: {problem}: another graph publishes on this ROS domain "
+                f"({self.count_publishers(topic)} publishers on {topic}), and the runs mix; "
+                "give each graph its own namespace (--namespace) or ROS_DOMAIN_ID"
+            )
+            self.done = True
+            return
         if self.scheduler.acknowledge(stamp):
             self._tick()
 
@@ -300,6 +316,7 @@ class KittiPlayerNode(Node):
         else:
             try:
                 self._publish(event)
+                self.answers.published(event.stamp_ns)
             except KittiFormatError as exc:
                 self.error = str(exc)  # main() prints it as the one error line
                 self.done = True
@@ -379,16 +396,21 @@ class KittiPlayerNode(Node):
             self.get_logger().info(line)
 
     def flush(self, timeout_s: float = 2.0) -> None:
-        """Wait until subscribers acknowledged everything published (reliable QoS)."""
+        """Wait until subscribers acknowledged everything published (reliable QoS), at most
+        ``timeout_s`` in all (a frozen subscriber acknowledges nothing: waiting that long for
+        each publisher made the player's stop take 4 x 2 s)."""
+        deadline = time.monotonic() + timeout_s
         for pub in self.publishers_list:
-            pub.wait_for_all_acked(Duration(seconds=timeout_s))
+            left = max(0.0, deadline - time.monotonic())
+            pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
 
 
 def main(args: list[str] | None = None) -> int:
     """Console script ``kitti_player``; returns the exit code (2 for a bad dataset/parameter).
     SIGINT/SIGTERM: no frame is published after the signal, the frames already published are
     flushed to their subscribers, and the process exits with 0."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_rclpy(args, NODE_NAME):
+        return EXIT_BAD_PARAMETER
     stop = StopRequest.install()
     node = None
     try:
@@ -401,6 +423,9 @@ def main(args: list[str] | None = None) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         spin_until_stopped(node, stop, node.health, on_stop=[node.flush], done=lambda: node.done)
+        if node.fatal is not None:
+            print(f"error: {node.fatal}", file=sys.stderr)
+            return 1
         if node.error is not None:
             print(f"error: {node.error}", file=sys.stderr)
             return 2

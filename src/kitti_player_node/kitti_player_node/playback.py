@@ -105,6 +105,39 @@ class PlaybackStats:
     lockstep_timeouts: int = 0
 
 
+class LockstepAnswers:
+    """One answer (the tracks) per published frame, from the graph's one tracker: a second
+    answer for a stamp, or an answer for a stamp this player never published, means that
+    another graph publishes on the lockstep topic (two graphs on one ROS domain without their
+    own namespaces, whose frames and results then mix). The last ``keep`` published stamps are
+    remembered; an answer older than those is not judged."""
+
+    def __init__(self, keep: int = 1000) -> None:
+        self._published: deque[int] = deque()
+        self._known: set[int] = set()
+        self._answered: set[int] = set()
+        self._keep = keep
+
+    def published(self, stamp_ns: int) -> None:
+        self._published.append(stamp_ns)
+        self._known.add(stamp_ns)
+        while len(self._published) > self._keep:
+            old = self._published.popleft()
+            self._known.discard(old)
+            self._answered.discard(old)
+
+    def answer(self, stamp_ns: int) -> str | None:
+        """None for the first answer to a published frame, else what is wrong with it."""
+        if stamp_ns in self._answered:
+            return f"a second answer for the frame stamped {stamp_ns * 1e-9:.3f} s"
+        if stamp_ns not in self._known:
+            if self._published and stamp_ns < self._published[0]:
+                return None  # older than what is remembered
+            return f"an answer for a frame this player did not publish ({stamp_ns * 1e-9:.3f} s)"
+        self._answered.add(stamp_ns)
+        return None
+
+
 class PlaybackScheduler:
     """Decides when which frame is due.
 

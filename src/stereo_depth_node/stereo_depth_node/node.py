@@ -30,9 +30,10 @@ from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
-from vehicle_common.image_transport import subscribe_image
+from vehicle_common.image_transport import ImageTransportParameters, subscribe_image
 from vehicle_common.node_parameters import (
     ParameterError,
+    check_overrides,
     declare_config,
     param,
 )
@@ -181,6 +182,8 @@ class StereoDepthNode(Node):
         #: the node with its one-line error and exit code 2)
         self.fatal_error: ParameterError | None = None
         p = declare_config(self, StereoNodeParameters)
+        declare_config(self, ImageTransportParameters)  # read by subscribe_image below
+        check_overrides(self)  # every parameter is declared: refuse one the node has not
         self.publish_disparity = p.publish_disparity
         self.publish_points = p.publish_points
         self.points_decimation = p.points_decimation

@@ -32,6 +32,7 @@ from vehicle_common.frame_messages import stamp_ns
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.node_parameters import (
     ParameterError,
+    check_overrides,
     check_value,
     declare_config,
 )
@@ -67,6 +68,7 @@ class VehicleTrackerNode(Node):
         cam = check_value(
             "camera_matrix", self.declare_parameter("camera_matrix", [0.0] * 12).value, [0.0]
         )
+        check_overrides(self)  # every parameter is declared: refuse one the node has not
         if len(cam) != 12:
             raise ParameterError("camera_matrix", f"expected 12 numbers, got {len(cam)}")
         tracks_frame = self.declare_parameter("tracks_frame", "").value

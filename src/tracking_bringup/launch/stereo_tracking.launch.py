@@ -20,8 +20,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from tracking_bringup.environment import graph_environment
 
-from tracking_bringup import graph
-from vehicle_common import topics
+from tracking_bringup import graph, parameter_file
 
 
 def _environment(share: str) -> dict:
@@ -31,21 +30,35 @@ def _environment(share: str) -> dict:
 
 
 def _graph_nodes(context, share: str):
-    """The graph's Node actions for the launch arguments' values."""
+    """The graph's Node actions for the launch arguments' values. The parameter file is read
+    and checked once (``tracking_bringup.parameter_file``) and each node gets its section under
+    its fully qualified name, so a graph in a namespace runs with the file's values too (a
+    ``kitti_player:`` section is otherwise read by ``/kitti_player`` only)."""
     params_file = LaunchConfiguration("params_file").perform(context)
-    namespace = topics.normalise_namespace(LaunchConfiguration("namespace").perform(context))
+    namespace = parameter_file.check_namespace(LaunchConfiguration("namespace").perform(context))
     record = LaunchConfiguration("record").perform(context).lower() in ("true", "1")
     env = _environment(share)
     nodes = [n for n in graph.PIPELINE if record or not n.optional]
+    params = parameter_file.node_parameters(
+        params_file, [n.name for n in graph.PIPELINE], namespace
+    )
+    resolved = str(
+        parameter_file.write_node_parameters(
+            {n.name: params[n.name] for n in nodes},
+            namespace,
+            parameter_file.temporary_path("parameters_"),
+            source=params_file,
+        )
+    )
     actions = []
-    for spec, extra in graph.plan(nodes, params_file):
+    for spec, extra in graph.plan(nodes, params):
         actions.append(
             Node(
                 package=spec.package,
                 executable=spec.executable,
                 name=spec.name,
                 namespace=namespace,
-                parameters=[params_file, extra] if extra else [params_file],
+                parameters=[resolved, extra] if extra else [resolved],
                 additional_env=env,
                 output="screen",
             )

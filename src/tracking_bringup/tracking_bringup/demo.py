@@ -169,6 +169,10 @@ def main(argv: list[str] | None = None) -> int:
         return _error("--frames: must be >= 0")
     if not Path(args.params).is_file():
         return _error(f"{args.params}: parameter file not found")
+    try:
+        graph.file_parameters(args.params)  # one line for a file the launcher cannot use
+    except ValueError as exc:
+        return _error(str(exc))
 
     from vehicle_common.kitti import KittiFormatError
     from vehicle_common.output_paths import make_output_dir
@@ -212,9 +216,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         # the progress display's subscription is an edge the player waits for too
         processes = graph_processes(
-            graph.PIPELINE, args.params, overrides, extra_subscriptions={graph.TRACKS: 1}
+            graph.PIPELINE,
+            args.params,
+            overrides,
+            extra_subscriptions={graph.TRACKS: 1},
+            params_out=out / "logs" / "parameters.yaml",
         )
-    except LaunchError as exc:
+    except (LaunchError, ValueError) as exc:
         return _error(str(exc))
 
     print(
@@ -231,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
         launcher.wait(until_finished=True)
     except LaunchError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 1
+        return exc.exit_code  # 2: a node refused its parameters or input (its one line)
     except KeyboardInterrupt:
         print("[demo] interrupted", file=sys.stderr)
         return 130

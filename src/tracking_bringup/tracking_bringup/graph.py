@@ -12,12 +12,14 @@ drift apart. Topic names are relative; both launchers take a namespace that move
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from vehicle_common.graph_readiness import format_topic_counts
 from vehicle_common.image_transport import subscriber_transport
 
+from tracking_bringup import parameter_file
 from vehicle_common import topics
 
 
@@ -211,19 +213,27 @@ def node_overrides(overrides, node: str) -> list[str]:
     return [ov.split(".", 1)[1] for ov in overrides if ov.startswith(node + ".")]
 
 
-def parameter_value(params_file, overrides: list[str], node: str, name: str, default):
+def file_parameters(params, namespace: str = "") -> dict[str, dict]:
+    """``{node: {parameter: value}}`` of the graph's nodes: ``params`` itself when it is such
+    a mapping already, else the parameter file ``params`` as the nodes read it in
+    ``namespace`` (:func:`parameter_file.node_parameters`; {} per node for None or a missing
+    file)."""
+    if isinstance(params, Mapping):
+        return {n.name: dict(params.get(n.name, {})) for n in PIPELINE}
+    if params and Path(params).is_file():
+        return parameter_file.node_parameters(params, [n.name for n in PIPELINE], namespace)
+    return {n.name: {} for n in PIPELINE}
+
+
+def parameter_value(params, overrides: list[str], node: str, name: str, default):
     """A node parameter's value: the last ``name:=value`` in ``overrides`` (that node's
-    ``-p`` overrides), else the parameter file's value, else ``default``."""
+    ``-p`` overrides), else the parameter file's value (``params``: a file, or its
+    :func:`file_parameters`), else ``default``."""
     for ov in reversed(overrides):
         key, _, value = ov.partition(":=")
         if key == name:
             return value.strip("'\"")
-    if params_file and Path(params_file).is_file():
-        import yaml
-
-        data = yaml.safe_load(Path(params_file).read_text()) or {}
-        return data.get(node, {}).get("ros__parameters", {}).get(name, default)
-    return default
+    return file_parameters(params).get(node, {}).get(name, default)
 
 
 def _lockstep_window(value) -> int | None:
@@ -245,7 +255,8 @@ def plan(
 ) -> list[tuple[NodeSpec, dict[str, str | int]]]:
     """The graph to start: each node (the detector's subscriptions following its ``backend``
     parameter, the player's its ``lockstep`` parameter, from ``overrides[node]`` or the
-    parameter file) with the parameters the launchers set on it:
+    parameter file ``params_file``, a path or its :func:`file_parameters`) with the parameters
+    the launchers set on it:
 
     - a source's ``wait_for_topics``: every edge of the graph (:func:`edge_counts`), counted
       over ``graph_nodes`` (the whole graph, also the nodes other hosts run; default ``nodes``)
@@ -258,9 +269,10 @@ def plan(
       ``image_transport`` ("raw" | "png" | "jpeg") says (unless overridden), and the image
       edges on the matching topics."""
     overrides = overrides or {}
+    params = file_parameters(params_file)
 
     def value(node: NodeSpec, name: str, default):
-        return parameter_value(params_file, overrides.get(node.name, []), node.name, name, default)
+        return parameter_value(params, overrides.get(node.name, []), node.name, name, default)
 
     backend = str(value(DETECTOR, "backend", "cnn"))
     lockstep = as_bool(value(PLAYER, "lockstep", False))

@@ -33,8 +33,7 @@ from vehicle_common.image_transport import PLAYER_TRANSPORTS
 
 from tracking_bringup import graph
 from tracking_bringup.dds import DISCOVERY_MODES, MULTIHOST_SETTLE_TIME, DiscoverySettings
-
-LAUNCH_SECTION = "stereo_tracking_launch"
+from tracking_bringup.parameter_file import LAUNCH_SECTION, ParameterFileError, read_file
 
 
 class HostProfileError(ValueError):
@@ -53,12 +52,10 @@ class HostProfile:
 
 def _launch_section(params_file: str | Path) -> dict:
     """The launcher's section (``stereo_tracking_launch.ros__parameters``) of the file."""
-    import yaml
-
     try:
-        data = yaml.safe_load(Path(params_file).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise HostProfileError(f"{params_file}: {exc}") from None
+        data = read_file(params_file)
+    except ParameterFileError as exc:
+        raise HostProfileError(str(exc)) from None
     return (data.get(LAUNCH_SECTION) or {}).get("ros__parameters") or {}
 
 

@@ -6,6 +6,10 @@ subscriptions and publications are visible in the ROS graph; data sources such a
 started only once the rest of the graph is up, and themselves wait until every edge of the graph
 is matched, see ``graph.edge_counts``), and exits non-zero naming the node when one dies.
 
+A node that stops making progress while the graph runs (no report on /diagnostics, or a frame
+in process without progress, for ``stall_timeout`` s: a frozen or hung process) ends the run
+with exit code 1 naming it, and is killed (``ProgressWatch``).
+
 Stopping (end of the sequence, Ctrl-C or SIGTERM): the sources are stopped first, the frames in
 flight are let through the graph (until every node reports on /diagnostics that it holds no
 frame, bounded by ``drain_timeout``), then the other nodes get SIGINT in data-flow order (then
@@ -31,10 +35,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from vehicle_common.graph_readiness import NodeReport, graph_quiescent
+from vehicle_common.graph_readiness import NodeReport, ProgressWatch, graph_quiescent
 from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
 
-from tracking_bringup import graph, hosts
+from tracking_bringup import graph, hosts, parameter_file
 from tracking_bringup.environment import PARAMS_FILE, graph_environment
 from vehicle_common import topics
 
@@ -42,12 +46,19 @@ _PR_SET_PDEATHSIG = 1
 _CLEAN_EXIT_CODES = {0, -signal.SIGINT, 128 + signal.SIGINT, -signal.SIGTERM, 128 + signal.SIGTERM}
 
 
-class LaunchError(RuntimeError):
-    """The graph could not be started, or a node died. ``node`` names it when known."""
+#: a node's (and the launcher's) exit code for a bad parameter, argument or input file
+EXIT_BAD_INPUT = 2
 
-    def __init__(self, message: str, node: str | None = None):
+
+class LaunchError(RuntimeError):
+    """The graph could not be started, or a node died. ``node`` names it when known;
+    ``exit_code`` is the launcher's: 1, or 2 when the node refused its parameters or input
+    (it exited with code 2 and said why in one line)."""
+
+    def __init__(self, message: str, node: str | None = None, exit_code: int = 1):
         super().__init__(message)
         self.node = node
+        self.exit_code = exit_code
 
 
 class LaunchInterrupted(LaunchError):
@@ -119,6 +130,8 @@ class GraphLauncher:
     """Runs a set of processes as one graph. Use as a context manager or call
     :meth:`start`, :meth:`wait` and :meth:`shutdown`."""
 
+    _observers = 0  # observer nodes made in this process
+
     def __init__(
         self,
         specs: Sequence[ProcessSpec],
@@ -129,6 +142,7 @@ class GraphLauncher:
         echo: bool = False,
         staged: bool = True,
         drain_timeout: float = 5.0,
+        stall_timeout: float = 5.0,
     ):
         names = [s.name for s in specs]
         if len(set(names)) != len(names):
@@ -150,6 +164,12 @@ class GraphLauncher:
         self.reports: dict[str, NodeReport] = {}
         #: whether the last shutdown let the frames in flight drain (None: nothing to drain)
         self.drained: bool | None = None
+        #: nodes that stop making progress (silent on /diagnostics, or busy without progress,
+        #: for ``stall_timeout`` s) end the run (:meth:`wait`); they are killed at shutdown
+        self.progress = ProgressWatch(stall_timeout)
+        self.stalled: dict[str, str] = {}
+        #: topics of this graph that another publisher outside it also publishes on (once ready)
+        self.foreign: list[str] = []
         self._ready = False
         self._stopping = False
         self._observer = None
@@ -183,6 +203,7 @@ class GraphLauncher:
                 for spec in self.specs:
                     self._spawn(spec)
                 self._wait_ready(self.specs)
+            self.foreign = self._foreign_publishers()
             self._ready = True
         except BaseException:
             self.shutdown()
@@ -193,7 +214,7 @@ class GraphLauncher:
         code 0 (if ``until_finished``) or when :meth:`request_stop` was called; raises
         :class:`LaunchError` naming the node when a process dies."""
         while not self._stopping:
-            for name, run in self.running.items():
+            for run in self.running.values():
                 code = run.proc.poll()
                 if code is None:
                     continue
@@ -201,12 +222,25 @@ class GraphLauncher:
                     if until_finished:
                         return
                     continue
-                raise LaunchError(
-                    f"node '{name}' died (exit code {code}); log: {run.log_path}\n"
-                    + _tail(run.log_path),
-                    node=name,
-                )
+                raise _death(run, code, "died")
             self.spin_reports(poll)
+            self._check_progress()
+
+    def _check_progress(self) -> None:
+        """Raise LaunchError naming a running node that stopped making progress (a frozen
+        process, a hung callback): see :class:`ProgressWatch`."""
+        alive = [n for n, r in self.running.items() if r.proc.poll() is None]
+        stalled = self.progress.stalled(time.monotonic(), alive)
+        if not stalled:
+            return
+        self.stalled = stalled
+        name, why = next(iter(stalled.items()))
+        run = self.running[name]
+        raise LaunchError(
+            f"node '{name}' stopped making progress: {why} (process {run.proc.pid}: "
+            f"{_process_state(run.proc.pid)}); it is killed; log: {run.log_path}",
+            node=name,
+        )
 
     def request_stop(self, *_args) -> None:
         """Ask :meth:`wait` to return (signal handler)."""
@@ -240,7 +274,8 @@ class GraphLauncher:
 
     def _spawn(self, spec: ProcessSpec) -> None:
         log_path = self.log_dir / f"{spec.name}.log"
-        log_file = open(log_path, "ab", buffering=0)  # noqa: SIM115 (closed in shutdown)
+        # this run's log only: a death report never quotes an earlier run's lines
+        log_file = open(log_path, "wb", buffering=0)  # noqa: SIM115 (closed in shutdown)
         log_file.write(f"$ {' '.join(spec.argv)}\n".encode())
         proc = subprocess.Popen(
             spec.argv,
@@ -257,6 +292,10 @@ class GraphLauncher:
         proc = run.proc
         if proc.poll() is not None:
             return proc.returncode
+        if run.spec.name in self.stalled:  # a frozen process takes no SIGINT: no drain
+            with contextlib.suppress(ProcessLookupError):
+                proc.kill()
+            return proc.wait()
         for sig, timeout in (
             (signal.SIGINT, self.stop_timeout),
             (signal.SIGTERM, 5.0),
@@ -297,7 +336,9 @@ class GraphLauncher:
             live = {
                 n: r
                 for n, r in self.reports.items()
-                if n in self.running and self.running[n].proc.poll() is None
+                if n in self.running
+                and self.running[n].proc.poll() is None
+                and n not in self.stalled
             }
             if not live:
                 return None
@@ -325,6 +366,7 @@ class GraphLauncher:
             name = self._report_names.get(report.node)  # this graph's nodes, by short name
             if name is not None:
                 self.reports[name] = report
+                self.progress.seen(name, report, time.monotonic())
 
     def _open_observer(self) -> None:
         import rclpy
@@ -339,8 +381,11 @@ class GraphLauncher:
         )
         self._context = Context()
         rclpy.init(context=self._context, args=[])
+        GraphLauncher._observers += 1  # one name per observer, also with two in one process
         self._observer = rclpy.create_node(
-            f"graph_launcher_{os.getpid()}", context=self._context, start_parameter_services=False
+            f"graph_launcher_{os.getpid()}_{GraphLauncher._observers}",
+            context=self._context,
+            start_parameter_services=False,
         )
         self._observer.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_reports, 50)
         self._executor = SingleThreadedExecutor(context=self._context)
@@ -356,6 +401,21 @@ class GraphLauncher:
         if self._context is not None:
             self._context.try_shutdown()
             self._context = None
+
+    def _foreign_publishers(self) -> list[str]:
+        """This graph's topics that have more publishers in the ROS graph than this graph's
+        processes: another graph on the same ROS domain without its own namespace (or the
+        publisher of a process killed in the last seconds, which discovery still lists)."""
+        ours: dict[str, int] = {}
+        for spec in self.specs:
+            for topic in spec.publishes:
+                ours[topic] = ours.get(topic, 0) + 1
+        out = []
+        for topic, n in sorted(ours.items()):
+            have = self._observer.count_publishers(topic)
+            if have > n:
+                out.append(f"{topic} ({have} publishers, {n} of this graph)")
+        return out
 
     def _missing_endpoints(self, specs: Sequence[ProcessSpec]) -> list[str]:
         """Human-readable list of endpoints of ``specs`` not yet visible in the graph."""
@@ -384,11 +444,7 @@ class GraphLauncher:
                 if code is None:
                     waiting.append(spec)
                 elif not (spec.finishes and code == 0):
-                    raise LaunchError(
-                        f"node '{spec.name}' died during start-up (exit code {code}); "
-                        f"log: {run.log_path}\n" + _tail(run.log_path),
-                        node=spec.name,
-                    )
+                    raise _death(run, code, "died during start-up")
                 # a finishing node that is already done (a short sequence) is not waited for
             missing = self._missing_endpoints(waiting)
             if not missing:
@@ -401,6 +457,42 @@ class GraphLauncher:
                     node=node,
                 )
             self.spin_reports(0.1)
+
+
+def _death(run: _Running, code: int, what: str) -> LaunchError:
+    """The error of a node that exited: with code 2 (a bad parameter or input, which the node
+    named in one ``error:`` line) that line, and the launcher exits 2; else the node, its
+    exit code and the end of its log, and the launcher exits 1."""
+    name = run.spec.name
+    line = _error_line(run.log_path)
+    if code == EXIT_BAD_INPUT and line:
+        return LaunchError(line.removeprefix("error: "), node=name, exit_code=EXIT_BAD_INPUT)
+    reason = f": {line.removeprefix('error: ')}" if line else ""
+    return LaunchError(
+        f"node '{name}' {what} (exit code {code}){reason}; log: {run.log_path}\n"
+        + _tail(run.log_path),
+        node=name,
+    )
+
+
+def _process_state(pid: int) -> str:
+    """``stopped (T)``, ``running (R)``, ... of a process, from /proc (Linux)."""
+    names = {"R": "running", "S": "sleeping", "D": "in uninterruptible wait", "T": "stopped"}
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return "state unknown"
+    return f"{names.get(state, 'state')} ({state})"
+
+
+def _error_line(path: Path) -> str | None:
+    """The last ``error: ...`` line of a node's log (its one-line reason for exit code 2)."""
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return None
+    found = [line.strip() for line in lines if line.startswith("error: ")]
+    return found[-1] if found else None
 
 
 def _tail(path: Path, lines: int = 15) -> str:
@@ -418,8 +510,15 @@ def graph_processes(
     namespace: str = "",
     graph_nodes: Sequence[graph.NodeSpec] | None = None,
     extra_subscriptions: dict[str, int] | None = None,
+    params_out: str | os.PathLike | None = None,
 ) -> list[ProcessSpec]:
     """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings.
+
+    The parameter file is read here (:mod:`.parameter_file`: its sections checked, those that
+    address each node in ``namespace`` merged) and written to ``params_out`` (default: a file
+    removed when this process exits) with the nodes' fully qualified names as sections, which
+    every node is given: a graph in a namespace runs with the file's values too. A bad file,
+    section or namespace raises ValueError (one line).
 
     :func:`graph.plan` (as the ROS launch file) sets the detector's subscriptions from its
     ``backend`` parameter, the player's from its ``lockstep`` parameter (file or override; the
@@ -431,6 +530,7 @@ def graph_processes(
     only inform those counts. ``namespace`` moves the whole graph; the specs' topics are the
     resolved names."""
     graph_nodes = list(nodes if graph_nodes is None else graph_nodes)
+    namespace = parameter_file.check_namespace(namespace)
     per_node: dict[str, list[str]] = {n.name: [] for n in [*graph_nodes, *nodes]}
     for ov in overrides:
         target, sep, rest = ov.partition(".")
@@ -438,10 +538,22 @@ def graph_processes(
             raise LaunchError(
                 f"bad parameter override {ov!r}: expected NODE.PARAM:=VALUE with NODE one of "
                 + ", ".join(per_node)
+                + (parameter_file.closest(target, per_node) if sep else "")
             )
+        _check_override_value(ov, rest)
         per_node[target].append(rest)
+    params = graph.file_parameters(None)
+    if params_file is not None:
+        names = [n.name for n in graph.PIPELINE]
+        params = parameter_file.node_parameters(params_file, names, namespace)
+        params_file = parameter_file.write_node_parameters(
+            {n.name: params[n.name] for n in nodes},
+            namespace,
+            params_out or parameter_file.temporary_path("parameters_"),
+            source=params_file,
+        )
     out = []
-    planned = graph.plan(list(nodes), params_file, per_node, graph_nodes, extra_subscriptions)
+    planned = graph.plan(list(nodes), params, per_node, graph_nodes, extra_subscriptions)
     for n, extra in planned:
         argv_overrides = per_node[n.name] + [f"{k}:={v}" for k, v in extra.items()]
         out.append(
@@ -458,6 +570,25 @@ def graph_processes(
     return out
 
 
+def _check_override_value(override: str, rest: str) -> None:
+    """LaunchError (one line) for a ``-p NODE.PARAM:=VALUE`` whose value rcl cannot take (it
+    reads it as YAML; an empty one stopped the node with a traceback)."""
+    import yaml
+
+    value = rest.partition(":=")[2]
+    if not value.strip():
+        raise LaunchError(
+            f"bad parameter override {override!r}: no value (an empty string is written '')"
+        )
+    try:
+        yaml.safe_load(value)
+    except yaml.YAMLError as exc:
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise LaunchError(
+            f"bad parameter override {override!r}: not a YAML value ({problem})"
+        ) from None
+
+
 def run_graph(
     processes: Sequence[ProcessSpec],
     log_dir: str | os.PathLike,
@@ -466,31 +597,50 @@ def run_graph(
     echo: bool = False,
     announce=print,
     env: dict[str, str] | None = None,
+    stall_timeout: float = 5.0,
 ) -> int:
     """Run processes as a graph until a finishing node is done, Ctrl-C or SIGTERM.
-    Returns the exit code: 0 on a clean run, 1 when a node died (named in the message)."""
-    launcher = GraphLauncher(processes, log_dir, env=env, ready_timeout=ready_timeout, echo=echo)
+    Returns the exit code: 0 on a clean run, 1 when a node died (named in the message), 2 when
+    a node refused its parameters or input (its one line is the message), 130 when stopped
+    during start-up."""
+    launcher = GraphLauncher(
+        processes,
+        log_dir,
+        env=env,
+        ready_timeout=ready_timeout,
+        echo=echo,
+        stall_timeout=stall_timeout,
+    )
     previous = {
         sig: signal.signal(sig, launcher.request_stop) for sig in (signal.SIGINT, signal.SIGTERM)
     }
+    failed = None  # the node the error names (its exit is not reported again)
     try:
         launcher.start()
         announce(f"graph ready: {', '.join(p.name for p in processes)} (logs in {log_dir})")
+        if launcher.foreign:
+            announce(
+                "warning: another graph publishes on this ROS domain without its own namespace "
+                f"(or a node of one was killed in the last 20 s): {', '.join(launcher.foreign)}; "
+                "their frames and results mix: give each graph its own --namespace or "
+                "ROS_DOMAIN_ID"
+            )
         launcher.wait(until_finished=until_finished)
         return 0
     except LaunchInterrupted:
         announce("interrupted during start-up: every node stopped")
         return 130
     except LaunchError as exc:
+        failed = exc.node
         announce(f"error: {exc}")
-        return 1
+        return exc.exit_code
     finally:
         codes = launcher.shutdown()
         if launcher.drained is False:
             announce(
                 f"warning: frames still in flight after {launcher.drain_timeout:.0f} s at shutdown"
             )
-        unclean = {n: c for n, c in codes.items() if c not in _CLEAN_EXIT_CODES}
+        unclean = {n: c for n, c in codes.items() if c not in _CLEAN_EXIT_CODES and n != failed}
         if unclean:
             announce(
                 "warning: unclean exit of "
@@ -498,6 +648,11 @@ def run_graph(
             )
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def run_log_dir(root: str | os.PathLike = "output/logs") -> Path:
+    """A new folder for one run's logs: ``root/<date>-<time>_<pid>``."""
+    return Path(root) / f"{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -524,8 +679,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--namespace", default="", help="ROS namespace of the whole graph, e.g. /rig2"
     )
-    parser.add_argument("--log-dir", default="output/logs", help="folder for per-node logs")
+    parser.add_argument(
+        "--log-dir",
+        default=None,
+        help="folder of this run's per-node logs and parameter file (default: a new folder "
+        "output/logs/<date>-<time>_<pid> per run; the logs of a given folder are replaced)",
+    )
     parser.add_argument("--ready-timeout", type=float, default=60.0)
+    parser.add_argument(
+        "--stall-timeout",
+        type=float,
+        default=5.0,
+        help="s without a node's report (or with a frame in process and no progress) after "
+        "which the run fails naming the node (every node reports at least once a second)",
+    )
     parser.add_argument(
         "--keep-running",
         action="store_true",
@@ -537,13 +704,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not Path(args.params).is_file():
         print(f"error: {args.params}: parameter file not found", file=sys.stderr)
         return 2
+    log_dir = Path(args.log_dir) if args.log_dir else run_log_dir()
     try:
         plan = hosts.launch_plan(args)
         nodes = graph.by_name(plan.nodes)
         whole = graph.by_name(plan.graph_nodes)  # the player waits for nodes elsewhere too
         overrides = [*plan.overrides, *args.param]
         processes = graph_processes(
-            nodes, args.params, overrides, args.namespace, graph_nodes=whole
+            nodes,
+            args.params,
+            overrides,
+            args.namespace,
+            graph_nodes=whole,
+            params_out=log_dir / "parameters.yaml",
         )
     except (ValueError, LaunchError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -553,11 +726,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"expecting on other hosts: {', '.join(elsewhere)} (the player waits for them)")
     return run_graph(
         processes,
-        args.log_dir,
+        log_dir,
         until_finished=not args.keep_running,
         ready_timeout=args.ready_timeout,
         echo=args.echo,
         env=plan.discovery.environment(),
+        stall_timeout=args.stall_timeout,
     )
 
 

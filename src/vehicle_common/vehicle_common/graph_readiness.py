@@ -114,3 +114,47 @@ def unready_topics(
 def graph_quiescent(reports: Iterable[NodeReport]) -> bool:
     """Every reporting node is idle (used to let the frames in flight drain at shutdown)."""
     return all(r.idle for r in reports)
+
+
+class ProgressWatch:
+    """Which nodes of a graph stopped making progress, from their reports (every node reports
+    at least once a second, :class:`vehicle_common.node_runtime.NodeHealth`).
+
+    A node has stalled when, for ``timeout_s``, either no report of it arrived while another
+    node's did (so the watcher itself is not the one cut off), or it reported a frame in process
+    (``busy``) without any change of its frame counts. Feed every report with :meth:`seen`."""
+
+    def __init__(self, timeout_s: float = 5.0) -> None:
+        self.timeout_s = timeout_s
+        self._last_report: dict[str, float] = {}
+        self._last_change: dict[str, float] = {}
+        self._last: dict[str, NodeReport] = {}
+
+    def seen(self, name: str, report: NodeReport, now: float) -> None:
+        previous = self._last.get(name)
+        if previous is None or previous.counts != report.counts or not previous.busy:
+            self._last_change[name] = now
+        self._last_report[name] = now
+        self._last[name] = report
+
+    def forget(self, name: str) -> None:
+        """Stop watching ``name`` (a node that exited)."""
+        for table in (self._last_report, self._last_change, self._last):
+            table.pop(name, None)
+
+    def stalled(self, now: float, names: Iterable[str] | None = None) -> dict[str, str]:
+        """``{node: why}`` of the watched nodes (restricted to ``names``) that stalled."""
+        watched = [n for n in self._last_report if names is None or n in set(names)]
+        newest = max(self._last_report.values(), default=now)
+        out = {}
+        for name in watched:
+            silent = now - self._last_report[name]
+            if silent >= self.timeout_s and now - newest < self.timeout_s:
+                out[name] = f"no report on /diagnostics for {silent:.1f} s"
+            elif self._last[name].busy and now - self._last_change[name] >= self.timeout_s:
+                out[name] = (
+                    f"a frame in process for {now - self._last_change[name]:.1f} s without "
+                    f"progress (frames in {self._last[name].counts.received}, out "
+                    f"{self._last[name].counts.published})"
+                )
+        return out

@@ -16,6 +16,7 @@ No rclpy at import time.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import re
 from typing import Any
@@ -245,6 +246,28 @@ def declare_config(
         pname = rename.get(name, name)
         values[name] = node.declare_parameter(pname, _ros_default(default), desc).value
     return config_from_values(cls, values, rules=rules, rename=rename)
+
+
+def closest(name: str, candidates) -> str:
+    """`` (did you mean X?)`` with the closest of ``candidates`` to ``name``, or ``""``."""
+    match = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
+    return f" (did you mean {match[0]}?)" if match else ""
+
+
+#: parameters rclpy itself may declare later (QoS overrides of a publisher or subscription)
+_LATER_PREFIXES = ("qos_overrides.",)
+
+
+def check_overrides(node) -> None:
+    """Raise ParameterError for a parameter given to ``node`` (in a parameter file section that
+    addresses it, or ``-p NAME:=VALUE``) that the node does not declare: ROS would leave it
+    unused without a word (``min_hit:=5`` for ``min_hits``). Called once the node declared
+    every parameter; the error names the closest declared one."""
+    overrides = getattr(node, "_parameter_overrides", None) or {}  # rclpy keeps no public copy
+    declared = set(node.list_parameters([], 0).names)
+    for name in sorted(overrides):
+        if name not in declared and not name.startswith(_LATER_PREFIXES):
+            raise ParameterError(name, "unknown parameter of this node" + closest(name, declared))
 
 
 def parameter_error_line(node_name: str, exc: ParameterError) -> str:

@@ -239,6 +239,55 @@ def apply_process_settings(node) -> None:
         )
 
 
+def init_rclpy(args: list[str] | None, node_name: str) -> bool:
+    """``rclpy.init`` with this module's signal handling (StopRequest). False, after one line
+    ``error: <node>: <what>`` on stderr, when rcl refuses the command line's ROS arguments (an
+    empty ``-p NAME:=``, a namespace that is no ROS name, a parameter file that is not valid
+    YAML), which rclpy raises as a traceback."""
+    import os
+    import sys
+    import tempfile
+
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    # rcl logs its own "Failed to parse global arguments" line to stderr: it is held back, and
+    # passed on only when the initialisation succeeds
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+            refused = None
+        except Exception as exc:
+            if type(exc).__name__ != "RCLError":
+                raise
+            refused = ros_arguments_error(str(exc))
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        if refused is not None:
+            print(f"error: {node_name}: {refused}", file=sys.stderr)
+            return False
+        held.seek(0)
+        sys.stderr.write(held.read().decode(errors="replace"))
+    return True
+
+
+def ros_arguments_error(text: str) -> str:
+    """rcl's message for refused ROS arguments, without its prefix and source locations:
+    ``failed to initialize rcl: Couldn't parse params file: '--params-file F'. Error: Error
+    parsing a event near line 3, at /.../parse.c:782, ...`` -> ``Couldn't parse params file:
+    '--params-file F' (Error parsing a event near line 3)``."""
+    text = text.removeprefix("failed to initialize rcl: ")
+    what, sep, detail = text.partition(". Error: ")
+    detail = detail.split(", at /")[0].strip()
+    if not sep or not detail or detail == "error not set":
+        return what.split(", at /")[0]
+    return f"{what} ({detail})"
+
+
 def run_node(
     make_node: Callable[[], object],
     node_name: str,
@@ -257,14 +306,11 @@ def run_node(
     import sys
 
     import rclpy
-    from rclpy.signals import SignalHandlerOptions
 
     from .node_parameters import EXIT_BAD_PARAMETER, ParameterError, parameter_error_line
 
-    rclpy.init(
-        args=args if args is not None else sys.argv,
-        signal_handler_options=SignalHandlerOptions.NO,
-    )
+    if not init_rclpy(args if args is not None else sys.argv, node_name):
+        return EXIT_BAD_PARAMETER
     stop = StopRequest.install()
     try:
         node = make_node()
