@@ -183,6 +183,8 @@ class StereoDepthNode(Node):
         self.fatal_error: ParameterError | None = None
         p = declare_config(self, StereoNodeParameters)
         declare_config(self, ImageTransportParameters)  # read by subscribe_image below
+        # its odometry's integration in odom: stereo/odometry, /tf, /tf_static (odometry_output.py)
+        odom_params = declare_config(self, OdometryOutputParameters)
         check_overrides(self)  # every parameter is declared: refuse one the node has not
         self.publish_disparity = p.publish_disparity
         self.publish_points = p.publish_points
@@ -192,8 +194,6 @@ class StereoDepthNode(Node):
         cv2.setNumThreads(p.num_threads)  # process-wide
         self.match_rows = (p.match_rows[0], p.match_rows[1])
         self.odometry = FrameToFrameOdometry() if p.visual_odometry else None
-        # its integration in odom: stereo/odometry, /tf, /tf_static (odometry_output.py)
-        odom_params = declare_config(self, OdometryOutputParameters)
         self.odometry_out = OdometryOutput(odom_params) if p.visual_odometry else None
         # the odometry of a pair runs in this thread once the pair's disparity map is done
         # (the map is first: the ranging needs it), beside the ranging; only the publishing of

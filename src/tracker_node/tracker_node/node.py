@@ -68,10 +68,10 @@ class VehicleTrackerNode(Node):
         cam = check_value(
             "camera_matrix", self.declare_parameter("camera_matrix", [0.0] * 12).value, [0.0]
         )
+        tracks_frame = self.declare_parameter("tracks_frame", "").value
         check_overrides(self)  # every parameter is declared: refuse one the node has not
         if len(cam) != 12:
             raise ParameterError("camera_matrix", f"expected 12 numbers, got {len(cam)}")
-        tracks_frame = self.declare_parameter("tracks_frame", "").value
         self.tracks_frame = check_value("tracks_frame", tracks_frame, "")
         self.tracker = Tracker(self.config)
         if any(cam):
