@@ -10,6 +10,7 @@ drift apart. Topic names are relative; both launchers take a namespace that move
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -184,11 +185,21 @@ def parameter_value(params_file, overrides: list[str], node: str, name: str, def
         if key == name:
             return value.strip("'\"")
     if params_file and Path(params_file).is_file():
-        import yaml
-
-        data = yaml.safe_load(Path(params_file).read_text()) or {}
+        data = _parameter_file(str(params_file), Path(params_file).stat().st_mtime_ns)
         return data.get(node, {}).get("ros__parameters", {}).get(name, default)
     return default
+
+
+@functools.lru_cache(maxsize=8)
+def _parameter_file(path: str, _mtime_ns: int) -> dict:
+    """A parameter file's content, read once per version (the launchers look several values
+    up before the first node starts)."""
+    import yaml
+
+    return (
+        yaml.load(Path(path).read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+        or {}
+    )
 
 
 def _lockstep_window(value) -> int | None:

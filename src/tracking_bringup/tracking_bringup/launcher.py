@@ -2,9 +2,11 @@
 
 It starts each node as its own OS process (real DDS between them) with
 ``--ros-args --params-file FILE``, writes one log file per node, checks readiness (every node's
-subscriptions and publications are visible in the ROS graph; data sources such as the player are
-started only once the rest of the graph is up, and themselves wait until every edge of the graph
-is matched, see ``graph.edge_counts``), and exits non-zero naming the node when one dies.
+subscriptions and publications are visible in the ROS graph; ``stereo_tracking_launch`` starts
+every process at once, as ``ros2 launch`` does, and the player publishes nothing until every
+edge of the graph is matched, see ``graph.edge_counts``; ``GraphLauncher(staged=True)``, the
+default for other sources, starts them only once the rest is up), and exits non-zero naming the
+node when one dies.
 
 Stopping (end of the sequence, Ctrl-C or SIGTERM): the sources are stopped first, the frames in
 flight are let through the graph (until every node reports on /diagnostics that it holds no
@@ -139,8 +141,10 @@ class GraphLauncher:
         self.ready_timeout = ready_timeout
         self.stop_timeout = stop_timeout
         self.echo = echo
-        #: start the sources only once the rest is up (False: everything at once, as
-        #: ``ros2 launch`` does; the sources' own edge readiness then does the waiting)
+        #: start the sources only once the rest is up (False: everything at once, as ``ros2
+        #: launch`` does; the sources' own edge readiness then does the waiting, and the
+        #: player's start-up overlaps the detector's: ``stereo_tracking_launch`` and the demo,
+        #: whose player waits for every edge of the graph)
         self.staged = staged
         self.drain_timeout = drain_timeout
         self.running: dict[str, _Running] = {}
@@ -169,12 +173,12 @@ class GraphLauncher:
         """Start the non-source processes, wait until their topics are up, then the sources."""
         self.log_dir.mkdir(parents=True, exist_ok=True)
         try:
-            self._open_observer()
             if self.staged:
                 rest = [s for s in self.specs if not s.source]
                 sources = [s for s in self.specs if s.source]
                 for spec in rest:
                     self._spawn(spec)
+                self._open_observer()  # while the nodes start
                 self._wait_ready(rest)
                 for spec in sources:
                     self._spawn(spec)
@@ -182,6 +186,7 @@ class GraphLauncher:
             else:
                 for spec in self.specs:
                     self._spawn(spec)
+                self._open_observer()  # while the nodes start
                 self._wait_ready(self.specs)
             self._ready = True
         except BaseException:
@@ -469,7 +474,11 @@ def run_graph(
 ) -> int:
     """Run processes as a graph until a finishing node is done, Ctrl-C or SIGTERM.
     Returns the exit code: 0 on a clean run, 1 when a node died (named in the message)."""
-    launcher = GraphLauncher(processes, log_dir, env=env, ready_timeout=ready_timeout, echo=echo)
+    # every process at once: the player waits for every edge of the graph itself, and its
+    # start-up overlaps the detector's (first tracks sooner, docs/RESULTS.md section 10)
+    launcher = GraphLauncher(
+        processes, log_dir, env=env, ready_timeout=ready_timeout, echo=echo, staged=False
+    )
     previous = {
         sig: signal.signal(sig, launcher.request_stop) for sig in (signal.SIGINT, signal.SIGTERM)
     }
