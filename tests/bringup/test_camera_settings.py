@@ -51,7 +51,7 @@ def test_720p_short_baseline_camera():
     # the shipped CenterNet: its 896 px for KITTI's 1242 x 721.5 / 700, whole image
     f = detector_framing(ZED, *CENTERNET)
     assert (f.input_width, f.input_height, f.roi_top) == (960, 576, 0.0)
-    assert "whole image" in f.text or "top 0 %" in f.text
+    assert "searched: the whole image (not KITTI's camera" in f.text
     s = stereo_settings(ZED)
     assert (s.num_disparities, s.match_rows) == (32, (0, 0))  # 84 px m / 4.05 m -> 32
 

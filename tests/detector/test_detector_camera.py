@@ -102,7 +102,7 @@ def test_framing_is_derived_from_the_camera_info_and_follows_a_change(rclpy_cont
         rig.close()
     err = capfd.readouterr().err
     assert err.count("camera 1280x720, fx 700.0 px: input 960x576") == 1
-    assert err.count("camera_info changed (was 960x576 below the top 0 %)") == 1
+    assert err.count("camera_info changed (was 960x576, whole image)") == 1
     assert "camera 1242x375, fx 721.5 px: input 896x224 (the checkpoint's" in err
     # both graphs were cached, keyed by the checkpoint's content and the input size
     assert len(list(cache.glob("*-onnx960x576.npz"))) == 1
@@ -121,7 +121,7 @@ def test_given_framing_wins_over_the_camera(rclpy_context, cache, capfd):
     finally:
         rig.close()
     err = capfd.readouterr().err
-    assert "input 640x384 (parameter), region of interest below the top 10 % (parameter)" in err
+    assert "input 640x384 (parameter), searched: below the top 10 % (parameter)" in err
     assert "camera_info changed" not in err
 
 

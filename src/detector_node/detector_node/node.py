@@ -254,7 +254,8 @@ class VehicleDetectorNode(Node):
         if old is None:
             self.get_logger().info(framing.text)
         else:
-            was = f"was {before[0]}x{before[1]} below the top {100 * before[2]:.0f} %"
+            where = f"below the top {100 * before[2]:.0f} %" if before[2] > 0 else "whole image"
+            was = f"was {before[0]}x{before[1]}, {where}"
             self.get_logger().warning(f"camera_info changed ({was}): {framing.text}")
 
     def _failed(self, exc: Exception, msg: Image) -> None:

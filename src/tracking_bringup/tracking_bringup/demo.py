@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.detector} detector); logs in {out / 'logs'}",
         flush=True,
     )
-    launcher = GraphLauncher(processes, out / "logs")
+    launcher = GraphLauncher(processes, out / "logs", staged=False)  # the player waits itself
     progress = None
     t0 = time.monotonic()
     try:

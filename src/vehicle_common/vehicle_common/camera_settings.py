@@ -184,10 +184,8 @@ def detector_framing(
         out_w = out_h = 0  # the checkpoint's framing as it is
     shown = (out_w or checkpoint_input[0], out_h or checkpoint_input[1])
     source = "without CameraInfo" if camera is None else f"camera {camera.describe()}"
-    text = (
-        f"{source}: input {shown[0]}x{shown[1]} ({size_why}), region of interest below the "
-        f"top {100 * roi:.0f} % ({roi_why})"
-    )
+    where = f"below the top {100 * roi:.0f} %" if roi > 0 else "the whole image"
+    text = f"{source}: input {shown[0]}x{shown[1]} ({size_why}), searched: {where} ({roi_why})"
     return DetectorFraming(out_w, out_h, roi, text)
 
 
@@ -214,7 +212,10 @@ def stereo_settings(
         nd, nd_why = int(given_num_disparities), "parameter"
     else:
         nd = num_disparities_for(camera.fx, camera.baseline, MIN_DEPTH)
-        nd_why = f"nearest depth {camera.fx * camera.baseline / nd:.2f} m, as KITTI's 96 px"
+        nd_why = (
+            f"fx x baseline / {MIN_DEPTH} m, KITTI's nearest depth, up to 16: depths from "
+            f"{camera.fx * camera.baseline / nd:.2f} m"
+        )
     if tuple(given_match_rows) != DERIVED_ROWS:
         rows, rows_why = (int(given_match_rows[0]), int(given_match_rows[1])), "parameter"
     elif camera.like_training_camera():
