@@ -404,6 +404,7 @@ def offline_stage_times(
     from stereo_depth_node.region_matching import to_gray
     from stereo_depth_node.reprojection import StereoGeometry
     from stereo_depth_node.visual_odometry import estimate_camera_motion, reference_corners
+    from vehicle_common.camera_settings import CameraModel, stereo_settings
     from vehicle_common.image_conversion import image_to_rgb, numpy_to_image
     from vehicle_common.kitti import TrackingSequence
     from vehicle_common.malloc_policy import keep_freed_memory
@@ -428,9 +429,19 @@ def offline_stage_times(
     # band and malloc policy (a node keeps freed memory for reuse: keep_freed_memory)
     pairs = [seq.read_stereo(f) for f in frames]
     left0, right0 = pairs[0]
-    rows = [int(v) for v in stereo_param("match_rows", [0, 0])]
-    band, _ = match_band(rows, left0.shape[0], DisparityParams())  # as the node does
-    params = dataclasses.replace(DisparityParams(), row_band=band)
+    # the camera-dependent settings as the node derives them (vehicle_common.camera_settings)
+    camera = CameraModel.from_projections(
+        left0.shape[1], left0.shape[0], seq.calib.P2, seq.calib.P3
+    )
+    derived = stereo_settings(
+        camera,
+        int(stereo_param("num_disparities", 0)),
+        tuple(int(v) for v in stereo_param("match_rows", [-1, -1])),
+    )
+    band, _ = match_band(derived.match_rows, left0.shape[0], DisparityParams())  # as the node does
+    params = dataclasses.replace(
+        DisparityParams(), num_disparities=derived.num_disparities, row_band=band
+    )
     if stereo_param("keep_freed_memory", True):
         keep_freed_memory()
     geometry = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)

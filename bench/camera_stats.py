@@ -166,11 +166,9 @@ def checkpoint_path(checkpoint: str = "") -> Path:
 
 
 def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
+    from detector_node.onnx_cache import file_digest
+
+    return file_digest(path)
 
 
 def detector_settings() -> dict:

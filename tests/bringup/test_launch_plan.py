@@ -37,7 +37,7 @@ def test_subset_waits_for_the_subscribers_of_the_whole_graph():
     whole = _wait_for_topics(graph_processes(local, PARAMS_FILE, graph_nodes=graph.PIPELINE))
     assert graph.LEFT_IMAGE not in alone  # only the local nodes: nobody reads images
     assert whole[graph.LEFT_IMAGE] == 2 and whole[graph.RIGHT_IMAGE] == 1
-    assert whole[graph.LEFT_INFO] == 3  # stereo depth, tracker, recorder
+    assert whole[graph.LEFT_INFO] == 4  # detector (its framing), stereo depth, tracker, recorder
     # the detector's backend, given for a node that runs elsewhere, still shapes the counts
     oracle = graph_processes(
         local, PARAMS_FILE, ["vehicle_detector.backend:=oracle"], graph_nodes=graph.PIPELINE

@@ -582,3 +582,56 @@ def test_stereo_depth_process_exits_2_naming_match_rows_at_its_first_pair(tmp_pa
         "(rows 0..374); the matcher needs at least 12 rows: nothing could be ranged"
     ], err
     assert "Traceback" not in err
+
+
+def test_settings_are_derived_from_the_camera_info_and_follow_a_change(rclpy_context, capfd):
+    """With no camera settings given, the disparity range and rows come from the CameraInfo
+    pair (one log line); a CameraInfo that changes mid-run is reported, the settings are
+    derived again, the matcher runs with them and the odometry starts afresh."""
+    h = Harness(
+        rclpy_context,
+        num_disparities=0,  # derived (the harness's default gives 48)
+        match_rows=[-1, -1],
+        disparity_bias=0.0,
+        disparity_bias_column=0.0,
+        lateral_fit=False,
+    )
+    try:
+        h.send_frame(1)
+        h.send_detections(1, [(150, 30, 250, 90)])
+        assert h.spin_until(lambda: len(h.det3d) == 1)
+        s = h.node.settings
+        # 700 px x 0.5 m / 4.05 m = 86.4 -> 96; not KITTI's camera: every row; 1.65 m assumed
+        assert s.num_disparities == 96 and s.match_rows == (0, 0)
+        assert s.ground_height == 1.65 and s.ground_height_assumed
+        assert len(h.det3d[0].detections) == 1
+        h.send_frame(2)
+        h.send_detections(2, [(150, 30, 250, 90)])
+        assert h.spin_until(lambda: len(h.det3d) == 2)
+        assert h.det3d[1].camera_motion_dt == pytest.approx(1.0)
+        # the camera changes: baseline 0.1 m (70 px m: 32 px); the images stay 20 px apart
+        K = np.array([[FX, 0, W / 2], [0, FX, H / 2], [0, 0, 1]])
+        h.infos = (
+            h.infos[0],
+            camera_info_from_projection(np.hstack([K, [[-FX * 0.1], [0], [0]]]), W, H),
+        )
+        h.send_frame(3)
+        h.send_detections(3, [(150, 30, 250, 90)])
+        assert h.spin_until(lambda: len(h.det3d) == 3)
+        assert h.node.settings.num_disparities == 32
+        third = h.det3d[2]
+        assert len(third.detections) == 1  # ranged with the new camera
+        # the surface 20 px away: 17.5 m with the first baseline, 3.5 m with the new one (plus
+        # the same visible-surface -> centre correction)
+        z1, z3 = (a.detections[0].position.z for a in (h.det3d[0], third))
+        assert z1 - z3 == pytest.approx(FX * (0.5 - 0.1) / DISP, rel=0.05)
+        assert third.camera_motion_dt == 0.0  # another camera: the odometry chain restarts
+        h.send_frame(4)
+        h.send_detections(4, [(150, 30, 250, 90)])
+        assert h.spin_until(lambda: len(h.det3d) == 4)
+        assert h.det3d[3].camera_motion_dt == pytest.approx(1.0)
+    finally:
+        h.close()
+    err = capfd.readouterr().err
+    assert err.count("num_disparities 96") == 1 and "match_rows all" in err
+    assert "camera_info changed" in err and "num_disparities 32" in err

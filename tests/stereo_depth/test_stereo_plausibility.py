@@ -209,3 +209,29 @@ def test_real_0005_labelled_cars_pass_and_a_box_on_the_empty_road_does_not(kitti
     checks = check_boxes(disp, boxes, depths, geo, plane)
     assert len(cars) >= 2 and all(c.plausible for c in checks[:-1])
     assert not checks[-1].plausible
+
+
+def test_camera_height_is_checked_against_the_fitted_road_plane():
+    """ground_height (assumed: not in CameraInfo) is compared once with the median of the
+    fitted road planes; a difference names the value to set; no fit at all is reported."""
+    import numpy as np
+    from stereo_depth_node.plausibility import GroundHeightCheck, GroundPlane
+
+    def plane(h, source="fit"):
+        return GroundPlane(np.array([0.0, 1.0, 0.0]), h, source, 500)
+
+    agree = GroundHeightCheck(1.65, True, (1.0, 2.5), fits=3)
+    reports = [agree.add(plane(h)) for h in (1.60, 1.70, 1.62, 1.7)]
+    assert reports[:2] == [None, None] and reports[3] is None  # one report only
+    level, line = reports[2]
+    assert level == "info" and "camera 1.62 m above the road" in line
+    assert "ground_height 1.65 m (assumed) agrees" in line
+    low = GroundHeightCheck(1.65, True, (1.0, 2.5), fits=3)
+    reports = [low.add(plane(h)) for h in (1.2, 1.25, 1.3)]
+    level, line = reports[-1]
+    assert level == "warning" and "stereo_depth.ground_height:=1.25" in line
+    none = GroundHeightCheck(1.65, False, (1.0, 2.5), fits=3, frames=4)
+    reports = [none.add(plane(1.65, "prior")) for _ in range(5)]
+    level, line = reports[3]
+    assert level == "warning" and "none found in 4 frames" in line and reports[4] is None
+    assert "(parameter)" in line

@@ -7,13 +7,19 @@ Boxes are (x1, y1, x2, y2) in pixels. The network predicts, per grid cell (gx, g
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import torch
 from vehicle_common.box2d import iou_2d as iou_matrix
+
+if TYPE_CHECKING:  # torch only where tensors are decoded: nms runs without it
+    import torch
 
 
 def iou_matrix_torch(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Torch version of :func:`vehicle_common.box2d.iou_2d` (no gradients needed)."""
+    import torch
+
     lt = torch.maximum(a[:, None, :2], b[None, :, :2])
     rb = torch.minimum(a[:, None, 2:], b[None, :, 2:])
     wh = (rb - lt).clamp(min=0)
@@ -54,6 +60,8 @@ def decode_raw(
     raw: torch.Tensor, anchors: torch.Tensor, stride: tuple[float, float]
 ) -> torch.Tensor:
     """Decode raw box outputs (B, A, 4, H, W) into boxes (B, A, H, W, 4) (x1, y1, x2, y2) px."""
+    import torch
+
     _, _, _, h, w = raw.shape
     gy, gx = torch.meshgrid(
         torch.arange(h, device=raw.device, dtype=raw.dtype),

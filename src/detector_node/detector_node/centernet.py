@@ -37,24 +37,29 @@ from vehicle_common.orientation_bins import (
     fold_alpha_signed,
 )
 
+from .centernet_decode import (  # noqa: F401 (the output layout, re-exported)
+    BINS,
+    BOX,
+    HEAT,
+    LOGVAR,
+    LOGVAR_RANGE,
+    MAX_RESIDUAL,
+    ORIENTATION_PEAKS,
+    ORIENTATION_POINTS,
+    OUT_CHANNELS,
+    RESIDUALS,
+    STRIDE,
+    decode_orientation,
+)
 from .tfjs_graph import TfjsGraph
 
 FEATURE = "tower_0/CenternetHead/mul"
 CLS_HEAD = "CenternetHead/centernet_cls_output"
 BOX_HEAD = "CenternetHead/centernet_wh_output"
 BOX_SCALE = "tower_0/mul/y"
-STRIDE = 4
 COCO_CAR = 2
 FEATURE_CHANNELS = 128
 ORIENTATION_HIDDEN = 64
-ORIENTATION_POINTS = 3  # per box side: 3x3 sample points
-ORIENTATION_PEAKS = 100
-#: raw output channels
-HEAT, BOX, BINS, RESIDUALS, LOGVAR = 0, slice(1, 5), slice(5, 9), slice(9, 13), 13
-OUT_CHANNELS = 14
-#: largest residual [rad] (reaches the neighbouring bin centres)
-MAX_RESIDUAL = math.pi / 4
-LOGVAR_RANGE = (-9.0, 2.0)
 
 
 class SeparableHead(nn.Module):
@@ -215,20 +220,6 @@ class CenterNetDetector(nn.Module):
 # decoding
 
 
-def decode_orientation(bin_logits: np.ndarray, residual_raw: np.ndarray, logvar: np.ndarray):
-    """(probs (N, 4), bin (N,), folded angle (N,) [rad], variance (N,) [rad^2]) of raw head
-    values: bin = argmax of the softmax; angle = bin centre + pi/4 tanh(residual of that bin),
-    folded into [-pi/2, pi/2); variance = exp(log-variance)."""
-    z = bin_logits - bin_logits.max(axis=1, keepdims=True)
-    p = np.exp(z)
-    p /= p.sum(axis=1, keepdims=True)
-    b = np.argmax(p, axis=1)
-    res = MAX_RESIDUAL * np.tanh(np.take_along_axis(residual_raw, b[:, None], 1)[:, 0])
-    angle = np.asarray(bin_residual_to_alpha(b, res), dtype=float).reshape(-1)
-    var = np.exp(np.clip(logvar, *LOGVAR_RANGE))
-    return p, b, angle, var
-
-
 def peaks(raw: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Top-``k`` local maxima (3x3) of the heat map of each image: (scores (B, k), flat cell
     indices (B, k))."""
@@ -257,7 +248,7 @@ def decode_centernet(
     divided by ``scale``): heat-map peaks >= ``score_threshold``, boxes from the distances,
     class-agnostic NMS, 4-bin probabilities and the continuous angle with its variance."""
     from .boxes import nms
-    from .inference import Detection
+    from .detection import Detection
 
     raw = raw.float()
     gw = raw.shape[3]

@@ -5,10 +5,13 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import torch
+if TYPE_CHECKING:  # torch is imported where a checkpoint is read or written: the file names
+    # below serve the ONNX Runtime path, which runs without it
+    import torch
 
-from .model import DetectorConfig, YoloV2Passthrough
+    from .model import YoloV2Passthrough
 
 
 def _shipped_checkpoint() -> Path:
@@ -40,6 +43,8 @@ def save_checkpoint(
 ) -> None:
     """Save the weights, the config (dict of plain values) and optional plain extras
     (epoch, optimizer state, metrics...)."""
+    import torch
+
     state = {
         "format_version": FORMAT_VERSION,
         "config": model.config.to_dict(),
@@ -91,6 +96,10 @@ def load_checkpoint(
     Raises CheckpointError (a ValueError) naming the file, in one line, when it is missing, is
     not a PyTorch file, or is not a detector checkpoint whose weights fit its model.
     """
+    import torch
+
+    from .model import DetectorConfig, YoloV2Passthrough
+
     path = resolve_checkpoint(path)
     if path.is_dir():
         raise CheckpointError(f"{path}: is a folder, not a checkpoint file")
@@ -138,6 +147,10 @@ def set_inference_framing(
     top fraction of the image left out (``DetectorConfig.roi_top``). The weights are unchanged;
     the framing they were trained at is kept as ``training_input`` and ``training_roi_top`` (the
     orientation head's box geometry refers to it: ``CnnDetector._geo_frame``)."""
+    import torch
+
+    from .model import DetectorConfig
+
     model, state = load_checkpoint(src)  # the same checks and one-line errors
     config = model.config
     if config.size != "centernet":

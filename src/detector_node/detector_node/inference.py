@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 from vehicle_common.node_parameters import ParameterError
@@ -12,27 +9,10 @@ from vehicle_common.orientation_bins import bin_to_alpha, fold_alpha_signed
 
 from .boxes import decode_raw, nms
 from .checkpoint import SHIPPED_CHECKPOINT, load_checkpoint
+from .config import TRAINING_IMAGE_SIZE, DetectorConfig, check_roi_top, geo_frame
 from .dataset import resize_image
-from .model import DetectorConfig, check_roi_top, split_output
-
-#: the image size the checkpoints were trained at (KITTI): an overridden input size keeps the
-#: anchors at the training's input px per image px (CnnDetector.from_checkpoint)
-TRAINING_IMAGE_SIZE = (1242, 375)
-
-
-@dataclass
-class Detection:
-    """One 2D vehicle detection in original image pixels."""
-
-    box: tuple[float, float, float, float]  # x1, y1, x2, y2 [px]
-    score: float  # objectness (one object class: class confidence is 1)
-    orientation_bin: int
-    orientation_probs: tuple[float, float, float, float]
-    #: continuous observation angle alpha [rad] folded into [-pi/2, pi/2) (the bin centre for
-    #: models without an angle head)
-    observation_angle: float = 0.0
-    #: its variance [rad^2]; < 0 = not provided (models with 4 bins only)
-    observation_angle_variance: float = -1.0
+from .detection import Detection
+from .model import split_output
 
 
 def choose_device(device: str = "auto") -> torch.device:
@@ -158,14 +138,11 @@ class CnnDetector:
         threads: int | None = None,
         roi_top: float | None = None,
     ) -> None:
-        #: fraction of the image height at the top that is not searched (see :meth:`detect`;
-        #: None or < 0: the checkpoint's)
-        self.roi_top = float(
-            check_roi_top(model.config.roi_top if roi_top is None or roi_top < 0 else roi_top)
-        )
         self.device = torch.device(device)
         self.model = model.to(self.device).eval()
         self.config = model.config
+        #: the checkpoint's own configuration (set_framing derives the input's from it)
+        self._checkpoint_config = model.config
         self.score_threshold = score_threshold
         self.nms_iou = nms_iou
         #: the input size the checkpoint was trained at (from_checkpoint keeps it when the
@@ -179,10 +156,13 @@ class CnnDetector:
             from .onnx_backend import OnnxCenterNet
 
             self._network = OnnxCenterNet(self.model, threads)
+        #: fraction of the image height at the top that is not searched (see :meth:`detect`)
+        self.roi_top = 0.0
         #: with an overridden input size: (anchors of the checkpoint, its input px per image
         #: px in training); the anchors then follow each image's scale (see from_checkpoint)
         self._anchor_reference: tuple[tuple, tuple[float, float]] | None = None
         self._scaled_configs: dict[tuple[float, float], DetectorConfig] = {}
+        self.set_framing(0, 0, roi_top)
 
     @classmethod
     def from_checkpoint(
@@ -210,12 +190,31 @@ class CnnDetector:
         trained = (model.config.input_width, model.config.input_height)
         trained = tuple(int(v) for v in state.get("training_input", trained))
         trained_roi = float(state.get("training_roi_top", model.config.roi_top))
-        reference = None
+        detector = cls(model, dev, score_threshold, nms_iou, runtime, threads, roi_top)
+        detector._training_input = trained
+        detector._training_roi_top = trained_roi
+        detector.set_framing(input_width, input_height, roi_top)
+        return detector
+
+    def set_framing(
+        self, input_width: int = 0, input_height: int = 0, roi_top: float | None = None
+    ) -> None:
+        """Frame the images another way: network input size (0 = the checkpoint's; multiples
+        of 32: the network is fully convolutional) and the top fraction of the image left out
+        (None or < 0: the checkpoint's). With an overridden size the anchors follow each
+        image's input px per image px relative to training (see :meth:`from_checkpoint`). Can
+        be called between images (a camera whose CameraInfo changed)."""
+        c = self._checkpoint_config
+        w, h = input_width or c.input_width, input_height or c.input_height
+        self.roi_top = float(
+            check_roi_top(c.roi_top if roi_top is None or roi_top < 0 else roi_top)
+        )
+        self._anchor_reference = None
+        self._scaled_configs = {}
+        cfg = c
         if input_width or input_height:
-            c = model.config
-            w, h = input_width or c.input_width, input_height or c.input_height
             sx, sy = w / c.input_width, h / c.input_height
-            reference = (
+            self._anchor_reference = (
                 c.anchors,
                 (c.input_width / TRAINING_IMAGE_SIZE[0], c.input_height / TRAINING_IMAGE_SIZE[1]),
             )
@@ -227,12 +226,18 @@ class CnnDetector:
                     "anchors": [[aw * sx, ah * sy] for aw, ah in c.anchors],
                 }
             )
-            model.config = cfg
-        detector = cls(model, dev, score_threshold, nms_iou, runtime, threads, roi_top)
-        detector._anchor_reference = reference
-        detector._training_input = trained
-        detector._training_roi_top = trained_roi
-        return detector
+        self.model.config = self.config = cfg
+
+    def checkpoint_framing(self) -> tuple[tuple[int, int], float, tuple[int, int], float]:
+        """(input size, roi_top) of the checkpoint and (input size, roi_top) it was trained
+        at: what a camera's framing is derived from (vehicle_common.camera_settings)."""
+        c = self._checkpoint_config
+        return (
+            (c.input_width, c.input_height),
+            c.roi_top,
+            tuple(self._training_input),
+            self._training_roi_top,
+        )
 
     def config_for(self, scale: tuple[float, float]) -> DetectorConfig:
         """The decoding config for an image resized by ``scale`` (input px per image px)."""
@@ -248,20 +253,16 @@ class CnnDetector:
         return self._scaled_configs[key]
 
     def _geo_frame(self, width: int, height: int, top: int, scale: tuple[float, float]):
-        """The CenterNet orientation head's box-geometry map (centernet.orientation_at) from
-        this input (image of ``width`` x ``height`` px, ``top`` rows left out, resized by
-        ``scale``) to its training framing (the image below its training ``roi_top`` resized
-        to the training input size): centre x / width, (centre y - training top) / the rows
-        below it, aspect ratio at the training's x / y scale. None when the two framings are
-        the same."""
-        tw, th = self._training_input
-        t_top = int(round(self._training_roi_top * height))
-        if top == t_top and (self.config.input_width, self.config.input_height) == (tw, th):
-            return None
-        sx, sy = scale
-        rows = height - t_top
-        aspect = math.log((tw / width) / (th / rows)) - math.log(sx / sy)
-        return (1.0 / (sx * width), 0.0, 1.0 / (sy * rows), (top - t_top) / rows, aspect)
+        """The orientation head's box-geometry map for this input (:func:`.config.geo_frame`)."""
+        return geo_frame(
+            self._training_input,
+            self._training_roi_top,
+            (self.config.input_width, self.config.input_height),
+            width,
+            height,
+            top,
+            scale,
+        )
 
     @torch.no_grad()
     def detect(self, rgb: np.ndarray) -> list[Detection]:

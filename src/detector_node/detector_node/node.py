@@ -11,12 +11,14 @@ subscribes, after the project's array).
 from __future__ import annotations
 
 import sys
+import threading
 from dataclasses import dataclass
 
 import numpy as np
 from rclpy.node import Node
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CameraInfo, Image
 from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2DArray
+from vehicle_common.camera_settings import CameraModel, detector_framing
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import kitti_objects_from_message, stamp_ns
 from vehicle_common.frame_trace import frame_tracer
@@ -37,6 +39,7 @@ from .conversions import detections_message, vision_detections_message
 
 NODE_NAME = "vehicle_detector"
 IMAGE_TOPIC = topics.LEFT_IMAGE
+INFO_TOPIC = topics.LEFT_INFO
 GT_TOPIC = topics.GROUND_TRUTH
 DETECTIONS_TOPIC = topics.DETECTIONS_2D
 
@@ -50,7 +53,8 @@ class DetectorParameters:
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     score_threshold: float = param(0.3, low=0.0, high=1.0)
     nms_iou: float = param(0.45, low=0.0, high=1.0, low_open=True)
-    # [px] network input; 0 = the checkpoint's; the network's stride is 32
+    # [px] network input; 0 = derived from the left CameraInfo (the image at the training's
+    # pixels per metre; KITTI's camera: the checkpoint's); the network's stride is 32
     input_width: int = param(0, low=0, multiple_of=32)
     input_height: int = param(0, low=0, multiple_of=32)
     num_threads: int = param(2, low=1)  # torch / ONNX Runtime CPU threads
@@ -58,8 +62,12 @@ class DetectorParameters:
     # onnx / onnxruntime packages are installed, else PyTorch) | torch | onnxruntime
     runtime: str = param("auto", choices=("auto", "torch", "onnxruntime"))
     # fraction of the image height at the top not searched (above where vehicles are);
-    # < 0 = the checkpoint's (0.25 for the shipped CenterNet, 0 for tiny_kitti)
+    # < 0 = derived: the checkpoint's on KITTI's camera (0.25 for the shipped CenterNet, 0 for
+    # tiny_kitti), the whole image on another camera
     roi_top: float = param(-1.0, low=-1.0, high=0.8)
+    # [s] an image that arrives before any CameraInfo waits this long for one (then: the
+    # checkpoint's framing) when the framing is derived from the camera
+    camera_info_wait: float = param(1.0, low=0.0)
     # newest images kept waiting while one is detected (1: latest-frame policy; the launchers
     # set it to the player's lockstep_window in lockstep so that nothing is skipped)
     frame_queue: int = param(1, low=1)
@@ -88,14 +96,11 @@ class VehicleDetectorNode(Node):
         self.pub = self.create_publisher(VehicleDetection2DArray, DETECTIONS_TOPIC, 10)
         self.vision_pub = self.create_publisher(Detection2DArray, topics.VISION_DETECTIONS_2D, 10)
         if self.backend == "cnn":
-            import torch
-
             from .checkpoint import CheckpointError
-            from .inference import CnnDetector
+            from .loading import load_detector
 
-            torch.set_num_threads(p.num_threads)
             try:  # device and runtime raise ParameterError themselves
-                self.cnn = CnnDetector.from_checkpoint(
+                self.cnn = load_detector(
                     p.checkpoint,
                     p.device,
                     p.score_threshold,
@@ -108,17 +113,21 @@ class VehicleDetectorNode(Node):
                 )
             except CheckpointError as exc:
                 raise ParameterError("checkpoint", str(exc)) from None
+            if self.cnn.runtime == "torch":
+                import torch
+
+                torch.set_num_threads(p.num_threads)
             c = self.cnn.config
+            built = getattr(getattr(self.cnn, "source", None), "built", [])
             self.get_logger().info(
-                f"cnn backend: {c.size} model (width {c.width}, depth {c.depth}), input "
-                f"{c.input_width}x{c.input_height}, region of interest below the top "
-                f"{100 * self.cnn.roi_top:.0f} %, device {self.cnn.device}, runtime "
-                f"{self.cnn.runtime}"
+                f"cnn backend: {c.size} model (width {c.width}, depth {c.depth}), device "
+                f"{self.cnn.device}, runtime {self.cnn.runtime}"
+                + (f"; built and cached: {', '.join(built)}" if built else "")
             )
             if (
                 c.size == "centernet"
                 and p.runtime == "auto"
-                and self.cnn.device.type == "cpu"  # on a GPU, PyTorch is the right choice
+                and str(self.cnn.device) == "cpu"  # on a GPU, PyTorch is the right choice
                 and self.cnn.runtime == "torch"
             ):
                 self.get_logger().warning(
@@ -126,17 +135,30 @@ class VehicleDetectorNode(Node):
                     "slower (pip install onnx==1.23.1 onnxruntime==1.30.0; scripts/setup.sh "
                     "installs them)"
                 )
-            # the first inference's set-up cost is paid here, before the graph is ready
+            # the camera-dependent framing (vehicle_common.camera_settings): derived from the
+            # left CameraInfo unless every part of it is given
+            self._derive = not (p.input_width and p.input_height and p.roi_top >= 0)
+            self._camera: CameraModel | None = None
+            self._camera_error: str | None = None
+            self._held: Image | None = None  # an image that waits for the first CameraInfo
+            self._hold_timer = None
+            self._lock = threading.Lock()
+            # the first inference's set-up cost is paid here, before the graph is ready (at
+            # the checkpoint's framing, KITTI's camera; another camera's is loaded from the
+            # cache when its CameraInfo arrives)
             self.cnn.detect(np.zeros((c.input_height, c.input_width, 3), np.uint8))
             # latest-frame policy: the newest image is detected, an image still waiting when a
             # newer one arrives is skipped and counted (never a growing queue)
             self.worker = LatestFrameWorker(
-                self._detect,
+                self._work,
                 self.frames,
                 "detector",
                 self._failed,
                 max_waiting=p.frame_queue,
             )
+            if not self._derive:
+                self.worker.submit(None, frame=False)  # the framing of the parameters, logged
+            self.create_subscription(CameraInfo, INFO_TOPIC, self._on_camera_info, 5)
         elif self.backend == "oracle":
             from .oracle import OracleDetector, StampPairing
 
@@ -169,7 +191,84 @@ class VehicleDetectorNode(Node):
             for image, labels in self.pairing.add_image(stamp_ns(msg.header), msg):
                 self._publish_oracle(image, labels)
             return
+        with self._lock:
+            if self._derive and self._camera is None and self._camera_error is None:
+                # no CameraInfo yet: the image waits for the first one (bounded)
+                if self._held is not None:
+                    self.frames.dropped()  # superseded while waiting, as the worker would
+                    self._publish(detections_message(self._held.header, []))
+                self._held = msg
+                if self._hold_timer is None:
+                    self._hold_timer = self.create_timer(
+                        max(self.params.camera_info_wait, 1e-3), self._camera_info_late
+                    )
+                return
         self.worker.submit(msg)
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        """A left CameraInfo: the framing is derived again when the camera's size or fx
+        changed (applied by the worker, in order with the images)."""
+        try:
+            camera = CameraModel.from_camera_info(msg)
+        except ValueError as exc:
+            if str(exc) != self._camera_error:
+                self._camera_error = str(exc)
+                self.get_logger().warning(f"{INFO_TOPIC}: {exc}; framing unchanged")
+            self._release_held()
+            return
+        key = (camera.width, camera.height, camera.fx)
+        with self._lock:
+            old = self._camera
+            if old is not None and (old.width, old.height, old.fx) == key:
+                return
+            self._camera, self._camera_error = camera, None
+        if self._derive:
+            self.worker.submit((camera, old), frame=False)
+        self._release_held()
+
+    def _camera_info_late(self) -> None:
+        """No CameraInfo came within ``camera_info_wait``: the waiting image is detected with
+        the checkpoint's framing (reported once)."""
+        self.destroy_timer(self._hold_timer)
+        with self._lock:
+            if self._camera is None and self._camera_error is None:
+                self._camera_error = "none yet"
+                self.get_logger().warning(
+                    f"no CameraInfo on {INFO_TOPIC} within {self.params.camera_info_wait:g} s: "
+                    "detecting with the checkpoint's framing until one arrives"
+                )
+                self.worker.submit(None, frame=False)
+        self._release_held()
+
+    def _release_held(self) -> None:
+        with self._lock:
+            held, self._held = self._held, None
+        if held is not None:
+            self.worker.submit(held)
+
+    def _work(self, item) -> None:
+        """The worker's items: an image, or a camera to frame the images for (None: the
+        parameters' framing or the checkpoint's)."""
+        if item is None or isinstance(item, tuple):
+            self._apply_framing(*(item or (None, None)))
+        else:
+            self._detect(item)
+
+    def _apply_framing(self, camera: CameraModel | None, old: CameraModel | None) -> None:
+        """Frame the images for ``camera`` (vehicle_common.camera_settings) and log ONE line:
+        what was derived and from what (a changed camera: also what it was)."""
+        p, cnn = self.params, self.cnn
+        framing = detector_framing(
+            camera, *cnn.checkpoint_framing(), (p.input_width, p.input_height), p.roi_top
+        )
+        before = (cnn.config.input_width, cnn.config.input_height, cnn.roi_top)
+        cnn.set_framing(framing.input_width, framing.input_height, framing.roi_top)
+        if old is None:
+            self.get_logger().info(framing.text)
+        else:
+            where = f"below the top {100 * before[2]:.0f} %" if before[2] > 0 else "whole image"
+            was = f"was {before[0]}x{before[1]}, {where}"
+            self.get_logger().warning(f"camera_info changed ({was}): {framing.text}")
 
     def _failed(self, exc: Exception, msg: Image) -> None:
         self.get_logger().warning(f"{IMAGE_TOPIC}: detection failed: {exc}; no detections")

@@ -101,9 +101,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import torch
-
-    from .inference import CnnDetector
+    from .loading import load_detector
 
     if not 0.0 <= args.score_threshold <= 1.0:
         raise ValueError(f"--score-threshold: {args.score_threshold} not in [0, 1]")
@@ -117,15 +115,36 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name.replace('_', '-')}: {v} must be 0 or a multiple of 32")
     paths = image_paths(args)
     make_output_dir(args.output)  # before the model is loaded: a bad path fails at once
-    torch.set_num_threads(args.num_threads)
-    det = CnnDetector.from_checkpoint(
+    det = load_detector(
         args.checkpoint,
         "cpu",
         args.score_threshold,
         args.nms_iou,
         args.input_width,
         args.input_height,
+        threads=args.num_threads,
     )
+    if det.runtime == "torch":
+        import torch
+
+        torch.set_num_threads(args.num_threads)
+    if args.kitti_root is not None and args.sequence:
+        # the framing the node derives from this camera's CameraInfo (its calibration)
+        from vehicle_common.camera_settings import CameraModel, detector_framing
+        from vehicle_common.kitti import TrackingSequence
+
+        try:
+            calib = TrackingSequence.open(args.kitti_root, paths[0].parent.name).calib
+        except (KittiFormatError, OSError):
+            calib = None  # no calibration: the checkpoint's framing
+        if calib is not None:
+            h, w = read_png(paths[0]).shape[:2]
+            camera = CameraModel.from_projections(w, h, calib.P2, calib.P3)
+            f = detector_framing(
+                camera, *det.checkpoint_framing(), (args.input_width, args.input_height)
+            )
+            det.set_framing(f.input_width, f.input_height, f.roi_top)
+            print(f.text)
     t0 = time.perf_counter()
     n = 0
     for path in paths:

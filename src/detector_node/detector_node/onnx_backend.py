@@ -384,19 +384,10 @@ class OnnxCenterNet:
         :func:`centernet_to_onnx`)."""
         key = (height, width, image_input)
         if key not in self._sessions:
-            import onnxruntime as ort
+            from .onnx_detector import ort_session
 
-            so = ort.SessionOptions()
-            so.intra_op_num_threads = self.threads
-            so.inter_op_num_threads = 1
-            so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-            so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-            so.log_severity_level = 3
-            self._sessions[key] = ort.InferenceSession(
-                centernet_to_onnx(self.model, height, width, image_input),
-                so,
-                providers=["CPUExecutionProvider"],
-            )
+            graph = centernet_to_onnx(self.model, height, width, image_input)
+            self._sessions[key] = ort_session(graph, self.threads)
         return self._sessions[key]
 
     def dense(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

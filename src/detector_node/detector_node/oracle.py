@@ -16,7 +16,7 @@ import numpy as np
 from vehicle_common.kitti import KittiObject
 from vehicle_common.orientation_bins import NUM_BINS, alpha_to_bin, fold_alpha_signed
 
-from .inference import Detection
+from .detection import Detection
 
 
 @dataclass

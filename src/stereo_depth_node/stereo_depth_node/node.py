@@ -26,6 +26,13 @@ from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
 from tf2_msgs.msg import TFMessage
 from vehicle_common.camera_motion import CameraMotion
+from vehicle_common.camera_settings import (
+    DERIVED_ROWS,
+    KITTI_CAMERA_HEIGHT,
+    CameraModel,
+    StereoSettings,
+    stereo_settings,
+)
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.frame_trace import frame_tracer
@@ -38,7 +45,7 @@ from vehicle_common.node_parameters import (
     param,
 )
 from vehicle_common.node_runtime import NodeHealth, apply_process_settings, run_node
-from vehicle_common.stereo_camera import check_stereo_images, check_stereo_infos
+from vehicle_common.stereo_camera import check_stereo_images
 
 from vehicle_common import topics
 
@@ -51,7 +58,7 @@ from .disparity import (
     match_band,
 )
 from .odometry_output import OdometryOutput, OdometryOutputParameters
-from .plausibility import GroundEstimator, PlausibilityParams, check_boxes
+from .plausibility import GroundEstimator, GroundHeightCheck, PlausibilityParams, check_boxes
 from .ranging import (
     RangingParams,
     RangingSetup,
@@ -129,13 +136,27 @@ class StereoNodeParameters:
     sync_cache_size: int = param(10, low=1)
     num_threads: int = param(2, low=1)  # OpenCV threads of the matcher (cv2.setNumThreads)
     frame_queue: int = param(1, low=1)  # newest stereo pairs kept waiting (1: latest frame)
-    # [top, bottom) rows to match (0 <= top < bottom); [0, 0] = all rows
-    match_rows: list = param([0, 0], low=0, length=2)
+    # the camera-dependent settings: 0 / [-1, -1] = derived from the CameraInfo pair at run
+    # time (vehicle_common.camera_settings); a value given wins
+    # [px] disparity range (>= 16, the DisparityParams field); 0: fx * baseline / 4.05 m
+    num_disparities: int = param(0, low=0)
+    # [top, bottom) rows to match; bottom <= top means all rows; [-1, -1]: derived (KITTI's
+    # camera: below the detector's region of interest; another camera: all)
+    match_rows: list = param([-1, -1], low=-1, length=2)
+    # [m] camera height above the road (the RangingParams field); 0: KITTI's 1.65 m assumed
+    # and checked against the fitted road plane
+    ground_height: float = param(0.0, low=0.0)
     # stereo visual odometry between successive frames (camera_motion of the 3D arrays)
     visual_odometry: bool = True
 
     def validate(self) -> None:
-        check_match_rows(self.match_rows)  # against the image: match_band, at the first pair
+        if 0 < self.num_disparities < 16:
+            raise ValueError(
+                f"num_disparities: {self.num_disparities} must be >= 16 (0: derived from the "
+                "camera)"
+            )
+        if tuple(self.match_rows) != DERIVED_ROWS:
+            check_match_rows(self.match_rows)  # against the image: match_band, at the first pair
 
 
 def _stamp_text(ns: int) -> str:
@@ -155,6 +176,7 @@ class _Frame:
     geometry: StereoGeometry | None
     images: tuple[np.ndarray, np.ndarray] | None = None  # gray (left, right), for refinement
     odometry: Future | None = None  # its camera motion since the previous processed pair
+    params: DisparityParams | None = None  # the matcher's settings of its camera
     skipped: bool = False  # superseded by a newer pair (latest-frame policy): no 3D array
 
 
@@ -165,23 +187,35 @@ class StereoDepthNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         apply_process_settings(self)  # first: the threads started below inherit it
         self.trace = frame_tracer(NODE_NAME)  # per-frame trace points (VEHICLE_TRACE_DIR)
+        # num_disparities and ground_height are declared with the node's parameters (0:
+        # derived from the camera), the other settings from the core's dataclasses
         self.disparity_params = declare_config(
-            self, DisparityParams, skip=("row_band",), rules=DISPARITY_RULES
+            self, DisparityParams, skip=("row_band", "num_disparities"), rules=DISPARITY_RULES
         )
         ranging_params = declare_config(
-            self, RangingParams, rename=RANGING_RENAMED, rules=RANGING_RULES
+            self,
+            RangingParams,
+            skip=("ground_height",),
+            rename=RANGING_RENAMED,
+            rules=RANGING_RULES,
         )
+        p = declare_config(self, StereoNodeParameters)
+        self.given = p  # the camera-dependent settings as given (0 / [-1, -1]: derived)
+        ground_height = p.ground_height or KITTI_CAMERA_HEIGHT
+        ranging_params = dataclasses.replace(ranging_params, ground_height=ground_height)
         # declare_config validated it (a bad value is a ParameterError naming the parameter)
         self.ranging = RangingSetup.from_params(ranging_params)
         self.ranging_params = self.ranging.params
         self.plausibility = declare_config(self, PlausibilityParams, rules=PLAUSIBILITY_RULES)
-        self.ground = GroundEstimator(self.plausibility, self.ranging_params.ground_height)
+        self.ground = GroundEstimator(self.plausibility, ground_height)
+        self.ground_check = GroundHeightCheck(
+            ground_height, p.ground_height <= 0, self.plausibility.ground_height_range
+        )
         self.implausible_detections = 0
-        self._band_params: tuple[int, DisparityParams] | None = None  # (height, params)
+        self._band_params: tuple | None = None  # ((height, settings), params)
         #: a parameter found not to fit the camera while running (node_runtime.run_node stops
         #: the node with its one-line error and exit code 2)
         self.fatal_error: ParameterError | None = None
-        p = declare_config(self, StereoNodeParameters)
         declare_config(self, ImageTransportParameters)  # read by subscribe_image below
         # its odometry's integration in odom: stereo/odometry, /tf, /tf_static (odometry_output.py)
         odom_params = declare_config(self, OdometryOutputParameters)
@@ -192,7 +226,6 @@ class StereoDepthNode(Node):
         self.points_max_depth = p.points_max_depth
         self.points_rgb = p.points_rgb
         cv2.setNumThreads(p.num_threads)  # process-wide
-        self.match_rows = (p.match_rows[0], p.match_rows[1])
         self.odometry = FrameToFrameOdometry() if p.visual_odometry else None
         self.odometry_out = OdometryOutput(odom_params) if p.visual_odometry else None
         # the odometry of a pair runs in this thread once the pair's disparity map is done
@@ -210,8 +243,13 @@ class StereoDepthNode(Node):
         self.left_info = None
         self.right_info = None
         self.geometry: StereoGeometry | None = None  # from the latest CameraInfo pair
+        #: the settings derived from it (vehicle_common.camera_settings)
+        self.settings: StereoSettings | None = None
         self._geometry_error = "no CameraInfo received yet on both camera_info topics"
-        self._calibration_key = None  # (left P, right P) the geometry was built from
+        self._calibration_key = None  # (left P, right P, sizes) the geometry was built from
+        #: camera changes seen by the executor / handled by the worker (odometry, road plane)
+        self._camera_generation = 0
+        self._worker_generation = 0
         self.dropped_detection_arrays = 0
         self.unranged_detections = 0
         self.frames_processed = 0
@@ -265,20 +303,24 @@ class StereoDepthNode(Node):
             self._odometry_thread.shutdown(wait=True)
         super().destroy_node()
 
-    def _disparity_params_for(self, height: int) -> DisparityParams:
-        """The disparity settings with the match band of images ``height`` rows tall. A band
-        cut at the image's last row is warned about once; a band that leaves nothing to match
-        stops the node (``fatal_error``: one line naming ``match_rows``, exit code 2)."""
-        if self._band_params is None or self._band_params[0] != height:
+    def _disparity_params_for(self, height: int, settings: StereoSettings) -> DisparityParams:
+        """The disparity settings of the camera (its disparity range) with the match band of
+        images ``height`` rows tall. A band cut at the image's last row is warned about once; a
+        band that leaves nothing to match stops the node (``fatal_error``: one line naming
+        ``match_rows``, exit code 2)."""
+        key = (height, settings)
+        if self._band_params is None or self._band_params[0] != key:
             try:
-                band, note = match_band(self.match_rows, height, self.disparity_params)
+                band, note = match_band(settings.match_rows, height, self.disparity_params)
             except RowBandError as exc:
                 self.fatal_error = ParameterError(str(exc))
                 raise
             if note:
                 self.get_logger().warning(note)
-            params = dataclasses.replace(self.disparity_params, row_band=band)
-            self._band_params = (height, params)
+            params = dataclasses.replace(
+                self.disparity_params, num_disparities=settings.num_disparities, row_band=band
+            )
+            self._band_params = (key, params)
         return self._band_params[1]
 
     # ------------------------------------------------------------------ callbacks
@@ -291,22 +333,42 @@ class StereoDepthNode(Node):
         self._update_geometry()
 
     def _update_geometry(self) -> None:
-        """Rebuild the stereo geometry when the calibration changes (a bad one is reported
-        once per change; its frames are then skipped)."""
+        """Rebuild the stereo geometry and the settings derived from the camera when the
+        calibration changes (a bad one is reported once per change; its frames are then
+        skipped). A change after the first is reported with what it changed; the odometry and
+        the road plane then start afresh (the worker resets them)."""
         if self.left_info is None or self.right_info is None:
             return
-        key = (tuple(self.left_info.p), tuple(self.right_info.p))
+        key = tuple(
+            (tuple(i.p), int(i.width), int(i.height)) for i in (self.left_info, self.right_info)
+        )
         if key == self._calibration_key:
             return
+        stamps = {stamp_ns(i.header) for i in (self.left_info, self.right_info)}
+        if self.geometry is not None and len(stamps) == 2 and 0 not in stamps:
+            return  # one side of a new pair: judged when the other side's arrives
+        first = self._calibration_key is None
         self._calibration_key = key
+        previous = self.settings
         try:
-            check_stereo_infos(self.left_info, self.right_info)  # one line naming the field
-            self.geometry = StereoGeometry.from_camera_infos(self.left_info, self.right_info)
-            self._publish_rig()
+            camera = CameraModel.from_camera_info(self.left_info, self.right_info)
+            geometry = StereoGeometry.from_camera_infos(self.left_info, self.right_info)
+            g = self.given
+            settings = stereo_settings(
+                camera, g.num_disparities, tuple(g.match_rows), g.ground_height
+            )
         except ValueError as exc:
             self.geometry = None
             self._geometry_error = f"{TOPIC_LEFT_INFO}/{TOPIC_RIGHT_INFO}: {exc}"
             self.get_logger().warning(f"{self._geometry_error}; frames skipped until it changes")
+            return
+        self.geometry, self.settings = geometry, settings
+        self._publish_rig()
+        if first or previous is None:
+            self.get_logger().info(settings.text)
+        else:
+            self._camera_generation += 1
+            self.get_logger().warning(f"camera_info changed: {settings.text}")
 
     def _publish_rig(self) -> None:
         """The rig's fixed transforms on /tf_static (when its frames or baseline changed)."""
@@ -394,15 +456,22 @@ class StereoDepthNode(Node):
         self.trace("pair_start", stamp)
         gray = None
         try:
-            if self.geometry is None:
+            geometry, settings = self.geometry, self.settings
+            if geometry is None or settings is None:
                 raise _NoGeometry(self._geometry_error)
-            frame.geometry = self.geometry
+            frame.geometry = geometry
+            if self._worker_generation != self._camera_generation:
+                # another camera: the previous pair and road plane are not this camera's
+                self._worker_generation = self._camera_generation
+                self.ground.reset()
+                if self.odometry is not None:
+                    self.odometry.reset()
             left = image_to_rgb(left_msg)
             right = image_to_rgb(right_msg)
             # sizes and frame ids of the images and their camera_infos
             check_stereo_images(left_msg, right_msg, left, right, self.left_info, self.right_info)
             gray = to_gray(left)
-            params = self._disparity_params_for(left.shape[0])
+            params = frame.params = self._disparity_params_for(left.shape[0], settings)
             self.trace("disparity_start", stamp)
             frame.disparity = compute_disparity(left, right, params)
             self.trace("disparity_end", stamp)
@@ -432,9 +501,7 @@ class StereoDepthNode(Node):
         is built for no one)."""
         if self.publish_disparity and self.pub_disparity.get_subscription_count() > 0:
             self.pub_disparity.publish(
-                disparity_message(
-                    frame.disparity, frame.geometry, self.disparity_params, frame.header
-                )
+                disparity_message(frame.disparity, frame.geometry, frame.params, frame.header)
             )
         if self.pub_points is not None and self.pub_points.get_subscription_count() > 0:
             pts, rgb = decimated_points(
@@ -527,6 +594,10 @@ class StereoDepthNode(Node):
         geo = frame.geometry
         bias = self._column_bias(frame.disparity.shape[1], geo)
         plane = self.ground.update(frame.disparity, geo, bias)
+        report = self.ground_check.add(plane)
+        if report is not None:
+            level, line = report
+            (self.get_logger().warning if level == "warning" else self.get_logger().info)(line)
         fb = geo.fx * geo.baseline
         depths = [fb / r.disparity if r is not None else None for r in results]
         return check_boxes(frame.disparity, boxes, depths, geo, plane, self.plausibility)

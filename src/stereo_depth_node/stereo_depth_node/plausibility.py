@@ -367,3 +367,64 @@ def check_boxes(
         share = ground_fraction(disparity, box, geometry, plane, params.ground_tolerance)
         out.append(judge(measure_box(box, float(z), geometry, plane, (w, h), share), params))
     return out
+
+
+class GroundHeightCheck:
+    """Checks the camera height the ranging and the prior plane use (``ground_height``, given
+    or assumed: it is not in CameraInfo) against the road planes :class:`GroundEstimator`
+    fits: once ``fits`` frames had a fit, ONE report of their median height and pitch and
+    whether the height agrees within ``tolerance`` [m]; if ``frames`` frames went by without
+    any fit, ONE report that the road was not found within the accepted heights
+    (``ground_height_range``). :meth:`add` returns (level "info" | "warning", line) once."""
+
+    def __init__(
+        self,
+        height: float,
+        assumed: bool,
+        height_range: tuple[float, float],
+        fits: int = 5,
+        frames: int = 30,
+        tolerance: float = 0.2,
+    ) -> None:
+        self.height, self.assumed = float(height), bool(assumed)
+        self.height_range = tuple(float(v) for v in height_range)
+        self.fits, self.frames, self.tolerance = int(fits), int(frames), float(tolerance)
+        self._heights: list[float] = []
+        self._pitches: list[float] = []
+        self._seen = 0
+        self.done = False
+
+    def _setting(self) -> str:
+        return f"ground_height {self.height:.2f} m ({'assumed' if self.assumed else 'parameter'})"
+
+    def add(self, plane: GroundPlane) -> tuple[str, str] | None:
+        if self.done:
+            return None
+        self._seen += 1
+        if plane.source == "fit":
+            self._heights.append(plane.offset)
+            self._pitches.append(plane.pitch_deg)
+        if len(self._heights) >= self.fits:
+            self.done = True
+            h, pitch = float(np.median(self._heights)), float(np.median(self._pitches))
+            measured = (
+                f"road plane: camera {h:.2f} m above the road, pitch {pitch:+.1f} deg (median "
+                f"of {len(self._heights)} fitted frames)"
+            )
+            if abs(h - self.height) <= self.tolerance:
+                return "info", f"{measured}; {self._setting()} agrees"
+            return (
+                "warning",
+                f"{measured}; {self._setting()} differs by {abs(h - self.height):.2f} m: set "
+                f"stereo_depth.ground_height:={h:.2f}",
+            )
+        if self._seen >= self.frames and not self._heights:
+            self.done = True
+            lo, hi = self.height_range
+            return (
+                "warning",
+                f"road plane: none found in {self._seen} frames within ground_height_range "
+                f"[{lo:g}, {hi:g}] m; {self._setting()} unchecked: if the camera is mounted "
+                "lower or higher, set stereo_depth.ground_height and ground_height_range",
+            )
+        return None

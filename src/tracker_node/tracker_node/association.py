@@ -9,7 +9,6 @@ Gated-out pairs (cost ``inf``) are never matched.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from vehicle_common.box2d import iou_2d
 
 from .kalman import inv3_sym
@@ -68,6 +67,10 @@ def solve(cost: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray]:
     if not valid.any():
         return np.zeros(0, int), np.zeros(0, int)
     if method == "hungarian":
+        # imported here: scipy.optimize costs the tracker's start-up 0.5 s of CPU, and the
+        # graph's default association is "nearest"
+        from scipy.optimize import linear_sum_assignment
+
         big = (np.abs(cost[valid]).max() + 1.0) * max(n, m) + 1.0
         r, c = linear_sum_assignment(np.where(valid, cost, big))
         ok = valid[r, c]

@@ -90,23 +90,14 @@ class TrackProgress:
         self._ctx.try_shutdown()
 
 
-def _camera_settings(root: Path, sequence: str, keep: bool, checkpoint: str) -> list[str]:
-    """The overrides a camera other than KITTI's needs (tracking_bringup.camera) with the
-    detector's ``checkpoint`` ("" = shipped), printed; none with ``keep``."""
-    from vehicle_common.kitti import TrackingSequence
+def _kitti_settings(checkpoint: str) -> list[str]:
+    """KITTI's camera settings as overrides (``--no-camera-settings``: a synthetic camera that
+    is not KITTI's run with them instead of the derived ones), printed."""
+    from tracking_bringup.camera import KITTI_CAMERA, camera_overrides
 
-    from tracking_bringup.camera import camera_overrides, checkpoint_input_size
-
-    seq = TrackingSequence.open(root, sequence)
-    h, w = seq.read_stereo(seq.frame_ids[0])[0].shape[:2]
-    network = checkpoint_input_size(checkpoint)
-    overrides = camera_overrides(w, h, seq.calib.fx, seq.calib.baseline, network)
-    print(
-        f"[demo] camera {w}x{h}, fx {seq.calib.fx:.1f} px, baseline {seq.calib.baseline:.3f} m: "
-        + ("keeping the parameter file's settings" if keep else " ".join(overrides)),
-        flush=True,
-    )
-    return [] if keep else overrides
+    overrides = camera_overrides(KITTI_CAMERA, checkpoint)
+    print(f"[demo] KITTI's camera settings instead of the derived ones: {' '.join(overrides)}")
+    return overrides
 
 
 def _prepare_data(args) -> tuple[Path, str, int]:
@@ -157,8 +148,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--no-camera-settings",
         action="store_true",
-        help="keep the detector input size and num_disparities of the parameter file for a "
-        "camera that is not KITTI's (default: derived from it, tracking_bringup.camera)",
+        help="run with KITTI's camera settings (detector input size, region of interest, "
+        "num_disparities, match_rows) instead of those the nodes derive from the CameraInfo",
     )
     parser.add_argument("--output", help="output folder (default output/demo_<time>)")
     parser.add_argument("--params", default=str(PARAMS_FILE), help="ROS parameter YAML")
@@ -187,14 +178,11 @@ def main(argv: list[str] | None = None) -> int:
         root, sequence, frames = _prepare_data(args)
     except (KittiFormatError, OSError, ValueError) as exc:
         return _error(str(exc))
-    camera = []
-    if not args.kitti_root and (args.focal > 0 or (args.width, args.height) != (1242, 375)):
-        # derived for the checkpoint the detector will load (tiny_kitti on synthetic data)
-        checkpoint = detector_checkpoint(args.params, args.param, synthetic=True)
+    camera = []  # the nodes derive the camera's settings from its CameraInfo
+    if args.no_camera_settings:
+        checkpoint = detector_checkpoint(args.params, args.param, synthetic=not args.kitti_root)
         try:
-            camera = _camera_settings(root, sequence, args.no_camera_settings, checkpoint)
-        except KittiFormatError as exc:  # the data
-            return _error(str(exc))
+            camera = _kitti_settings(checkpoint)
         except ValueError as exc:  # the checkpoint (CheckpointError)
             return _error(f"vehicle_detector.checkpoint: {exc}")
 
@@ -230,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.detector} detector); logs in {out / 'logs'}",
         flush=True,
     )
-    launcher = GraphLauncher(processes, out / "logs")
+    launcher = GraphLauncher(processes, out / "logs", staged=False)  # the player waits itself
     progress = None
     t0 = time.monotonic()
     try:

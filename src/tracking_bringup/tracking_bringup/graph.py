@@ -83,7 +83,7 @@ DETECTOR = NodeSpec(
     name="vehicle_detector",
     package="detector_node",
     executable="vehicle_detector",
-    subscribes=(LEFT_IMAGE,),
+    subscribes=(LEFT_IMAGE, LEFT_INFO),  # camera info: the framing derived from the camera
     publishes=(DETECTIONS_2D, topics.VISION_DETECTIONS_2D),
     latest_frame=True,
 )

@@ -2,9 +2,11 @@
 
 It starts each node as its own OS process (real DDS between them) with
 ``--ros-args --params-file FILE``, writes one log file per node, checks readiness (every node's
-subscriptions and publications are visible in the ROS graph; data sources such as the player are
-started only once the rest of the graph is up, and themselves wait until every edge of the graph
-is matched, see ``graph.edge_counts``), and exits non-zero naming the node when one dies.
+subscriptions and publications are visible in the ROS graph; ``stereo_tracking_launch`` starts
+every process at once, as ``ros2 launch`` does, and the player publishes nothing until every
+edge of the graph is matched, see ``graph.edge_counts``; ``GraphLauncher(staged=True)``, the
+default for other sources, starts them only once the rest is up), and exits non-zero naming the
+node when one dies.
 
 A node that stops making progress while the graph runs (no report on /diagnostics, or a frame
 in process without progress, for ``stall_timeout`` s: a frozen or hung process) ends the run
@@ -153,8 +155,10 @@ class GraphLauncher:
         self.ready_timeout = ready_timeout
         self.stop_timeout = stop_timeout
         self.echo = echo
-        #: start the sources only once the rest is up (False: everything at once, as
-        #: ``ros2 launch`` does; the sources' own edge readiness then does the waiting)
+        #: start the sources only once the rest is up (False: everything at once, as ``ros2
+        #: launch`` does; the sources' own edge readiness then does the waiting, and the
+        #: player's start-up overlaps the detector's: ``stereo_tracking_launch`` and the demo,
+        #: whose player waits for every edge of the graph)
         self.staged = staged
         self.drain_timeout = drain_timeout
         self.running: dict[str, _Running] = {}
@@ -189,12 +193,12 @@ class GraphLauncher:
         """Start the non-source processes, wait until their topics are up, then the sources."""
         self.log_dir.mkdir(parents=True, exist_ok=True)
         try:
-            self._open_observer()
             if self.staged:
                 rest = [s for s in self.specs if not s.source]
                 sources = [s for s in self.specs if s.source]
                 for spec in rest:
                     self._spawn(spec)
+                self._open_observer()  # while the nodes start
                 self._wait_ready(rest)
                 for spec in sources:
                     self._spawn(spec)
@@ -202,6 +206,7 @@ class GraphLauncher:
             else:
                 for spec in self.specs:
                     self._spawn(spec)
+                self._open_observer()  # while the nodes start
                 self._wait_ready(self.specs)
             self.foreign = self._foreign_publishers()
             self._ready = True
@@ -603,6 +608,8 @@ def run_graph(
     Returns the exit code: 0 on a clean run, 1 when a node died (named in the message), 2 when
     a node refused its parameters or input (its one line is the message), 130 when stopped
     during start-up."""
+    # every process at once: the player waits for every edge of the graph itself, and its
+    # start-up overlaps the detector's (first tracks sooner, docs/RESULTS.md section 11)
     launcher = GraphLauncher(
         processes,
         log_dir,
@@ -610,6 +617,7 @@ def run_graph(
         ready_timeout=ready_timeout,
         echo=echo,
         stall_timeout=stall_timeout,
+        staged=False,
     )
     previous = {
         sig: signal.signal(sig, launcher.request_stop) for sig in (signal.SIGINT, signal.SIGTERM)
