@@ -14,7 +14,9 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from .checkpoint import SHIPPED_CHECKPOINT, resolve_checkpoint
+from vehicle_common.node_parameters import ParameterError
+
+from .checkpoint import SHIPPED_CHECKPOINT, CheckpointError, resolve_checkpoint
 from .onnx_cache import OnnxCache, cache_dir, file_digest
 
 RUNTIMES = ("auto", "torch", "onnxruntime")
@@ -34,6 +36,17 @@ def onnxruntime_installed() -> bool:
     return all(importlib.util.find_spec(m) is not None for m in ("onnx", "onnxruntime"))
 
 
+def checkpoint_path(checkpoint: str = "") -> Path:
+    """The file of ``checkpoint`` ('' = the shipped one; a name such as ``tiny_kitti``; a
+    path). Raises CheckpointError (one line naming it) when it is missing or a folder."""
+    path = resolve_checkpoint(checkpoint or SHIPPED_CHECKPOINT)
+    if path.is_dir():
+        raise CheckpointError(f"{path}: is a folder, not a checkpoint file")
+    if not path.is_file():
+        raise CheckpointError(f"{path}: checkpoint not found")
+    return path
+
+
 def load_detector(
     checkpoint: str = "",
     device: str = "auto",
@@ -50,12 +63,8 @@ def load_detector(
     the module docstring; ``cache``: default the user cache folder). Raises ValueError naming
     the setting or file at fault."""
     if runtime not in RUNTIMES:
-        raise ValueError(f"runtime must be one of {', '.join(RUNTIMES)}, got {runtime!r}")
-    if device not in DEVICES:
-        raise ValueError(f"device must be auto, cpu or cuda, got {device!r}")
-    path = resolve_checkpoint(checkpoint or SHIPPED_CHECKPOINT)
-    if not path.is_file():
-        raise ValueError(f"{path}: checkpoint not found")
+        raise ParameterError("runtime", f"must be one of {', '.join(RUNTIMES)}, got {runtime!r}")
+    path = checkpoint_path(checkpoint)
     cpu = device == "cpu" or (device == "auto" and not gpu_present())
     if runtime != "torch" and cpu and onnxruntime_installed():
         from .onnx_detector import CheckpointSource, OnnxCenterNetDetector
@@ -63,7 +72,7 @@ def load_detector(
         try:
             digest = file_digest(path)
         except OSError as exc:
-            raise ValueError(f"{path}: cannot read the checkpoint ({exc})") from None
+            raise CheckpointError(f"{path}: cannot read the checkpoint ({exc})") from None
         source = CheckpointSource(path, digest, cache or OnnxCache(cache_dir()))
         info = source.info()
         if info.config.size == "centernet":
@@ -92,8 +101,6 @@ def checkpoint_framing(checkpoint: str = "", cache: OnnxCache | None = None):
     when it holds it (no PyTorch), for deriving a camera's settings offline."""
     from .onnx_detector import CheckpointSource
 
-    path = resolve_checkpoint(checkpoint or SHIPPED_CHECKPOINT)
-    if not path.is_file():
-        raise ValueError(f"{path}: checkpoint not found")
+    path = checkpoint_path(checkpoint)
     info = CheckpointSource(path, file_digest(path), cache or OnnxCache(cache_dir())).info()
     return info.config, info.training_input, info.training_roi_top

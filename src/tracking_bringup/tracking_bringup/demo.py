@@ -18,6 +18,8 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from detector_node.loading import checkpoint_path
+
 from tracking_bringup import graph
 from tracking_bringup.environment import PARAMS_FILE, apply_graph_environment
 from tracking_bringup.launcher import GraphLauncher, LaunchError, graph_processes
@@ -179,12 +181,13 @@ def main(argv: list[str] | None = None) -> int:
     except (KittiFormatError, OSError, ValueError) as exc:
         return _error(str(exc))
     camera = []  # the nodes derive the camera's settings from its CameraInfo
-    if args.no_camera_settings:
-        checkpoint = detector_checkpoint(args.params, args.param, synthetic=not args.kitti_root)
-        try:
+    checkpoint = detector_checkpoint(args.params, args.param, synthetic=not args.kitti_root)
+    try:
+        checkpoint_path(checkpoint)  # one line before the graph starts, not the node's death
+        if args.no_camera_settings:
             camera = _kitti_settings(checkpoint)
-        except ValueError as exc:  # the checkpoint (CheckpointError)
-            return _error(f"vehicle_detector.checkpoint: {exc}")
+    except ValueError as exc:  # the checkpoint (CheckpointError)
+        return _error(f"vehicle_detector.checkpoint: {exc}")
 
     bag = out / "bag"
     overrides = [
