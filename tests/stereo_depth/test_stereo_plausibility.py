@@ -209,3 +209,49 @@ def test_real_0005_labelled_cars_pass_and_a_box_on_the_empty_road_does_not(kitti
     checks = check_boxes(disp, boxes, depths, geo, plane)
     assert len(cars) >= 2 and all(c.plausible for c in checks[:-1])
     assert not checks[-1].plausible
+
+
+def _car_box(z: float, bottom_above_road: float, height_m: float = 1.5, u: float = 700.0):
+    """A 1.7 m wide box at depth z whose bottom edge is ``bottom_above_road`` above a level
+    road 1.65 m below the camera."""
+    y2 = GEO.cy + GEO.fy * (1.65 - bottom_above_road) / z
+    y1 = y2 - GEO.fy * height_m / z
+    half = 0.5 * GEO.fx * 1.7 / z
+    return (u - half, y1, u + half, y2)
+
+
+def test_limits_widen_with_the_depth_uncertainty():
+    """Issue #34: a far car's bottom 0.7 m above the extrapolated road plane, or its box 0.95 m
+    tall, is within what the stereo depth noise, the box edges and the road plane's
+    extrapolation allow at 50 m, not at 10 m; with fixed limits (noise_sigmas 0) both are
+    rejected, as before."""
+    plane = GroundPlane.level(1.65)
+    disp = np.full((H, W), -1.0, np.float32)  # no road pixels: ground fraction 0
+    scaled = PlausibilityParams()
+    fixed = replace(scaled, noise_sigmas=0.0)
+    for bottom, height in ((0.7, 1.5), (0.0, 0.95)):
+        boxes = [_car_box(10.0, bottom, height), _car_box(50.0, bottom, height)]
+        depths = [10.0, 50.0]
+        stds = [0.3, 0.18]  # the ranging's disparity stds (map / refined far box)
+        near, far = check_boxes(disp, boxes, depths, GEO, plane, scaled, stds)
+        assert not near.plausible and far.plausible, (bottom, height)
+        assert far.measures.bottom_std > 3 * near.measures.bottom_std
+        assert far.measures.height_std > 3 * near.measures.height_std
+        assert not any(c.plausible for c in check_boxes(disp, boxes, depths, GEO, plane, fixed))
+    # a box that is no car at any range stays out: floating 1.5 m at 50 m
+    (far,) = check_boxes(disp, [_car_box(50.0, 1.5)], [50.0], GEO, plane, scaled, [0.18])
+    assert not far.plausible
+
+
+def test_the_depth_std_comes_from_the_disparity_std():
+    plane = GroundPlane.level(1.65)
+    disp = np.full((H, W), -1.0, np.float32)
+    p = replace(PlausibilityParams(), road_tilt_std=0.0, box_edge_std=0.0)
+    box = _car_box(40.0, 0.0)
+    (exact,) = check_boxes(disp, [box], [40.0], GEO, plane, p)
+    (noisy,) = check_boxes(disp, [box], [40.0], GEO, plane, p, [0.3])
+    assert exact.measures.height_std == 0.0
+    # dh / h = dz / z = z sigma_d / (f B)
+    assert noisy.measures.height_std == pytest.approx(
+        noisy.measures.height * 40.0 * 0.3 / FB, rel=1e-6
+    )

@@ -132,8 +132,10 @@ class RangingParams:
     # blend: share of the way from the visible model to the nearest-corner one (real cars)
     surface_blend: float = 0.625
     # [m] depth of the real visible surface behind the model box's faces (rounded cars),
-    # subtracted from the centre correction (chosen on real LiDAR surfaces, docs section 8)
-    surface_inset: float = 0.2
+    # subtracted from the centre correction: the median over the real LiDAR surfaces of the
+    # tuning keyframes (docs sections 8, 9; 0.2 before issue #34 left the centres 0.1-0.2 m
+    # too far at 10-45 m)
+    surface_inset: float = 0.32
     car_length: float = 3.9  # [m] mean car length of the centre correction
     car_width: float = 1.6  # [m] mean car width of the centre correction
     correction_bin_spread: float = 0.0  # share of the bin's +-22.5 deg averaged (0: centre)
@@ -183,12 +185,14 @@ class RangingParams:
 @dataclass(frozen=True)
 class RangeResult:
     """3D estimate of one box: position [m] (left optical frame), 3x3 covariance [m^2],
-    the disparity [px] it came from and the share of box pixels with a valid disparity."""
+    the disparity [px] it came from, the share of box pixels with a valid disparity and the
+    disparity's std [px] (the error model's)."""
 
     position: np.ndarray
     covariance: np.ndarray
     disparity: float
     valid_pixel_fraction: float
+    disparity_std: float = 0.0  # [px] of ``disparity`` (disparity_std; the error model's)
 
 
 @dataclass(frozen=True, eq=False)
@@ -496,7 +500,7 @@ def range_boxes(
                 point = fitted + np.array([0.0, 0.0, params.depth_offset[b]])
         sd = disparity_std(d, refined, params)
         cov = position_covariance(u, v, float(point[2]), geometry, params, sd)
-        results.append(RangeResult(point, cov, float(d), float(frac)))
+        results.append(RangeResult(point, cov, float(d), float(frac), float(sd)))
     return results
 
 
