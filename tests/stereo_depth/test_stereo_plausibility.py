@@ -221,26 +221,25 @@ def _car_box(z: float, bottom_above_road: float, height_m: float = 1.5, u: float
 
 
 def test_limits_widen_with_the_depth_uncertainty():
-    """Issue #34: a far car's bottom 0.7 m above the extrapolated road plane, or its box 0.95 m
-    tall, is within what the stereo depth noise, the box edges and the road plane's
-    extrapolation allow at 50 m, not at 10 m; with fixed limits (noise_sigmas 0) both are
-    rejected, as before."""
+    """Issue #34: a far car's bottom 0.5 m above (or 0.7 m below) the road plane, extrapolated
+    from the road nearer than 30 m, is within what the plane's tilt and the stereo depth noise
+    allow at 50 m, not at 10 m; with fixed limits (noise_sigmas 0) it is rejected at both, as
+    before."""
     plane = GroundPlane.level(1.65)
     disp = np.full((H, W), -1.0, np.float32)  # no road pixels: ground fraction 0
     scaled = PlausibilityParams()
     fixed = replace(scaled, noise_sigmas=0.0)
-    for bottom, height in ((0.7, 1.5), (0.0, 0.95)):
-        boxes = [_car_box(10.0, bottom, height), _car_box(50.0, bottom, height)]
+    for bottom in (0.5, -0.7):
+        boxes = [_car_box(10.0, bottom), _car_box(50.0, bottom)]
         depths = [10.0, 50.0]
         stds = [0.3, 0.18]  # the ranging's disparity stds (map / refined far box)
         near, far = check_boxes(disp, boxes, depths, GEO, plane, scaled, stds)
-        assert not near.plausible and far.plausible, (bottom, height)
+        assert not near.plausible and far.plausible, bottom
         assert far.measures.bottom_std > 3 * near.measures.bottom_std
-        assert far.measures.height_std > 3 * near.measures.height_std
         assert not any(c.plausible for c in check_boxes(disp, boxes, depths, GEO, plane, fixed))
-    # a box that is no car at any range stays out: floating 1.5 m at 50 m
-    (far,) = check_boxes(disp, [_car_box(50.0, 1.5)], [50.0], GEO, plane, scaled, [0.18])
-    assert not far.plausible
+    # a box that is no car at any range stays out: floating 1 m at 50 m, 0.8 m tall
+    boxes = [_car_box(50.0, 1.0), _car_box(50.0, 0.0, 0.8)]
+    assert not any(c.plausible for c in check_boxes(disp, boxes, [50.0] * 2, GEO, plane, scaled))
 
 
 def test_the_depth_std_comes_from_the_disparity_std():

@@ -67,13 +67,13 @@ class PlausibilityParams:
     ground_softness: float = 0.1
     # depth-scaled limits (issue #34): every interval is widened by noise_sigmas x the measure's
     # std at the box's depth: the stereo depth std (the ranging's disparity std) and the box's
-    # edges (box_edge_std px each, in metres at the depth) propagated to height, width and
-    # bottom, and for the bottom the road plane's extrapolation, road_tilt_std [rad] x depth
-    # (the growth of the labelled cars' bottom spread with range); chosen on the tuning
-    # keyframes (docs section 9); 0 = fixed limits (before issue #34)
-    noise_sigmas: float = 2.0
+    # edges (box_edge_std px each, in metres at the depth; 0: exact boxes) propagated to height,
+    # width and bottom, and for the bottom the road plane's extrapolation, road_tilt_std [rad]
+    # x depth (the growth of the labelled cars' bottom spread with range); chosen on the tuning
+    # keyframes (docs section 9); noise_sigmas 0 = fixed limits (before issue #34)
+    noise_sigmas: float = 1.0
     road_tilt_std: float = 0.003
-    box_edge_std: float = 2.4
+    box_edge_std: float = 0.0
     ground_fit: bool = True  # fit the road plane per frame (false: the prior plane)
     ground_max_depth: float = 30.0  # [m] road pixels farther than this are not used
     ground_tolerance: float = 0.1  # [m] a pixel this near the plane is road (inlier)
