@@ -36,8 +36,8 @@ from .centre_fit import fit_cut_box, fit_lateral
 from .region_matching import (
     REFINE_METHODS,
     RegionParams,
-    _core,
     box_disparity,
+    core_rect,
     refine_shift,
     region_disparity,
 )
@@ -143,10 +143,10 @@ class RangingParams:
         default_factory=lambda: (0.0, 0.0, 0.0, 0.0)
     )  # [m] per orientation bin (0, 45, 90, 135 deg), added after the centre correction
     lateral_fit: bool = True  # centre_fit.fit_lateral: footprint of the car spans the 2D box
-    # boxes cut by one side border of the image: the surface of the visible part (no far
-    # weighting; a near box matched at full resolution up to near_max_disparity) and the centre
-    # of the car footprint that keeps the box's inner edge and gives that surface
-    # (centre_fit.fit_cut_box); docs section 9
+    # boxes cut by the image border: the surface of their visible part (a near one matched at
+    # full resolution up to near_max_disparity) and, cut at one side, the centre of the car
+    # footprint that keeps the box's inner edge and gives that surface (centre_fit.fit_cut_box);
+    # docs section 9
     cut_box_fit: bool = True
     near_max_disparity: float = 160.0  # [px] largest disparity a near cut box is searched at
     refine: str = "region_shift"  # none | region_sgbm | region_shift (region_matching.py)
@@ -296,13 +296,11 @@ def robust_disparity(
     box,
     geometry: StereoGeometry,
     params: RangingParams,
-    far_weight: float | None = None,
     columns: bool = False,
 ):
     """Disparity of the dominant car-consistent surface in ``box`` (see module doc):
-    (d, number of pixels supporting it); d = nan when none. ``far_weight``: instead of
-    ``params.far_weight``. With ``columns``, a third item: the image columns of the supporting
-    pixels (one entry per pixel)."""
+    (d, number of pixels supporting it); d = nan when none. With ``columns``, a third item: the
+    image columns of the supporting pixels (one entry per pixel)."""
     h, w = disparity.shape
     sl = _box_slice(box, w, h, params.core_fraction)
     none = (float("nan"), 0, np.zeros(0)) if columns else (float("nan"), 0)
@@ -319,8 +317,8 @@ def robust_disparity(
     vals = patch[valid]
     if vals.size < max(1, params.min_valid_pixels // 2):
         return none
-    fw = params.far_weight if far_weight is None else far_weight
-    best, in_mode = _robust_mode(vals, float(box[3]) - float(box[1]), geometry, params, fw)
+    box_h = float(box[3]) - float(box[1])
+    _, in_mode = _robust_mode(vals, box_h, geometry, params, params.far_weight)
     if not in_mode.any():
         return none
     d = float(np.exp(np.median(np.log(vals[in_mode].astype(np.float64)))))
@@ -537,7 +535,7 @@ def _cut_box_disparity(
     near = max(np.nan_to_num(d, nan=0.0), np.nan_to_num(d_prior, nan=0.0))
     if images is not None and params.refine != "none" and near > params.refine_max_disparity:
         h, w = images[0].shape[:2]
-        rect = _core(box, w, h, params.core_fraction)
+        rect = core_rect(box, w, h, params.core_fraction)
         lo = 0.6 * min(v for v in (d, d_prior) if np.isfinite(v) and v > 0)
         hi = min(params.near_max_disparity, 1.6 * near)
         if rect is not None and hi > lo:
