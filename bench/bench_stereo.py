@@ -1062,11 +1062,13 @@ def main() -> int:
             "far",
             "centre",
             "centre_keyframes",
+            "centre_bias",
             "centre_real",
             "timing",
             "covariance",
             "odometry",
             "plausibility",
+            "plausibility_range",
             "all",
         ],
     )
@@ -1096,12 +1098,16 @@ def main() -> int:
         bench_centre(DEFAULT, args.synth)
     if args.section == "centre_keyframes":
         stereo_real.bench_centre_keyframes()
+    if args.section in ("centre_bias", "all"):
+        stereo_real.bench_centre_bias()
     if args.section in ("covariance", "all"):
         bench_covariance()
     if args.section in ("odometry", "all"):
         bench_odometry()
     if args.section in ("plausibility", "all"):
         stereo_real.bench_plausibility()
+    if args.section in ("plausibility_range", "all"):
+        stereo_real.bench_plausibility_range()
     if args.section in ("timing", "all"):
         bench_timing(variants, args.repeats)
     return 0

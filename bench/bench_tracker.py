@@ -427,6 +427,9 @@ def cmd_real(args) -> None:
                 rm.print_covariance_check(datas)
             rm.print_motion(stats, times)
             rm.print_tracking_summary(stats, bars=source == "camera" and split == "reporting")
+            rm.print_orientation(stats)
+            if args.lost_cars:
+                rm.print_lost_cars(stats)
             print(f"  ({time.perf_counter() - t0:.0f} s)")
 
 
@@ -583,6 +586,11 @@ def main() -> None:
     r.add_argument("--split", default="both", choices=("both", "tuning", "reporting"))
     r.add_argument("--seqs", default="", help="override the reporting sequences")
     r.add_argument("--set", action="append", help="NAME=VALUE tracker parameter override")
+    r.add_argument(
+        "--lost-cars",
+        action="store_true",
+        help="print why labelled cars were missed, per cause (eval_node.lost_cars)",
+    )
     r.add_argument(
         "--cold-start",
         type=int,

@@ -217,6 +217,7 @@ def test_evaluate_cli_bag_json_and_table(tmp_path):
             "--json",
             str(out),
             "--no-filters",
+            "--lost-cars",
         ],
         capture_output=True,
         text=True,
@@ -225,6 +226,8 @@ def test_evaluate_cli_bag_json_and_table(tmp_path):
     res = json.loads(out.read_text())
     assert res["tracking"]["mota"] == pytest.approx(1.0)
     assert "MOTA" in p.stdout and "100.0" in p.stdout
+    # issue 34: the per-cause table of missed cars (none missed here)
+    assert "why labelled cars were missed" in p.stdout and "recall 1.000" in p.stdout
     assert math.isfinite(res["throughput"]["fps"])
 
 

@@ -127,8 +127,8 @@ def test_corrected_estimate_is_nearer_the_centre_of_mass(alpha_deg, x, z, max_er
     )
     box = (*pts.min(axis=0), *pts.max(axis=0))
     b = alpha_to_bin(alpha)
-    # rendered disparities: no real-camera bias
-    exact = RangingParams(disparity_bias=0.0, disparity_bias_column=0.0)
+    # rendered disparities: no real-camera bias; a box, not a rounded car: no inset
+    exact = RangingParams(disparity_bias=0.0, disparity_bias_column=0.0, surface_inset=0.0)
     on = range_boxes(disp, [box], GEO, exact, [b])[0]
     off = range_boxes(disp, [box], GEO, replace(exact, centre_correction=False), [b])[0]
     err_on = np.linalg.norm(on.position - centre)

@@ -390,10 +390,10 @@ def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_track
 
 
 @contextlib.contextmanager
-def _checked_frame(ctx, action: str, boxes):
+def _checked_frame(ctx, action: str, boxes, **params):
     """A harness with ``plausibility_action``, one frame and its detections: (harness, the
     published 3D detections)."""
-    h = Harness(ctx, plausibility_action=action, disparity_bias=0.0)
+    h = Harness(ctx, plausibility_action=action, disparity_bias=0.0, **params)
     try:
         h.send_frame(3)
         h.send_detections(3, boxes)
@@ -417,7 +417,8 @@ def test_flag_action_publishes_the_check_and_its_inputs(rclpy_context):
     # floating box, and one whose bottom edge (row 113 at 17.5 m: 1.33 m below the camera) is
     # 0.32 m above the road: it stands on the road
     boxes = [(150, 30, 250, 90), (60, 53, 140, 113)]
-    with _checked_frame(rclpy_context, "flag", boxes) as (h, dets):
+    # fixed limits (the depth-scaled ones: test_stereo_plausibility.py)
+    with _checked_frame(rclpy_context, "flag", boxes, noise_sigmas=0.0) as (h, dets):
         floating, standing = dets
         z = FX * B / DISP
         assert floating.metric_height == pytest.approx(60 * z / FX, rel=0.03)
@@ -437,7 +438,8 @@ def test_flag_action_publishes_the_check_and_its_inputs(rclpy_context):
 def test_score_action_lowers_the_score_of_an_implausible_box(rclpy_context):
     with _checked_frame(rclpy_context, "score", [(150, 30, 250, 90)]) as (_, dets):
         (det,) = dets
-        assert det.score == pytest.approx(0.9 * det.plausibility) and det.score < 0.05
+        # 0.9 m above the road at 17.5 m: beyond the depth-scaled limit (0.4 m + 2 x 0.06 m)
+        assert det.score == pytest.approx(0.9 * det.plausibility) and det.plausibility < 0.2
 
 
 def test_bad_plausibility_parameter_is_refused(rclpy_context):

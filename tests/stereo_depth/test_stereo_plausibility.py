@@ -235,3 +235,48 @@ def test_camera_height_is_checked_against_the_fitted_road_plane():
     level, line = reports[3]
     assert level == "warning" and "none found in 4 frames" in line and reports[4] is None
     assert "(parameter)" in line
+
+
+def _car_box(z: float, bottom_above_road: float, height_m: float = 1.5, u: float = 700.0):
+    """A 1.7 m wide box at depth z whose bottom edge is ``bottom_above_road`` above a level
+    road 1.65 m below the camera."""
+    y2 = GEO.cy + GEO.fy * (1.65 - bottom_above_road) / z
+    y1 = y2 - GEO.fy * height_m / z
+    half = 0.5 * GEO.fx * 1.7 / z
+    return (u - half, y1, u + half, y2)
+
+
+def test_limits_widen_with_the_depth_uncertainty():
+    """Issue #34: a far car's bottom 0.5 m above (or 0.7 m below) the road plane, extrapolated
+    from the road nearer than 30 m, is within what the plane's tilt and the stereo depth noise
+    allow at 50 m, not at 10 m; with fixed limits (noise_sigmas 0) it is rejected at both, as
+    before."""
+    plane = GroundPlane.level(1.65)
+    disp = np.full((H, W), -1.0, np.float32)  # no road pixels: ground fraction 0
+    scaled = PlausibilityParams()
+    fixed = replace(scaled, noise_sigmas=0.0)
+    for bottom in (0.5, -0.7):
+        boxes = [_car_box(10.0, bottom), _car_box(50.0, bottom)]
+        depths = [10.0, 50.0]
+        stds = [0.3, 0.18]  # the ranging's disparity stds (map / refined far box)
+        near, far = check_boxes(disp, boxes, depths, GEO, plane, scaled, stds)
+        assert not near.plausible and far.plausible, bottom
+        assert far.measures.bottom_std > 3 * near.measures.bottom_std
+        assert not any(c.plausible for c in check_boxes(disp, boxes, depths, GEO, plane, fixed))
+    # a box that is no car at any range stays out: floating 1 m at 50 m, 0.8 m tall
+    boxes = [_car_box(50.0, 1.0), _car_box(50.0, 0.0, 0.8)]
+    assert not any(c.plausible for c in check_boxes(disp, boxes, [50.0] * 2, GEO, plane, scaled))
+
+
+def test_the_depth_std_comes_from_the_disparity_std():
+    plane = GroundPlane.level(1.65)
+    disp = np.full((H, W), -1.0, np.float32)
+    p = replace(PlausibilityParams(), road_tilt_std=0.0, box_edge_std=0.0)
+    box = _car_box(40.0, 0.0)
+    (exact,) = check_boxes(disp, [box], [40.0], GEO, plane, p)
+    (noisy,) = check_boxes(disp, [box], [40.0], GEO, plane, p, [0.3])
+    assert exact.measures.height_std == 0.0
+    # dh / h = dz / z = z sigma_d / (f B)
+    assert noisy.measures.height_std == pytest.approx(
+        noisy.measures.height * 40.0 * 0.3 / FB, rel=1e-6
+    )

@@ -53,6 +53,19 @@ def load_labels(labels_dir: str | Path, sequence: str) -> dict[int, list[KittiOb
     raise BagReadError(f"{d / (sequence + '.txt')}: label file of sequence {sequence} not found")
 
 
+def run_ground_truth(run: RecordedRun, labels_dir, sequence: str) -> tuple[dict, str]:
+    """The ground truth per frame of a recorded run: from ``labels_dir`` (label_02 files) when
+    given, else as recorded; and its source ("labels", "bag" or "none")."""
+    if labels_dir is not None:
+        labels = load_labels(labels_dir, sequence)
+        gt = {
+            f.frame: [o.with_(frame=f.frame) for o in labels.get(f.frame, [])] for f in run.frames
+        }
+        return gt, "labels"
+    source = "bag" if any(GT_TOPIC in f.receive_ns for f in run.frames) else "none"
+    return {f.frame: f.gt for f in run.frames}, source
+
+
 def tracking_scores(gt, tracks) -> dict:
     """CLEAR-MOT + HOTA of the tracks (KITTI devkit rules, 2D IoU 0.5, HOTA on 2D IoU) and the
     same with 3D IoU (CLEAR-MOT at 0.25, HOTA on 3D IoU) under ``iou3d``."""
@@ -149,15 +162,7 @@ def evaluate_bag(
     seq = sequence or run.sequence or "0000"
     if calib_dir is not None and run.P_left is None:
         run.P_left = read_calib(Path(calib_dir) / f"{seq}.txt").P2
-    if labels_dir is not None:
-        labels = load_labels(labels_dir, seq)
-        gt = {
-            f.frame: [o.with_(frame=f.frame) for o in labels.get(f.frame, [])] for f in run.frames
-        }
-        gt_source = "labels"
-    else:
-        gt = {f.frame: f.gt for f in run.frames}
-        gt_source = "bag" if any(GT_TOPIC in f.receive_ns for f in run.frames) else "none"
+    gt, gt_source = run_ground_truth(run, labels_dir, seq)
     det2d = {f.frame: f.det2d for f in run.frames}
     det3d = {f.frame: f.det3d for f in run.frames}
     tracks = {f.frame: f.tracks for f in run.frames}

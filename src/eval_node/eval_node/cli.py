@@ -117,6 +117,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--tracker-params", help="ROS params file for the re-run tracker")
     b.add_argument("--no-progress", action="store_true", help="no progress bars")
     b.add_argument(
+        "--lost-cars",
+        action="store_true",
+        help="print why labelled cars were missed, per cause (eval_node.lost_cars; the "
+        "tracker's birth_score from --tracker-params)",
+    )
+    b.add_argument(
         "--namespace",
         help="namespace the graph ran in, e.g. /rig2 (default: detected from the bag's topics)",
     )
@@ -193,6 +199,8 @@ def _run_bag(args) -> int:
         res_files = ", ".join(sorted(p.name for p in files.values()))
         print(f"report: {args.report} ({res_files})", file=sys.stderr)
     print(results_table(res))
+    if args.lost_cars:
+        print(lost_cars_table(run, args.labels, args.sequence, config))
     return 0
 
 
@@ -202,6 +210,30 @@ def _check_outputs(args) -> None:
         check_output_file(args.json, "the --json file")
     if getattr(args, "report", None):
         make_output_dir(args.report, "the --report folder")
+
+
+def lost_cars_table(run, labels_dir=None, sequence=None, config=None) -> str:
+    """:func:`eval_node.lost_cars.cause_table` of a recorded run (ground truth as evaluated)."""
+    from eval_node.bag_evaluation import run_ground_truth
+    from eval_node.lost_cars import cause_table, lost_cars
+
+    def per_frame(attr: str) -> dict:
+        return {f.frame: getattr(f, attr) for f in run.frames}
+
+    seq = sequence or run.sequence or "0000"
+    gt, _ = run_ground_truth(run, labels_dir, seq)
+    records = lost_cars(
+        seq,
+        gt,
+        per_frame("det2d"),
+        per_frame("det3d"),
+        per_frame("tracks"),
+        per_frame("tentative"),
+        birth_score=config.birth_score if config is not None else 0.0,
+    )
+    return "\nwhy labelled cars were missed (2D IoU 0.5, KITTI tracking rules):\n" + cause_table(
+        records
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -560,6 +560,20 @@ def evaluate_tracking_sequences(
     return {"per_sequence": per, "total": total}
 
 
+def counted_ground_truth(
+    gt: list[KittiObject], cls: str = "Car", gt_min_height: float | None = None
+) -> list[KittiObject]:
+    """The ground-truth rows of one frame that count (a miss is a FN): class ``cls``, not
+    DontCare, within the devkit's occlusion / truncation (/ height) rules."""
+    return [
+        o
+        for o in gt
+        if not o.is_dontcare
+        and class_status(o.type, cls) == 1
+        and gt_counted_for_tracking(o, gt_min_height)
+    ]
+
+
 def match_tracks(
     gt: Frames,
     pred: Frames,

@@ -70,3 +70,85 @@ def fit_lateral(
         if abs(du) < 0.05:
             break
     return out
+
+
+def surface_depths(
+    us, centre: np.ndarray, alpha: float, length: float, width: float, geometry: StereoGeometry
+) -> np.ndarray:
+    """Depth [m] at which the viewing ray of each image column ``us`` enters the upright prism
+    over the footprint of a ``length`` x ``width`` car centred at ``centre`` (x, y, z) [m] and
+    seen at ``alpha`` (the car's visible surface, as a box, per column); nan where it misses."""
+    x, z = float(centre[0]), float(centre[2])
+    ry = alpha + np.arctan2(x, z)
+    c, s = np.cos(ry), np.sin(ry)
+    # the ray (a t, t), a = (u - cx) / fx, in the footprint's frame: length axis (c, -s),
+    # width axis (s, c), origin at the centre
+    a = (np.asarray(us, float) - geometry.cx) / geometry.fx
+    o_l, o_w = -(x * c - z * s), -(x * s + z * c)
+    d_l, d_w = a * c - s, a * s + c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (-0.5 * length - o_l) / d_l, (0.5 * length - o_l) / d_l
+        t3, t4 = (-0.5 * width - o_w) / d_w, (0.5 * width - o_w) / d_w
+    t_in = np.maximum(np.minimum(t1, t2), np.minimum(t3, t4))
+    t_out = np.minimum(np.maximum(t1, t2), np.maximum(t3, t4))
+    return np.where((t_in <= t_out) & (t_in > 0), t_in, np.nan)
+
+
+def fit_cut_box(
+    statistic,
+    target: float,
+    columns: np.ndarray,
+    box,
+    alpha: float,
+    length: float,
+    width: float,
+    geometry: StereoGeometry,
+    image_width: int,
+    start: np.ndarray,
+    border: float = 2.0,
+    iterations: int = 8,
+) -> np.ndarray | None:
+    """Centre (x, y, z) [m] of a car whose 2D ``box`` is cut by the left or right image border,
+    from its visible part: the ``length`` x ``width`` footprint at ``alpha`` whose projection
+    keeps the box's inner edge (:func:`footprint_columns`) and whose visible surface over the
+    image ``columns`` the car was measured on (:func:`surface_depths`) gives the measured
+    surface depth: ``statistic(depths)`` (the ranging's estimator applied to the model's
+    depths [m] per column of ``columns``, nan where the model misses it) equals ``target``
+    [m]. Gauss-Newton on (x, z) from ``start`` (y kept). None when the box is cut on both
+    sides or on neither, or no solution is found."""
+    x1, _, x2, _ = (float(v) for v in box)
+    cut_left, cut_right = x1 <= border, x2 >= image_width - 1 - border
+    if cut_left == cut_right or not len(columns):
+        return None
+
+    def residual(p):
+        c = np.array([p[0], start[1], p[1]])
+        lo, hi = footprint_columns(c, alpha, length, width, geometry)
+        edge = (hi - x2 if cut_left else lo - x1) * p[1] / geometry.fx  # px -> m at depth
+        z = surface_depths(columns, c, alpha, length, width, geometry)
+        if not np.isfinite(z).any():  # the model misses the measured columns: move it there
+            return np.array([edge, p[1] - target + 0.5 * width])
+        return np.array([edge, statistic(z) - target])
+
+    p = np.array([float(start[0]), float(start[2])])
+    for _ in range(iterations):
+        r = residual(p)
+        if not np.all(np.isfinite(r)):
+            return None
+        if np.max(np.abs(r)) < 0.01:
+            break
+        J = np.empty((2, 2))
+        for j in range(2):
+            q = p.copy()
+            q[j] += 0.02
+            J[:, j] = (residual(q) - r) / 0.02
+        if not np.all(np.isfinite(J)) or abs(np.linalg.det(J)) < 1e-6:
+            return None
+        step = np.linalg.solve(J, -r)
+        step *= min(1.0, 1.0 / max(float(np.linalg.norm(step)), 1e-12))  # at most 1 m a step
+        p = p + step
+        if p[1] <= 0.5:
+            return None
+    if np.max(np.abs(residual(p))) > 0.25:
+        return None
+    return np.array([p[0], float(start[1]), p[1]])

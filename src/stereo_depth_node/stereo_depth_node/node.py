@@ -600,7 +600,8 @@ class StereoDepthNode(Node):
             (self.get_logger().warning if level == "warning" else self.get_logger().info)(line)
         fb = geo.fx * geo.baseline
         depths = [fb / r.disparity if r is not None else None for r in results]
-        return check_boxes(frame.disparity, boxes, depths, geo, plane, self.plausibility)
+        stds = [r.disparity_std if r is not None else None for r in results]
+        return check_boxes(frame.disparity, boxes, depths, geo, plane, self.plausibility, stds)
 
     def _start_odometry(self, frame: _Frame, gray: np.ndarray | None) -> None:
         """Start the visual odometry of a pair (the camera's motion since the previous

@@ -10,7 +10,10 @@ the road. Per frame, :class:`GroundEstimator` fits the road plane to the dispari
 - ``ground_fraction``: share of the box's pixels whose disparity puts them on the road plane
   (within ``ground_tolerance``): a box drawn on the empty road surface is mostly road;
 
-and compares each with its interval (:class:`PlausibilityParams`). Edges cut by the image border
+and compares each with its interval (:class:`PlausibilityParams`), widened by ``noise_sigmas``
+times the measure's own uncertainty at the box's depth (issue #34: a check in metres must
+respect how the stereo depth noise and the road plane's extrapolation grow with range; the
+stds per measure: :func:`measure_box`). Edges cut by the image border
 switch off the checks they falsify (a box cut at the bottom has no visible bottom edge and may be
 short; one cut at the side may be narrow). ``plausible`` = every active check passes;
 ``plausibility`` = exp(-0.5 sum (violation_i / softness_i)^2), 1 for a plausible box, falling
@@ -62,6 +65,15 @@ class PlausibilityParams:
     bottom_softness: float = 0.2  # [m]
     width_softness: float = 0.7  # [m]
     ground_softness: float = 0.1
+    # depth-scaled limits (issue #34): every interval is widened by noise_sigmas x the measure's
+    # std at the box's depth: the stereo depth std (the ranging's disparity std) and the box's
+    # edges (box_edge_std px each, in metres at the depth; 0: exact boxes) propagated to height,
+    # width and bottom, and for the bottom the road plane's extrapolation, road_tilt_std [rad]
+    # x depth (the growth of the labelled cars' bottom spread with range); chosen on the tuning
+    # keyframes (docs section 9); noise_sigmas 0 = fixed limits (before issue #34)
+    noise_sigmas: float = 1.0
+    road_tilt_std: float = 0.003
+    box_edge_std: float = 0.0
     ground_fit: bool = True  # fit the road plane per frame (false: the prior plane)
     ground_max_depth: float = 30.0  # [m] road pixels farther than this are not used
     ground_tolerance: float = 0.1  # [m] a pixel this near the plane is road (inlier)
@@ -99,6 +111,9 @@ class PlausibilityParams:
         ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: {getattr(self, name)} must be > 0")
+        for name in ("noise_sigmas", "road_tilt_std", "box_edge_std"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name}: {getattr(self, name)} must be >= 0")
         for name in ("ground_iterations", "ground_row_step", "ground_col_step"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: {getattr(self, name)} must be >= 1")
@@ -257,6 +272,11 @@ class BoxMeasures:
     ground_fraction: float  # share of the box's pixels on the road plane
     cut_side: bool  # left or right edge at the image border: width unknown
     cut_vertical: bool  # top or bottom edge at the image border: height only an upper bound
+    # [m] std of height, width and bottom_height at this depth (stereo depth noise; the bottom
+    # also the road plane's extrapolation); 0: exact (fixed limits)
+    height_std: float = 0.0
+    width_std: float = 0.0
+    bottom_std: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -303,24 +323,39 @@ def measure_box(
     image_size: tuple[int, int],
     ground_share: float = 0.0,
     border: float = 2.0,
+    disparity_std: float = 0.0,
+    road_tilt_std: float = 0.0,
+    box_edge_std: float = 0.0,
 ) -> BoxMeasures:
     """The measures of one box (x1, y1, x2, y2) [px] whose visible surface is ``depth`` [m]
     away; ``image_size`` (width, height); ``ground_share`` from :func:`ground_fraction`; an
     edge within ``border`` px of the image border counts as cut. The bottom edge is taken at
-    the box-centre column, at the surface depth."""
+    the box-centre column, at the surface depth. Their stds: the depth std
+    ``z^2 disparity_std / (f B)`` [m] moves height and width in proportion (dh / h = dz / z)
+    and the bottom point along its ray ((y2 - cy) / fy per metre of depth); each box edge is
+    ``box_edge_std`` px off (z / f metres per pixel); the road plane, fitted nearer, is
+    extrapolated to the box: ``road_tilt_std`` x depth."""
     x1, y1, x2, y2 = (float(v) for v in box)
     width_px, height_px = image_size
     cut_bottom = y2 >= height_px - 1 - border
     bottom = float("nan")
     if not cut_bottom:
         bottom = float(plane.height_above(geometry.backproject(0.5 * (x1 + x2), y2, depth)))
+    height = (y2 - y1) * depth / geometry.fy
+    width = (x2 - x1) * depth / geometry.fx
+    rel = depth * disparity_std / (geometry.fx * geometry.baseline)  # dz / z
+    along = (y2 - geometry.cy) / geometry.fy * depth * rel  # the bottom point's y, per dz
+    edge_v, edge_u = box_edge_std * depth / geometry.fy, box_edge_std * depth / geometry.fx
     return BoxMeasures(
-        (y2 - y1) * depth / geometry.fy,
-        (x2 - x1) * depth / geometry.fx,
+        height,
+        width,
         bottom,
         float(ground_share),
         x1 <= border or x2 >= width_px - 1 - border,
         y1 <= border or cut_bottom,
+        math.hypot(height * rel, math.sqrt(2.0) * edge_v),
+        math.hypot(width * rel, math.sqrt(2.0) * edge_u),
+        math.sqrt(along**2 + (road_tilt_std * depth) ** 2 + edge_v**2),
     )
 
 
@@ -331,15 +366,21 @@ def _violation(value: float, lo: float, hi: float) -> float:
 
 
 def judge(m: BoxMeasures, params: PlausibilityParams) -> Plausibility:
-    """Compare the measures with their intervals: a cut edge switches off the lower height
-    bound (vertical cut) or the width bounds (side cut); a cut bottom has no bottom height."""
+    """Compare the measures with their intervals, each widened by ``noise_sigmas`` x the
+    measure's std at the box's depth: a cut edge switches off the lower height bound (vertical
+    cut) or the width bounds (side cut); a cut bottom has no bottom height."""
     p = params
-    min_h = -np.inf if m.cut_vertical else p.min_height
-    lo_w, hi_w = (-np.inf, np.inf) if m.cut_side else (p.min_width, p.max_width)
+    k = p.noise_sigmas
+    hs, ws, bs = k * m.height_std, k * m.width_std, k * m.bottom_std
+    min_h = -np.inf if m.cut_vertical else p.min_height - hs
+    lo_w, hi_w = (-np.inf, np.inf) if m.cut_side else (p.min_width - ws, p.max_width + ws)
     terms = (
-        (_violation(m.height, min_h, p.max_height), p.height_softness),
+        (_violation(m.height, min_h, p.max_height + hs), p.height_softness),
         (_violation(m.width, lo_w, hi_w), p.width_softness),
-        (_violation(m.bottom_height, p.min_bottom_height, p.max_bottom_height), p.bottom_softness),
+        (
+            _violation(m.bottom_height, p.min_bottom_height - bs, p.max_bottom_height + bs),
+            p.bottom_softness,
+        ),
         (_violation(m.ground_fraction, -np.inf, p.max_ground_fraction), p.ground_softness),
     )
     score = math.exp(-0.5 * sum((v / s) ** 2 for v, s in terms))
@@ -353,19 +394,35 @@ def check_boxes(
     geometry: StereoGeometry,
     plane: GroundPlane,
     params: PlausibilityParams | None = None,
+    disparity_stds=None,
 ) -> list[Plausibility | None]:
     """:func:`measure_box` and :func:`judge` for each box with its surface depth [m] (None /
-    nan / <= 0: not ranged, None returned) in a frame's disparity map [px] and road ``plane``."""
+    nan / <= 0: not ranged, None returned) in a frame's disparity map [px] and road ``plane``;
+    ``disparity_stds`` [px]: each box's disparity std as the ranging reports it
+    (``RangeResult.disparity_std``; None: exact depths)."""
     params = params or PlausibilityParams()
     disparity = np.asarray(disparity)
     h, w = disparity.shape
+    boxes = np.asarray(boxes, float).reshape(-1, 4)
+    stds = np.zeros(len(boxes)) if disparity_stds is None else disparity_stds
     out: list[Plausibility | None] = []
-    for box, z in zip(np.asarray(boxes, float).reshape(-1, 4), depths, strict=True):
+    for box, z, sd in zip(boxes, depths, stds, strict=True):
         if z is None or not np.isfinite(z) or z <= 0:
             out.append(None)
             continue
         share = ground_fraction(disparity, box, geometry, plane, params.ground_tolerance)
-        out.append(judge(measure_box(box, float(z), geometry, plane, (w, h), share), params))
+        m = measure_box(
+            box,
+            float(z),
+            geometry,
+            plane,
+            (w, h),
+            share,
+            disparity_std=float(sd) if sd is not None and np.isfinite(sd) else 0.0,
+            road_tilt_std=params.road_tilt_std,
+            box_edge_std=params.box_edge_std,
+        )
+        out.append(judge(m, params))
     return out
 
 

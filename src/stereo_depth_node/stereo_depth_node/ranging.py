@@ -32,8 +32,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from vehicle_common.orientation_bins import BIN_WIDTH, NUM_BINS, alpha_to_bin
 
-from .centre_fit import fit_lateral
-from .region_matching import REFINE_METHODS, RegionParams, box_disparity, refine_shift
+from .centre_fit import fit_cut_box, fit_lateral
+from .region_matching import (
+    REFINE_METHODS,
+    RegionParams,
+    box_disparity,
+    core_rect,
+    refine_shift,
+    region_disparity,
+)
 from .reprojection import StereoGeometry
 
 METHODS = ("robust", "median")
@@ -125,8 +132,10 @@ class RangingParams:
     # blend: share of the way from the visible model to the nearest-corner one (real cars)
     surface_blend: float = 0.625
     # [m] depth of the real visible surface behind the model box's faces (rounded cars),
-    # subtracted from the centre correction (chosen on real LiDAR surfaces, docs section 8)
-    surface_inset: float = 0.2
+    # subtracted from the centre correction: the median over the real LiDAR surfaces of the
+    # tuning keyframes (docs sections 8, 9; 0.2 before issue #34 left the centres 0.1-0.2 m
+    # too far at 10-45 m)
+    surface_inset: float = 0.32
     car_length: float = 3.9  # [m] mean car length of the centre correction
     car_width: float = 1.6  # [m] mean car width of the centre correction
     correction_bin_spread: float = 0.0  # share of the bin's +-22.5 deg averaged (0: centre)
@@ -134,6 +143,12 @@ class RangingParams:
         default_factory=lambda: (0.0, 0.0, 0.0, 0.0)
     )  # [m] per orientation bin (0, 45, 90, 135 deg), added after the centre correction
     lateral_fit: bool = True  # centre_fit.fit_lateral: footprint of the car spans the 2D box
+    # boxes cut by the image border: the surface of their visible part (a near one matched at
+    # full resolution up to near_max_disparity) and, cut at one side, the centre of the car
+    # footprint that keeps the box's inner edge and gives that surface (centre_fit.fit_cut_box);
+    # docs section 9
+    cut_box_fit: bool = True
+    near_max_disparity: float = 160.0  # [px] largest disparity a near cut box is searched at
     refine: str = "region_shift"  # none | region_sgbm | region_shift (region_matching.py)
     refine_max_disparity: float = 40.0  # [px] boxes with a larger coarse disparity: not refined
     disparity_bias: float = -0.28  # [px] bias of the estimate on KITTI 2015 (docs), subtracted
@@ -161,6 +176,8 @@ class RangingParams:
             raise ValueError(f"surface_blend: {self.surface_blend} not in [0, 1]")
         if not 0.0 <= self.correction_bin_spread <= 1.0:
             raise ValueError(f"correction_bin_spread: {self.correction_bin_spread} not in [0, 1]")
+        if not self.near_max_disparity > 0:
+            raise ValueError(f"near_max_disparity: {self.near_max_disparity} must be > 0")
         if self.refine not in REFINE_METHODS:
             raise ValueError(f"refine: {self.refine!r} not one of {REFINE_METHODS}")
 
@@ -168,12 +185,14 @@ class RangingParams:
 @dataclass(frozen=True)
 class RangeResult:
     """3D estimate of one box: position [m] (left optical frame), 3x3 covariance [m^2],
-    the disparity [px] it came from and the share of box pixels with a valid disparity."""
+    the disparity [px] it came from, the share of box pixels with a valid disparity and the
+    disparity's std [px] (the error model's)."""
 
     position: np.ndarray
     covariance: np.ndarray
     disparity: float
     valid_pixel_fraction: float
+    disparity_std: float = 0.0  # [px] of ``disparity`` (disparity_std; the error model's)
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,26 +258,12 @@ def median_disparity(disparity: np.ndarray, box) -> tuple[float, int, int]:
     return float(np.median(vals)), int(vals.size), int(patch.size)
 
 
-def robust_disparity(
-    disparity: np.ndarray, box, geometry: StereoGeometry, params: RangingParams
-) -> tuple[float, int]:
-    """Disparity of the dominant car-consistent surface in ``box`` (see module doc):
-    (d, number of pixels supporting it); d = nan when none."""
-    h, w = disparity.shape
-    sl = _box_slice(box, w, h, params.core_fraction)
-    if sl is None:
-        return float("nan"), 0
-    patch = disparity[sl]
-    valid = patch > 0
-    if params.reject_ground:
-        rows = np.arange(sl[0].start, sl[0].stop, dtype=float)[:, None]
-        # height below the camera: y = (v - cy) * z / fy = (v - cy) * B * fx / (fy * d)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            y = (rows - geometry.cy) * geometry.baseline * geometry.fx / (geometry.fy * patch)
-        valid &= ~(y > params.ground_height - params.ground_margin)
-    vals = patch[valid]
-    if vals.size < max(1, params.min_valid_pixels // 2):
-        return float("nan"), 0
+def _robust_mode(
+    vals: np.ndarray, box_h: float, geometry: StereoGeometry, params: RangingParams, far_weight
+) -> tuple[float, np.ndarray]:
+    """The robust estimator's choice among valid disparities ``vals`` [px] of a box ``box_h``
+    pixels high (module doc): (log-disparity of the winning mode's centre, mask of the values
+    within +-1.5 bins of it); (nan, empty mask) when nothing is left."""
     logd = np.log(vals.astype(np.float64))
     lo, hi = logd.min(), logd.max()
     nbins = max(1, int(np.ceil((hi - lo) / params.mode_bin)) + 1)
@@ -276,18 +281,51 @@ def robust_disparity(
         peaks, support = peaks[keep], support[keep]
     centres = 0.5 * (edges[peaks] + edges[peaks + 1])
     score = support.copy()
-    box_h = float(box[3]) - float(box[1])
     if params.prior_log_sigma > 0 and box_h > 1:
         z_prior = geometry.fy * params.prior_height / box_h
         z_mode = geometry.fx * geometry.baseline / np.exp(centres)
         score *= np.exp(-0.5 * ((np.log(z_mode) - np.log(z_prior)) / params.prior_log_sigma) ** 2)
-    if params.far_weight > 0:
-        score *= np.exp(params.far_weight * (centres.max() - centres))
+    if far_weight > 0:
+        score *= np.exp(far_weight * (centres.max() - centres))
     best = centres[int(np.argmax(score))]
-    in_mode = np.abs(logd - best) <= 1.5 * params.mode_bin
+    return float(best), np.abs(logd - best) <= 1.5 * params.mode_bin
+
+
+def robust_disparity(
+    disparity: np.ndarray,
+    box,
+    geometry: StereoGeometry,
+    params: RangingParams,
+    columns: bool = False,
+):
+    """Disparity of the dominant car-consistent surface in ``box`` (see module doc):
+    (d, number of pixels supporting it); d = nan when none. With ``columns``, a third item: the
+    image columns of the supporting pixels (one entry per pixel)."""
+    h, w = disparity.shape
+    sl = _box_slice(box, w, h, params.core_fraction)
+    none = (float("nan"), 0, np.zeros(0)) if columns else (float("nan"), 0)
+    if sl is None:
+        return none
+    patch = disparity[sl]
+    valid = patch > 0
+    if params.reject_ground:
+        rows = np.arange(sl[0].start, sl[0].stop, dtype=float)[:, None]
+        # height below the camera: y = (v - cy) * z / fy = (v - cy) * B * fx / (fy * d)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            y = (rows - geometry.cy) * geometry.baseline * geometry.fx / (geometry.fy * patch)
+        valid &= ~(y > params.ground_height - params.ground_margin)
+    vals = patch[valid]
+    if vals.size < max(1, params.min_valid_pixels // 2):
+        return none
+    box_h = float(box[3]) - float(box[1])
+    _, in_mode = _robust_mode(vals, box_h, geometry, params, params.far_weight)
     if not in_mode.any():
-        return float("nan"), 0
-    return float(np.exp(np.median(logd[in_mode]))), int(in_mode.sum())
+        return none
+    d = float(np.exp(np.median(np.log(vals[in_mode].astype(np.float64)))))
+    if columns:
+        cols = np.nonzero(valid)[1][in_mode] + sl[1].start
+        return d, int(in_mode.sum()), cols
+    return d, int(in_mode.sum())
 
 
 def disparity_std(d: float, refined: bool, params: RangingParams) -> float:
@@ -379,27 +417,42 @@ def range_boxes(
     disparity = np.asarray(disparity, np.float32)
     boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
     results: list[RangeResult | None] = []
+    height = disparity.shape[0] if np.ndim(disparity) == 2 else 0
     for i, box in enumerate(boxes):
         if not np.all(np.isfinite(box)) or box[2] <= box[0] or box[3] <= box[1]:
             results.append(None)
             continue
+        cut_left = box[0] <= TRUNCATION_BORDER
+        cut_right = box[2] >= width - 1 - TRUNCATION_BORDER
+        cut = cut_left or cut_right
+        cut_bottom = box[3] >= height - 1 - TRUNCATION_BORDER
+        # boxes cut by a border: the visible part's surface (_cut_box_disparity); one side
+        # cut: also the centre of the car from its visible part (_fit_cut_centre)
+        visible_part = params.cut_box_fit and (cut or cut_bottom) and params.method == "robust"
+        one_side = visible_part and cut_left != cut_right
         d_med, n_valid, n_pix = median_disparity(disparity, box)
         frac = n_valid / n_pix if n_pix else 0.0
-        if n_valid < params.min_valid_pixels or frac < params.min_valid_fraction:
+        enough = n_valid >= params.min_valid_pixels and frac >= params.min_valid_fraction
+        u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
+        refined, columns = False, np.zeros(0)
+        if visible_part:
+            d, refined, columns = _cut_box_disparity(
+                disparity, box, geometry, params, images, d_med if enough else math.nan
+            )
+        elif not enough:
             results.append(None)
             continue
-        if params.method == "median":
+        elif params.method == "median":
             d = d_med
         else:
             d, _ = robust_disparity(disparity, box, geometry, params)
             if not np.isfinite(d):
                 d = d_med
-        u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
-        refined = False
         if np.isfinite(d) and d > 0:
-            d_coarse = d
-            d = refined_disparity(d, box, images, params)
-            refined = d != d_coarse
+            if not visible_part:
+                d_coarse = d
+                d = refined_disparity(d, box, images, params)
+                refined = d != d_coarse
             d -= float(disparity_bias_at(u, geometry, params))
         if not (np.isfinite(d) and d > 0):
             results.append(None)
@@ -407,7 +460,6 @@ def range_boxes(
         z_surface = float(geometry.fx * geometry.baseline / d)
         b = int(orientation_bins[i]) if orientation_bins is not None else NUM_BINS
         alpha = float(observation_angles[i]) if observation_angles is not None else math.nan
-        cut = box[0] <= TRUNCATION_BORDER or box[2] >= width - 1 - TRUNCATION_BORDER
         centre = setup.truncated_offsets if cut else setup.centre_offsets
         if math.isfinite(alpha):  # the continuous angle: the correction at that angle
             b = alpha_to_bin(alpha)
@@ -438,7 +490,103 @@ def range_boxes(
                 width,
                 TRUNCATION_BORDER,
             )
+        if one_side and params.centre_correction and math.isfinite(alpha):
+            if cut_bottom:  # the box's centre row is not the car's: on the road
+                point[1] = params.ground_height - 0.5 * params.prior_height
+            fitted = _fit_cut_centre(z_surface, columns, box, alpha, point, geometry, params, width)
+            if fitted is not None:
+                point = fitted + np.array([0.0, 0.0, params.depth_offset[b]])
         sd = disparity_std(d, refined, params)
         cov = position_covariance(u, v, float(point[2]), geometry, params, sd)
-        results.append(RangeResult(point, cov, float(d), float(frac)))
+        results.append(RangeResult(point, cov, float(d), float(frac), float(sd)))
     return results
+
+
+def _mode_disparity(vals, box_h: float, geometry: StereoGeometry, params: RangingParams):
+    """The robust estimator without far weighting on disparity values [px]: (d, support
+    mask); d = nan when none."""
+    vals = np.asarray(vals, float)
+    if not vals.size:
+        return float("nan"), np.zeros(0, bool)
+    best, in_mode = _robust_mode(vals, box_h, geometry, params, 0.0)
+    if not in_mode.any():
+        return float("nan"), in_mode
+    return float(np.exp(np.median(np.log(vals[in_mode])))), in_mode
+
+
+def _cut_box_disparity(
+    disparity: np.ndarray, box, geometry: StereoGeometry, params: RangingParams, images, d_med
+) -> tuple[float, bool, np.ndarray]:
+    """Disparity [px] (no bias correction) of the visible part of a car cut by the border:
+    the robust estimator on the map, refined as other boxes when far; a near box (coarse
+    disparity or the box height's prior above ``refine_max_disparity``) is matched at full
+    resolution on its core over [0.6 x the lower, 1.6 x the higher of the two] (at most
+    ``near_max_disparity``; the
+    estimator without far weighting there: the window leaves the background out): the map's
+    range ends at its number of disparities, and near the left border only the columns beyond
+    the disparity are seen by the right camera. Returns (d, refined, image columns of the
+    supporting pixels)."""
+    d, _, cols = robust_disparity(disparity, box, geometry, params, columns=True)
+    if not np.isfinite(d):
+        d, cols = d_med, np.zeros(0)
+    box_h = float(box[3]) - float(box[1])
+    fb = geometry.fx * geometry.baseline
+    d_prior = fb * box_h / (geometry.fy * params.prior_height) if box_h > 1 else math.nan
+    near = max(np.nan_to_num(d, nan=0.0), np.nan_to_num(d_prior, nan=0.0))
+    if images is not None and params.refine != "none" and near > params.refine_max_disparity:
+        h, w = images[0].shape[:2]
+        rect = core_rect(box, w, h, params.core_fraction)
+        lo = 0.6 * min(v for v in (d, d_prior) if np.isfinite(v) and v > 0)
+        hi = min(params.near_max_disparity, 1.6 * near)
+        if rect is not None and hi > lo:
+            region = RegionParams(search=(hi - lo) / (hi + lo))
+            fine = region_disparity(images[0], images[1], rect, 0.5 * (hi + lo), region)
+            c0, r0, c1, r1 = rect
+            rr, cc = np.nonzero(fine > 0)
+            vals = fine[rr, cc]
+            if params.reject_ground and vals.size:
+                y = (rr + r0 - geometry.cy) * fb / (geometry.fy * vals)
+                keep = ~(y > params.ground_height - params.ground_margin)
+                rr, cc, vals = rr[keep], cc[keep], vals[keep]
+            if vals.size >= params.min_valid_pixels:
+                d_fine, in_mode = _mode_disparity(vals, box_h, geometry, params)
+                if np.isfinite(d_fine):
+                    return d_fine, True, cc[in_mode] + c0
+        return d, False, cols
+    if np.isfinite(d) and d > 0:
+        d_fine = refined_disparity(d, box, images, params)
+        return d_fine, d_fine != d, cols
+    return d, False, cols
+
+
+def _fit_cut_centre(
+    z_surface: float, columns, box, alpha: float, start, geometry, params, width: int
+):
+    """:func:`centre_fit.fit_cut_box` with the ranging's estimator (no far weighting) as the
+    statistic of the model car's visible surface over the measured columns, whose real surface
+    lies ``surface_inset`` behind a box's faces."""
+    cols = np.unique(np.asarray(columns, int))
+    if not len(cols) or not params.car_length > 0 or not params.car_width > 0:
+        return None
+    counts = np.bincount(np.asarray(columns, int) - cols[0])[cols - cols[0]]
+    fb = geometry.fx * geometry.baseline
+    box_h = float(box[3]) - float(box[1])
+
+    def statistic(z):
+        hit = np.isfinite(z)
+        d, _ = _mode_disparity(np.repeat(fb / z[hit], counts[hit]), box_h, geometry, params)
+        return fb / d if np.isfinite(d) and d > 0 else math.nan
+
+    return fit_cut_box(
+        statistic,
+        z_surface - params.surface_inset,
+        cols + 0.5,
+        box,
+        alpha,
+        params.car_length,
+        params.car_width,
+        geometry,
+        width,
+        np.asarray(start, float),
+        TRUNCATION_BORDER,
+    )

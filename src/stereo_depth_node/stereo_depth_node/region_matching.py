@@ -42,7 +42,9 @@ def to_gray(img: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
 
 
-def _core(box, width: int, height: int, fraction: float) -> tuple[int, int, int, int] | None:
+def core_rect(box, width: int, height: int, fraction: float) -> tuple[int, int, int, int] | None:
+    """(c0, r0, c1, r1) of the central ``fraction`` of a box's width and height, clipped to the
+    image; None when under 2 px either way."""
     x1, y1, x2, y2 = (float(v) for v in box)
     cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
     hw, hh = 0.5 * (x2 - x1) * fraction, 0.5 * (y2 - y1) * fraction
@@ -113,7 +115,7 @@ def box_disparity(
     doc): (d, n_pixels); d = nan when fewer than ``min_pixels`` pixels match."""
     params = params or RegionParams()
     h, w = left_gray.shape[:2]
-    rect = _core(box, w, h, params.core_fraction)
+    rect = core_rect(box, w, h, params.core_fraction)
     if rect is None or not (np.isfinite(d0) and d0 > 0):
         return float("nan"), 0
     fine = region_disparity(left_gray, right_gray, rect, d0, params)
@@ -143,7 +145,7 @@ def refine_shift(
     minimum lies on the search border."""
     params = params or RegionParams()
     h, w = left_gray.shape[:2]
-    rect = _core(box, w, h, params.core_fraction)
+    rect = core_rect(box, w, h, params.core_fraction)
     if rect is None or not (np.isfinite(d0) and d0 > 0):
         return float("nan"), 0
     c0, r0, c1, r1 = rect

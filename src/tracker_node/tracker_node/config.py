@@ -23,6 +23,7 @@ from .particle import PROPOSALS
 from .scene_motion import INIT_VELOCITIES
 
 FILTERS = ("kalman", "particle", "none")
+COAST_BOXES = ("projection", "shifted")
 ASSOCIATIONS = ("hungarian", "nearest")
 COSTS = ("mahalanobis", "euclidean", "iou2d", "giou3d")
 NODE_NAME = "vehicle_tracker"
@@ -92,6 +93,11 @@ class TrackerConfig:
     yaw_gain: float = param(0.5, low=0.0, high=1.0)  # smoothing gain of the yaw (0..1)
     # [m/s] above this the velocity resolves the 180 deg yaw
     min_heading_speed: float = param(2.0, low=0.0)
+    # the heading of travel over the ground in the yaw (world frame, bin yaws; issue #34): once
+    # a track's direction of travel is known within this std [deg] (0: never), its reported yaw
+    # is the inverse-variance mean of it and the detector's yaw, whose std is bin_yaw_std [deg]
+    motion_heading_max_std: float = param(0.0, low=0.0, high=180.0)
+    bin_yaw_std: float = param(20.0, low=0.0, low_open=True)
     # [m] car size used when detections have none (KITTI means)
     mean_length: float = param(MEAN_CAR_DIMENSIONS[2], low=0, low_open=True)
     mean_width: float = param(MEAN_CAR_DIMENSIONS[1], low=0, low_open=True)
@@ -112,6 +118,10 @@ class TrackerConfig:
     seed: int = param(0, low=0)  # random seed of the particle filter
     # [s] used for the first frame or non-increasing stamps
     default_dt: float = param(0.1, low=0, low_open=True)
+    # 2D box of a coasting track: "projection" of its filtered 3D box (mean size, yaw), or
+    # "shifted": its last detection box moved with its predicted centre's pixel and scaled by
+    # the depth ratio (keeps the detector's box shape; issue #34, docs/tracker.md)
+    coast_box: str = param("projection", choices=COAST_BOXES)
     # [px] for clipping projected boxes (camera_info overrides)
     image_width: int = param(1242, low=1)
     image_height: int = param(375, low=1)  # [px]

@@ -1,7 +1,7 @@
 """Vehicle heading from the detector's orientation bins and the track's velocity.
 
 The detector's 4 bins are of the KITTI observation angle alpha folded modulo 180 deg, centred on
-0, 45, 90 and 135 deg, so a bin fixes the yaw only up to 180 deg:
+0, 45, 90 and 135 deg, so a bin fixes the yaw only up to 180 deg (and to +-22.5 deg):
 ``rotation_y = alpha + atan2(x, z)`` (camera frame, x right, z forward).
 A KITTI box at yaw ``ry`` has its length (front) along ``(cos ry, -sin ry)`` in the camera x-z
 plane (``vehicle_common.box3d``), so a vehicle moving with velocity ``(vx, vz)`` heads at
@@ -40,3 +40,26 @@ def resolve_heading(yaw, velocity, min_speed: float):
     speed = np.hypot(v[:, 0], v[:, 2])
     heading = heading_from_velocity(v[:, 0], v[:, 2])
     return np.where(speed > min_speed, align_to(yaw, heading), wrap(yaw))
+
+
+def motion_heading(velocity, velocity_cov) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(heading [rad], its std [rad], speed [m/s]) of the direction of travel of velocities
+    ``velocity`` (N, 3) with covariances ``velocity_cov`` (N, 3, 3), in the x-z plane: the
+    heading's std is the velocity's std across its direction over the speed (first order)."""
+    v = np.asarray(velocity, float)[:, [0, 2]]
+    cov = np.asarray(velocity_cov, float)[:, [0, 2]][:, :, [0, 2]]
+    speed = np.hypot(v[:, 0], v[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        across = np.stack([-v[:, 1], v[:, 0]], axis=1) / speed[:, None]
+        var = np.einsum("ni,nij,nj->n", across, cov, across)
+        std = np.sqrt(np.maximum(var, 0.0)) / speed
+    return heading_from_velocity(v[:, 0], v[:, 1]), np.where(speed > 0, std, np.inf), speed
+
+
+def fuse_heading(yaw, yaw_std: float, heading, heading_std):
+    """The detector's yaw (known up to 180 deg, std ``yaw_std`` [rad]) and the heading of travel
+    (``heading_std`` [rad]) combined: the yaw turned to the heading's side, then the
+    inverse-variance weighted mean of the two angles."""
+    aligned = align_to(yaw, heading)
+    w = yaw_std**2 / (yaw_std**2 + np.asarray(heading_std, float) ** 2)
+    return wrap(aligned + w * wrap(heading - aligned))

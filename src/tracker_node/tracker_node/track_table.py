@@ -22,6 +22,8 @@ COLUMNS: dict[str, tuple[type, tuple[int, ...]]] = {
     "yaw_amb": (bool, ()),  # yaw known only up to 180 deg (bins or default)
     "bin": (np.int64, ()),  # last orientation bin
     "bbox": (float, (4,)),  # [px] last matched detection's 2D box
+    # [px, px, m] the filtered centre's pixel (u, v) and depth when that box was matched
+    "box_anchor": (float, (3,)),
     "score": (float, ()),  # last matched detection's score
     "score_sum": (float, ()),  # sum of the matched detections' scores (evidence)
     "cls": (object, ()),  # class id string

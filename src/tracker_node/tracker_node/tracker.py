@@ -20,6 +20,7 @@ import numpy as np
 from vehicle_common.box3d import projected_bbox
 from vehicle_common.camera_frames import kitti_from_centre
 from vehicle_common.camera_motion import CameraMotion
+from vehicle_common.orientation_bins import alpha_to_bin
 
 from .association import (
     euclidean_cost,
@@ -32,7 +33,14 @@ from .config import TrackerConfig
 from .ego_motion import extrapolate, static_velocity_before
 from .filters import make_filter
 from .lifecycle import COASTING, CONFIRMED, TENTATIVE, TrackLifecycle
-from .orientation import align_to, resolve_heading, wrap, yaw_from_bin
+from .orientation import (
+    align_to,
+    fuse_heading,
+    motion_heading,
+    resolve_heading,
+    wrap,
+    yaw_from_bin,
+)
 from .track_table import TrackTable
 
 __all__ = ["COASTING", "CONFIRMED", "TENTATIVE", "DetectionBatch", "Tracker", "TrackSet"]
@@ -284,6 +292,7 @@ class Tracker:
         dbin = dets.orientation_bin[cols]
         t.bin[rows[dbin >= 0]] = dbin[dbin >= 0]
         t.bbox[rows] = dets.bbox[cols]
+        t.box_anchor[rows] = self._pixels(self.filter.position[rows])
         if len(rows):
             t.cls[rows] = np.array(dets.class_id, dtype=object)[cols]
 
@@ -321,6 +330,7 @@ class Tracker:
             yaw_amb=~np.isfinite(dets.yaw[idx]),
             bin=np.maximum(dets.orientation_bin[idx], 0),
             bbox=dets.bbox[idx],
+            box_anchor=self._pixels(dets.position[idx]),
             score=dets.score[idx],
             score_sum=dets.score[idx],
             cls=[dets.class_id[i] for i in idx],
@@ -418,6 +428,7 @@ class Tracker:
         position = self.filter.position[idx].copy()
         velocity = self.filter.velocity[idx].copy()
         velocity_cov = self.filter.velocity_cov[idx]
+        yaw, bins = self._reported_yaw(idx, position, velocity, velocity_cov)
         if self.world_frame:  # the filter's velocity is over the ground
             ground, ground_cov = velocity, velocity_cov
             velocity = ground + self._camera_motion.static_point_velocity(position)
@@ -432,8 +443,8 @@ class Tracker:
             velocity=velocity,
             velocity_cov=velocity_cov,
             size=t.size[idx].copy(),
-            yaw=t.yaw[idx].copy(),
-            orientation_bin=t.bin[idx].copy(),
+            yaw=yaw,
+            orientation_bin=bins,
             bbox=self._report_boxes(idx),
             age=t.age[idx].copy(),
             frames_since_update=t.misses[idx].copy(),
@@ -444,19 +455,68 @@ class Tracker:
             velocity_over_ground_cov=ground_cov,
         )
 
+    def _reported_yaw(self, idx, position, velocity, velocity_cov):
+        """(yaw, orientation bin) of the reported tracks ``idx``: the detector's (smoothed bin
+        yaw, last bin); in the world frame, a bin-yaw track whose direction of travel over the
+        ground is known within ``motion_heading_max_std`` takes the inverse-variance mean of
+        both (:func:`.orientation.fuse_heading`), and the bin of the observation angle it
+        implies (issue #34)."""
+        t, cfg = self.tracks, self.cfg
+        yaw, bins = t.yaw[idx].copy(), t.bin[idx].copy()
+        if not (self.world_frame and cfg.motion_heading_max_std > 0 and len(idx)):
+            return yaw, bins
+        heading, std, speed = motion_heading(velocity, velocity_cov)
+        use = (
+            t.yaw_amb[idx]
+            & (speed > cfg.min_heading_speed)
+            & (std < np.radians(cfg.motion_heading_max_std))
+        )
+        if use.any():
+            yaw[use] = fuse_heading(yaw[use], np.radians(cfg.bin_yaw_std), heading[use], std[use])
+            alpha = yaw[use] - np.arctan2(position[use, 0], position[use, 2])
+            bins[use] = alpha_to_bin(alpha)
+        return yaw, bins
+
+    def _pixels(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3): pixel (u, v) and depth of points (N, 3) with the camera matrix (NaN
+        without one, or behind the camera)."""
+        pts = np.asarray(points, float).reshape(-1, 3)
+        if self.projection is None:
+            return np.full((len(pts), 3), np.nan)
+        h = np.hstack([pts, np.ones((len(pts), 1))]) @ self.projection.T
+        z = h[:, 2:3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = np.where(z > 0.1, h[:, :2] / z, np.nan)
+        return np.hstack([uv, np.where(z > 0.1, z, np.nan)])
+
     def _report_boxes(self, idx: np.ndarray) -> np.ndarray:
         """2D boxes of the reported tracks ``idx``: the matched detection's box when matched
-        this frame, else the projection of the filtered 3D box (coasting, or a detection
-        without a box); NaN (no box) when there is no camera matrix to project with, never a
+        this frame, else (coasting, or a detection without a box) the projection of the
+        filtered 3D box, or with ``coast_box: shifted`` the last detection box moved with the
+        predicted centre's pixel and scaled by the depth ratio (a box it cannot place: the
+        projection); NaN (no box) when there is no camera matrix to project with, never a
         stale detection box."""
         t = self.tracks
-        bbox = t.bbox[idx].copy()
+        last = t.bbox[idx].copy()
+        bbox = last.copy()
         need = (t.misses[idx] > 0) | ~np.isfinite(bbox).all(axis=1)
         bbox[need] = np.nan
-        if self.projection is not None:
-            for j in np.nonzero(need)[0]:
-                i = idx[j]
-                b = self._project(self.filter.position[i], t.size[i], t.yaw[i])
-                if b is not None:
+        if self.projection is None:
+            return bbox
+        now = self._pixels(self.filter.position[idx])
+        w, h = self.image_size
+        for j in np.nonzero(need)[0]:
+            i = idx[j]
+            a = t.box_anchor[i]
+            if self.cfg.coast_box == "shifted" and np.isfinite([*last[j], *a, *now[j]]).all():
+                s = a[2] / now[j, 2]
+                u, v = now[j, 0], now[j, 1]
+                b = (last[j] - np.array([a[0], a[1], a[0], a[1]])) * s + [u, v, u, v]
+                b = np.clip(b, 0.0, [w - 1.0, h - 1.0, w - 1.0, h - 1.0])
+                if b[2] > b[0] and b[3] > b[1]:
                     bbox[j] = b
+                    continue
+            b = self._project(self.filter.position[i], t.size[i], t.yaw[i])
+            if b is not None:
+                bbox[j] = b
         return bbox
