@@ -563,14 +563,20 @@ def test_stereo_depth_process_exits_2_naming_match_rows_at_its_first_pair(tmp_pa
         left_info = camera_info_from_projection(np.hstack([K, np.zeros((3, 1))]), 1242, 375)
         right_info = camera_info_from_projection(np.hstack([K, [[-389.6], [0], [0]]]), 1242, 375)
         img = np.zeros((375, 1242, 3), np.uint8)
-        for topic, msg in (
-            ("/stereo/left/camera_info", left_info),
-            ("/stereo/right/camera_info", right_info),
-            ("/stereo/left/image_rect", numpy_to_image(img, "rgb8", hdr)),
-            ("/stereo/right/image_rect", numpy_to_image(img, "rgb8", hdr)),
-        ):
-            msg.header = hdr
-            pubs[topic].publish(msg)
+        # a camera streams: frames go on until the node stops (a pair taken before its
+        # CameraInfo is skipped, as the node does, so one frame alone could race the infos)
+        while proc.poll() is None:
+            assert time.monotonic() < deadline, "the node did not stop"
+            hdr.stamp.sec += 1
+            for topic, msg in (
+                ("/stereo/left/camera_info", left_info),
+                ("/stereo/right/camera_info", right_info),
+                ("/stereo/left/image_rect", numpy_to_image(img, "rgb8", hdr)),
+                ("/stereo/right/image_rect", numpy_to_image(img, "rgb8", hdr)),
+            ):
+                msg.header = hdr
+                pubs[topic].publish(msg)
+            time.sleep(0.2)
         _, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:

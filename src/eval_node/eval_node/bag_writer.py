@@ -53,7 +53,7 @@ def empty_bag_files(path: Path) -> list[Path] | None:
     be read, counts as recorded data."""
     import re
 
-    from vehicle_common.bag_files import BagError, open_reader
+    from vehicle_common.bag_files import BagError, EmptyBagError, open_reader
 
     if not path.is_dir() or path.is_symlink():
         return None
@@ -66,6 +66,8 @@ def empty_bag_files(path: Path) -> list[Path] | None:
         return [] if not files else None  # an empty folder, or metadata.yaml alone
     try:
         reader = open_reader(path, warn=lambda _text: None)
+    except EmptyBagError:
+        return files  # a header without a message, nothing cut short: no data to lose
     except BagError:
         return None
     try:

@@ -19,6 +19,11 @@ class BagError(KittiFormatError):
     """The bag cannot be read or an option does not fit it; the message names what."""
 
 
+class EmptyBagError(BagError):
+    """The recording provably holds no message: its files are 0 bytes, or end after their
+    header (and records that hold no message) with nothing cut short."""
+
+
 #: Interrupted bags already made readable in this process: key -> (readable copy, warning).
 _RECOVERED: dict[tuple, tuple[Path, str]] = {}
 
@@ -43,13 +48,16 @@ def _readable(path: Path, warn: Callable[[str], None]) -> Path:
         mcaps = [f for f in files if f.suffix == ".mcap"]
         if mcaps and all(f.stat().st_size == 0 for f in mcaps):
             what = f"{mcaps[0].name} is empty" if path.is_dir() else "empty file"
-            raise BagError(f"{path}: {what} (0 bytes): nothing was recorded, no message to read")
+            raise EmptyBagError(
+                f"{path}: {what} (0 bytes): nothing was recorded, no message to read"
+            )
         tmp = Path(tempfile.mkdtemp(prefix="bag_read_"))
         atexit.register(shutil.rmtree, tmp, True)
         report = readable_copy(path, tmp)
         if report.lost and report.message_count == 0:
             dropped = sum(f.scan.lost_bytes for f in report.files if f.scan is not None)
-            raise BagError(
+            error = EmptyBagError if dropped == 0 else BagError
+            raise error(
                 f"{path}: no message can be read: the recording has no complete chunk (cut "
                 f"before its first flush, or damaged; {dropped} bytes of unfinished records)"
             )
