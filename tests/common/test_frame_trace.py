@@ -5,7 +5,6 @@ from __future__ import annotations
 import threading
 import time
 
-import pytest
 from vehicle_common.frame_trace import (
     TRACE_ENV,
     FileTracer,
@@ -55,7 +54,9 @@ def test_events_of_several_threads_read_back_per_frame(tmp_path):
     (wall,) = span_ms(frames, "odometry_start", "odometry_end")
     (cpu,) = span_ms(frames, "odometry_start", "odometry_end", cpu=True)
     assert wall >= 19.0 and cpu < 5.0
-    assert span_ms(frames, "disparity_start", "disparity_end") == pytest.approx([work], abs=5.0)
+    # the busy loop's wall span holds its CPU time (more when another process had the core)
+    (busy_wall,) = span_ms(frames, "disparity_start", "disparity_end")
+    assert busy_wall >= work - 0.5
     assert span_ms(frames, "pair_start", "pair_end") == []
 
 
