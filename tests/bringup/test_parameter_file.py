@@ -48,7 +48,7 @@ def test_every_node_gets_the_files_values_in_any_namespace(tmp_path, namespace):
     sections = _sections(processes)
     assert sections == {f"{namespace}/{name}": SHIPPED[name]["ros__parameters"] for name in NAMES}
     assert sections[f"{namespace}/vehicle_tracker"]["min_hits"] == 3
-    assert sections[f"{namespace}/stereo_depth"]["match_rows"] == [94, 375]
+    assert sections[f"{namespace}/stereo_depth"]["nice"] == 10  # node default 0
     assert sections[f"{namespace}/kitti_player"]["lockstep"] is True
     for proc in processes:
         assert _argv_value(proc.argv, "--params-file") == str(tmp_path / "p.yaml")
