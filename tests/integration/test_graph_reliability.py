@@ -180,7 +180,13 @@ def test_frozen_node_is_named_and_fails_the_run(kitti_tracking_root, tmp_path):
         assert stereo is not None
         os.kill(stereo, signal.SIGSTOP)
         t0 = time.monotonic()
-        proc.wait(timeout=60)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            logs_now = {p.name: p.read_text(errors="replace")[-1500:] for p in logs.glob("*.log")}
+            raise AssertionError(
+                f"no exit 60 s after SIGSTOP:\n{''.join(lines)}\n{logs_now}"
+            ) from None
         took = time.monotonic() - t0
     finally:
         if proc.poll() is None:

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import time
 from collections.abc import Callable, Iterable
@@ -60,6 +61,7 @@ class NodeHealth:
             self._busy(),
             matched,
             self.counter.processing_ms(),
+            os.getpid(),
         )
 
     def _check(self) -> None:
