@@ -65,6 +65,14 @@ BAD_STARTS = [
         ["-p", "keep_freed_memory:=maybe"],
         ["keep_freed_memory", "expected"],
     ),
+    # every node's executor (the same function)
+    (
+        "stereo_depth_node.node",
+        "stereo_depth",
+        ["-p", "executor:=multi"],
+        ["executor", "'multi' is not one of events, single_threaded"],
+    ),
+    ("stereo_depth_node.node", "stereo_depth", ["-p", "map_area:=road"], ["map_area"]),
 ]
 
 
