@@ -273,13 +273,15 @@ TIMELINE = (
         (
             "left_received",
             "right_received",
+            "detections_received",
             "pair_start",
+            "scene_start",
+            "scene_end",
+            "odometry_start",
             "disparity_start",
             "disparity_end",
             "pair_end",
-            "detections_received",
             "ranging_start",
-            "odometry_start",
             "ranging_end",
             "odometry_end",
             "detections_3d_published",
@@ -291,6 +293,7 @@ TIMELINE = (
 # key of the same work alone (offline_stage_times)
 STEPS = (
     ("CNN", "detect_start", "detect_end", "detect"),
+    ("scene map", "scene_start", "scene_end", "scene map"),
     ("disparity map", "disparity_start", "disparity_end", "disparity ("),
     ("odometry", "odometry_start", "odometry_end", "odometry"),
     ("ranging + check", "ranging_start", "ranging_end", "ranging + check"),
@@ -416,7 +419,12 @@ def offline_stage_times(
     import torch
     import yaml
     from detector_node.inference import CnnDetector
-    from stereo_depth_node.disparity import DisparityParams, compute_disparity
+    from stereo_depth_node.disparity import (
+        DisparityParams,
+        block_matching_disparity,
+        compute_disparity,
+        compute_disparity_in_boxes,
+    )
     from stereo_depth_node.plausibility import GroundEstimator, PlausibilityParams, check_boxes
     from stereo_depth_node.ranging import (
         RangingParams,
@@ -472,21 +480,34 @@ def offline_stage_times(
     for _ in range(3):  # warm-up (first allocations, caches)
         detector.detect(left0)
         compute_disparity(left0, right0, params)
+        block_matching_disparity(to_gray(left0), to_gray(right0), params)
     times: dict[str, list[float]] = {}
 
     def add(key: str, ms: float) -> None:
         times.setdefault(key, []).append(ms)
 
-    previous = None  # (gray, disparity, CNN boxes) of the frame before
+    boxes_only = stereo_param("map_area", "boxes") == "boxes"
+    previous = None  # (gray, scene map, CNN boxes) of the frame before
     for left, right in pairs:
         dets, ms = timed(lambda left=left: detector.detect(left))
         add(f"detect (CNN, {det_threads} thread)", ms)
-        c0 = time.process_time()
-        disp, ms = timed(lambda left=left, right=right: compute_disparity(left, right, params))
-        add(f"disparity ({cv_threads} thread{'s' if cv_threads > 1 else ''})", ms)
-        add("disparity CPU", (time.process_time() - c0) * 1e3)  # all its threads
         gray, gray_r = to_gray(left), to_gray(right)
         boxes = [d.box for d in dets]
+        label = f"disparity ({cv_threads} thread{'s' if cv_threads > 1 else ''})"
+        c0 = time.process_time()
+        if boxes_only:  # as the node: block matching of the band, the map in the boxes
+            scene, ms = timed(lambda g=gray, r=gray_r: block_matching_disparity(g, r, params))
+            add("scene map (block matching)", ms)
+            disp, ms = timed(
+                lambda left=left, right=right, b=boxes: compute_disparity_in_boxes(
+                    left, right, b, params
+                )
+            )
+        else:
+            disp, ms = timed(lambda left=left, right=right: compute_disparity(left, right, params))
+            scene = disp
+        add(label, ms)
+        add("disparity CPU", (time.process_time() - c0) * 1e3)  # all its threads, with the scene
         if previous is not None:
             # as the node: the reference's corners found ahead (in idle time after its 3D
             # array), then the estimate on the frame's path
@@ -505,18 +526,18 @@ def offline_stage_times(
         )
 
         def range_and_check(
-            disp=disp, boxes=boxes, bins=bins, alphas=alphas, images=(gray, gray_r)
+            disp=disp, scene=scene, boxes=boxes, bins=bins, alphas=alphas, images=(gray, gray_r)
         ):
             if not boxes:  # the node ranges and checks nothing then
                 return []
             results = range_boxes(disp, boxes, geometry, ranging, bins, images, alphas)
-            plane = ground.update(disp, geometry, bias)
+            plane = ground.update(scene, geometry, bias)
             depths = [fb / r.disparity if r is not None else None for r in results]
             return check_boxes(disp, boxes, depths, geometry, plane, plausibility)
 
         _, ms = timed(range_and_check)
         add("ranging + check", ms)
-        previous = (gray, disp, boxes)
+        previous = (gray, scene, boxes)
 
     def median_ms(fn, repeats: int = 5) -> float:
         for _ in range(2):
@@ -536,12 +557,17 @@ def offline_stage_times(
 
 
 def path_alone(alone: dict[str, float]) -> float:
-    """The stereo node's critical path alone, as if each step had cores of its own: the later
-    of the CNN, the disparity map and the odometry (which needs only the pair's left image and
-    the previous map, so could start with the pair), then the ranging and its check."""
+    """The stereo node's critical path alone, as if each step had cores of its own: the CNN
+    (a frame is processed once its 2D array is there), then the scene's block-matching map
+    (when the map is only computed in the boxes), then the odometry beside the map in the boxes
+    and the ranging with its check (with the whole band's map, the odometry waits for it)."""
     det = alone_ms(alone, "detect")
     disp = alone_ms(alone, "disparity (")
-    return max(det, disp, alone["odometry"]) + alone["ranging + check"]
+    odo, rng = alone["odometry"], alone["ranging + check"]
+    scene = alone_ms(alone, "scene map", None)
+    if scene is None:
+        return det + disp + max(odo, rng)
+    return det + scene + max(odo, disp + rng)
 
 
 def stage_ratios(figures: dict, alone: dict[str, float]) -> dict[str, tuple[float, float]]:
@@ -562,28 +588,29 @@ def stage_ratios(figures: dict, alone: dict[str, float]) -> dict[str, tuple[floa
 
 def cores_bound_3d(alone: dict[str, float], cores: int) -> float:
     """The earliest image -> 3D detections a machine of ``cores`` cores allows with no graph
-    overhead at all: the frame's CPU work up to its 3D array (the CNN, the disparity map's CPU
-    over all its threads, the odometry, the ranging and its check) spread perfectly over the
-    cores, but no sooner than the longest chain (the later of the CNN and the map, then the
-    ranging)."""
+    overhead at all: the frame's CPU work up to its 3D array (the CNN, the maps' CPU over all
+    their threads, the odometry, the ranging and its check) spread perfectly over the cores,
+    but no sooner than the longest chain (:func:`path_alone`)."""
     det = alone_ms(alone, "detect")
-    disp = alone_ms(alone, "disparity (")
-    rng = alone["ranging + check"]
-    work = det + alone["disparity CPU"] + alone["odometry"] + rng
-    return max(max(det, disp) + rng, work / max(1, cores))
+    work = det + alone["disparity CPU"] + alone["odometry"] + alone["ranging + check"]
+    return max(path_alone(alone), work / max(1, cores))
 
 
 def node_work(figures: dict, alone: dict[str, float]) -> dict[str, tuple[float, float, float]]:
     """Per compute node: (wall, CPU) ms its worker spent per frame in the graph and the same
-    work alone. detector: the CNN on a converted image; stereo_depth: a pair's conversion and
-    disparity map (its odometry then runs in another thread), alone: the disparity map. CPU
-    counts the worker thread only (OpenCV's own threads are not in it)."""
+    work alone. detector: the CNN on a converted image; stereo_depth: a frame's conversion,
+    maps, ranging and check (its odometry runs in another thread), alone: the maps, the ranging
+    and the check. CPU counts the worker thread only (OpenCV's own threads are not in it)."""
     det = alone_ms(alone, "detect")
-    disp = alone_ms(alone, "disparity (")
+    stereo = (
+        alone_ms(alone, "scene map", 0.0)
+        + alone_ms(alone, "disparity (")
+        + alone["ranging + check"]
+    )
     out = {}
     for node, label, ref in (
         (graph.DETECTOR.name, "detect", det),
-        (graph.STEREO.name, "stereo pair", disp),
+        (graph.STEREO.name, "stereo frame", stereo),
     ):
         work = figures["nodes"].get(node, {}).get("processing_ms")
         if work:
@@ -921,6 +948,8 @@ def compare_trees(args, argv: list[str]) -> int:
         if a.startswith(("--compare-tree=", "--repeat=", "--json=")):
             continue
         child.append(a)
+    if "--no-offline" not in child:  # the offline baseline calls this tree's core functions
+        child.append("--no-offline")
     env = {
         k: v
         for k, v in os.environ.items()
