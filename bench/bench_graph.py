@@ -1,7 +1,8 @@
 """The whole graph at camera rate and in lockstep: frames tracked, latency, CPU per node.
 
 Usage: python bench/bench_graph.py [--synthetic-frames 100] [--no-real] [--windows 1,2]
-       [--real-frames N] [-p NODE.PARAM:=VALUE ...] [--json FILE] [--profile]
+       [--real-frames N] [--overload | --rate-multiplier X] [--cpus LIST]
+       [-p NODE.PARAM:=VALUE ...] [--json FILE] [--profile] [--compare-tree PATH [--repeat N]]
 
 Runs the graph of the demo (player, CNN detector, stereo depth, tracker, recorder; separate
 processes, the shipped parameter file) on real KITTI tracking 0005 (../shared/kitti, 16 frames)
@@ -11,22 +12,40 @@ and on a synthetic sequence (rendered once into output/bench_graph/synthetic). `
 longer real drive at the same image content: its timing figures, not its tracking accuracy (the
 camera turns back at each end).
 
-- ``realtime``: the player at 10 Hz without lockstep, as a camera: frames published, frames
-  that reached /vehicles/tracks, latency image -> tracks (p50 / p95 / max: the player's /clock
-  message of a frame, published just before its images, to the tracks of that stamp, both seen
-  by a probe node in this process), the per-stage share of it (-> 2D detections -> 3D
-  detections -> tracks), each node's frames in / out / dropped (its /diagnostics report) and
-  CPU (% of one core, from /proc, over the playback).
+- ``realtime``: the player at 10 Hz (x ``--rate-multiplier``) without lockstep, as a camera:
+  frames published, frames that reached /vehicles/tracks, latency image -> tracks (p50 / p95 /
+  max: the player's /clock message of a frame, published just before its images, to the tracks
+  of that stamp, both seen by a probe node in this process), the per-stage share of it (-> 2D
+  detections -> 3D detections -> tracks), each node's frames in / out / dropped (its
+  /diagnostics report) and CPU (% of one core, from /proc, over the playback).
 - ``lockstep K``: the player as fast as the graph goes with at most K unacknowledged frames;
   throughput in frames/s (first /clock to last tracks).
+
+Issue #33's three bars, printed for each dataset and measured in the same run:
+
+- frames tracked at camera rate against the lockstep capacity, ``frames x min(1, lockstep
+  frames/s / camera rate)`` (bar >= 0.9), and the mean latency against lockstep's (<= 1.25);
+- CPU per frame: the CPU of every node process in the lockstep run (window 1) minus that of a
+  4-frame lockstep run (both from the first frame's clock until the graph is idle after the
+  last), over the frames between them, per process and thread (the player's PNG decoding is
+  outside: it decodes the sequence before the first clock); divided by the fixed reference
+  workload ``../shared/tools/cpu_reference.py`` timed before and after (bar <= 1.0);
+- the tracking quality (tracks 3D AP @1.5 m, MOTA, HOTA) on the frames that got through, at
+  camera rate and in lockstep.
+
+Overload on a fast machine: ``--overload`` plays the camera at 2.2 x 10 Hz (the factor by which
+issue #33's slower machine is slower per core), ``--rate-multiplier X`` at any rate, ``--cpus
+LIST`` runs every node on those CPUs (``cpu_affinity``; "0": one core). ``--compare-tree PATH``
+runs this bench alternately with another checkout's ``.venv`` (today's tree) and this tree's
+(``--repeat`` pairs) and prints the CPU ratios new / old.
 
 Every run also traces each frame through the nodes (``vehicle_common.frame_trace``, the
 environment variable ``VEHICLE_TRACE_DIR`` set to the run's ``trace`` folder): when the player
 published the images, when each node received them, started and ended each step of its work (the
-CNN, the disparity map, the odometry, the ranging and its check) and published; printed as a
-median timeline after the player's clock event, and each step's wall / own-thread CPU time in the
-graph against the same step alone (``offline_stage_times``: the median over the sequence's frames
-of the same work, inputs and settings in this process).
+CNN, the scene's block-matching map, the disparity map, the odometry, the ranging and its check)
+and published; printed as a median timeline after the player's clock event, and each step's wall
+/ own-thread CPU time in the graph against the same step alone (``offline_stage_times``: the
+median over the sequence's frames of the same work, inputs and settings in this process).
 
 Prints one table; ``uptime``'s load average is printed with it (the machine may be shared).
 ``--profile`` samples every node process with py-spy during the 10 Hz runs and prints, per
@@ -422,6 +441,7 @@ def offline_stage_times(
     from stereo_depth_node.disparity import (
         DisparityParams,
         block_matching_disparity,
+        coarse_disparity,
         compute_disparity,
         compute_disparity_in_boxes,
     )
@@ -526,12 +546,20 @@ def offline_stage_times(
         )
 
         def range_and_check(
-            disp=disp, scene=scene, boxes=boxes, bins=bins, alphas=alphas, images=(gray, gray_r)
+            disp=disp,
+            left=left,
+            right=right,
+            boxes=boxes,
+            bins=bins,
+            alphas=alphas,
+            images=(gray, gray_r),
         ):
             if not boxes:  # the node ranges and checks nothing then
                 return []
             results = range_boxes(disp, boxes, geometry, ranging, bins, images, alphas)
-            plane = ground.update(scene, geometry, bias)
+            # as the node: the road plane's map at half the map's resolution
+            road = coarse_disparity(left, right, params) if boxes_only else disp
+            plane = ground.update(road, geometry, bias)
             depths = [fb / r.disparity if r is not None else None for r in results]
             return check_boxes(disp, boxes, depths, geometry, plane, plausibility)
 

@@ -422,9 +422,16 @@ def test_point_cloud_is_published_when_enabled(rclpy_context):
         h.close()
 
 
-def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_tracking_root):
-    """offline == node: the node's 3D detections equal range_boxes on compute_disparity."""
-    from stereo_depth_node.disparity import DisparityParams, compute_disparity
+@pytest.mark.parametrize("area", ["band", "boxes"])
+def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_tracking_root, area):
+    """offline == node: the node's 3D detections equal range_boxes on compute_disparity (the
+    band's map: someone subscribes to the disparity image) or on compute_disparity_in_boxes
+    (nobody does: the map only where the ranging reads it)."""
+    from stereo_depth_node.disparity import (
+        DisparityParams,
+        compute_disparity,
+        compute_disparity_in_boxes,
+    )
     from stereo_depth_node.ranging import RangingParams, range_boxes
     from stereo_depth_node.region_matching import to_gray
     from stereo_depth_node.reprojection import StereoGeometry
@@ -440,14 +447,23 @@ def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_track
             camera_info_from_projection(seq.calib.P2, left.shape[1], left.shape[0]),
             camera_info_from_projection(seq.calib.P3, left.shape[1], left.shape[0]),
         )
+        if area == "boxes":
+            h.io.destroy_subscription(
+                next(s for s in h.io.subscriptions if s.topic_name == "/stereo/disparity")
+            )
+            assert h.spin_until(lambda: h.node.pub_disparity.get_subscription_count() == 0)
         h.send_frame(3)
         h.send_detections(3, [o.bbox for o in cars])
         assert h.spin_until(lambda: h.det3d, timeout=20.0)
         got = h.det3d[0].detections
         geo = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
-        disp = compute_disparity(left, right, DisparityParams(num_disparities=48))
-        images = (to_gray(left), to_gray(right))  # the node refines far boxes on them too
         boxes = [o.bbox for o in cars]
+        params = DisparityParams(num_disparities=48)
+        if area == "band":
+            disp = compute_disparity(left, right, params)
+        else:
+            disp = compute_disparity_in_boxes(left, right, boxes, params)
+        images = (to_gray(left), to_gray(right))  # the node refines far boxes on them too
         want = range_boxes(disp, boxes, geo, RangingParams(), [2] * len(cars), images)
         assert len(got) == sum(w is not None for w in want) > 0
         for g, w in zip(got, [w for w in want if w is not None], strict=True):

@@ -43,6 +43,7 @@ from .conversions import build_point_cloud, detection_3d_message, disparity_mess
 from .disparity import (
     DisparityParams,
     block_matching_disparity,
+    coarse_disparity,
     compute_disparity,
     compute_disparity_in_boxes,
 )
@@ -336,11 +337,18 @@ class StereoDepthNode(Node):
             self.trace("disparity_start", stamp)
             disparity = scene = compute_disparity(left, right, params)
             self.trace("disparity_end", stamp)
+
+            def road():
+                return disparity
         else:
-            # the scene's map (odometry, road plane): block matching over the band
+            # the odometry's map of the scene: block matching over the band
             self.trace("scene_start", stamp)
             scene = block_matching_disparity(gray, gray_right, params)
             self.trace("scene_end", stamp)
+
+            def road():  # the road plane's: the map's algorithm at half its resolution
+                return coarse_disparity(left, right, params)
+
         odometry = self._start_odometry(stamp, gray, scene, geometry)
         if not whole:
             self.trace("disparity_start", stamp)
@@ -349,7 +357,7 @@ class StereoDepthNode(Node):
         self.trace("pair_end", stamp)
         self.frames_processed += 1
         images = (gray, gray_right) if self.ranging_params.refine != "none" else None
-        self._publish_detections(det_msg, dets, boxes, disparity, scene, geometry, images, odometry)
+        self._publish_detections(det_msg, dets, boxes, disparity, road, geometry, images, odometry)
         if whole:
             self._publish_frame_outputs(disparity, geometry, det_msg.header, left)
 
@@ -385,8 +393,10 @@ class StereoDepthNode(Node):
         self.frames.published()
 
     def _publish_detections(
-        self, det_msg, dets, boxes, disparity, scene, geometry, images, odometry
+        self, det_msg, dets, boxes, disparity, road, geometry, images, odometry
     ) -> None:
+        """Range and check the frame's boxes (``road()``: the map the road plane is fitted
+        to, computed only when there are boxes to check), wait for its odometry, publish."""
         stamp = stamp_ns(det_msg.header)
         self.trace("ranging_start", stamp)
         out = VehicleDetection3DArray()
@@ -400,7 +410,7 @@ class StereoDepthNode(Node):
                 [getattr(d, "observation_angle_variance", -1.0) for d in dets],
             )
             results = range_boxes(disparity, boxes, geometry, self.ranging, bins, images, alphas)
-            checks = self._check(disparity, scene, geometry, boxes, results)
+            checks = self._check(disparity, road(), geometry, boxes, results)
         self.trace("ranging_end", stamp)
         motion = self._camera_motion(odometry)
         if motion is not None:
@@ -445,12 +455,12 @@ class StereoDepthNode(Node):
             self._bias_key, self._bias = key, bias
         return self._bias
 
-    def _check(self, disparity, scene, geo: StereoGeometry, boxes, results) -> list:
+    def _check(self, disparity, road, geo: StereoGeometry, boxes, results) -> list:
         """Plausibility of the ranged boxes (:mod:`.plausibility`, on the ranging's map)
-        against this frame's road plane (fitted to the scene's map with the ranging's bias
+        against this frame's road plane (fitted to the ``road`` map with the ranging's bias
         model subtracted)."""
         bias = self._column_bias(disparity.shape[1], geo)
-        plane = self.ground.update(scene, geo, bias)
+        plane = self.ground.update(road, geo, bias)
         fb = geo.fx * geo.baseline
         depths = [fb / r.disparity if r is not None else None for r in results]
         return check_boxes(disparity, boxes, depths, geo, plane, self.plausibility)
