@@ -301,8 +301,10 @@ TIMELINE = (
             "disparity_end",
             "pair_end",
             "ranging_start",
-            "ranging_end",
             "odometry_end",
+            "road_start",
+            "road_end",
+            "ranging_end",
             "detections_3d_published",
         ),
     ),
@@ -315,6 +317,7 @@ STEPS = (
     ("scene map", "scene_start", "scene_end", "scene map"),
     ("disparity map", "disparity_start", "disparity_end", "disparity ("),
     ("odometry", "odometry_start", "odometry_end", "odometry"),
+    ("road map", "road_start", "road_end", "road map"),
     ("ranging + check", "ranging_start", "ranging_end", "ranging + check"),
 )
 
@@ -545,20 +548,17 @@ def offline_stage_times(
             [d.observation_angle for d in dets], [d.observation_angle_variance for d in dets]
         )
 
+        road = disp
+        if boxes_only and boxes:  # as the node: the road plane's map at half the resolution
+            road, ms = timed(lambda left=left, right=right: coarse_disparity(left, right, params))
+            add("road map (coarse)", ms)
+
         def range_and_check(
-            disp=disp,
-            left=left,
-            right=right,
-            boxes=boxes,
-            bins=bins,
-            alphas=alphas,
-            images=(gray, gray_r),
+            disp=disp, road=road, boxes=boxes, bins=bins, alphas=alphas, images=(gray, gray_r)
         ):
             if not boxes:  # the node ranges and checks nothing then
                 return []
             results = range_boxes(disp, boxes, geometry, ranging, bins, images, alphas)
-            # as the node: the road plane's map at half the map's resolution
-            road = coarse_disparity(left, right, params) if boxes_only else disp
             plane = ground.update(road, geometry, bias)
             depths = [fb / r.disparity if r is not None else None for r in results]
             return check_boxes(disp, boxes, depths, geometry, plane, plausibility)
@@ -587,15 +587,16 @@ def offline_stage_times(
 def path_alone(alone: dict[str, float]) -> float:
     """The stereo node's critical path alone, as if each step had cores of its own: the CNN
     (a frame is processed once its 2D array is there), then the scene's block-matching map
-    (when the map is only computed in the boxes), then the odometry beside the map in the boxes
-    and the ranging with its check (with the whole band's map, the odometry waits for it)."""
+    (when the map is only computed in the boxes), then the helper thread's odometry and road
+    map beside the map in the boxes and the ranging with its check (with the whole band's map,
+    the odometry and the ranging wait for it)."""
     det = alone_ms(alone, "detect")
     disp = alone_ms(alone, "disparity (")
     odo, rng = alone["odometry"], alone["ranging + check"]
     scene = alone_ms(alone, "scene map", None)
     if scene is None:
         return det + disp + max(odo, rng)
-    return det + scene + max(odo, disp + rng)
+    return det + scene + max(odo + alone_ms(alone, "road map", 0.0), disp + rng)
 
 
 def stage_ratios(figures: dict, alone: dict[str, float]) -> dict[str, tuple[float, float]]:
@@ -621,6 +622,7 @@ def cores_bound_3d(alone: dict[str, float], cores: int) -> float:
     but no sooner than the longest chain (:func:`path_alone`)."""
     det = alone_ms(alone, "detect")
     work = det + alone["disparity CPU"] + alone["odometry"] + alone["ranging + check"]
+    work += alone_ms(alone, "road map", 0.0)
     return max(path_alone(alone), work / max(1, cores))
 
 

@@ -141,6 +141,16 @@ def _stamp_text(ns: int) -> str:
     return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
 
 
+@dataclasses.dataclass(frozen=True)
+class _Ready:
+    """A result already computed, read like a Future's."""
+
+    value: object
+
+    def result(self):
+        return self.value
+
+
 class _NoGeometry(ValueError):
     """No usable stereo geometry (no CameraInfo yet, or a bad calibration)."""
 
@@ -175,12 +185,10 @@ class StereoDepthNode(Node):
         self.match_rows = (p.match_rows[0], p.match_rows[1])
         self.map_area = p.map_area
         self.odometry = FrameToFrameOdometry() if p.visual_odometry else None
-        # a frame's odometry runs in this thread, beside its disparity map and ranging; only
-        # the publishing of the 3D array waits for it (ARCHITECTURE.md, "A frame's path
-        # through the graph")
-        self._odometry_thread = (
-            ThreadPoolExecutor(1, thread_name_prefix="odometry") if p.visual_odometry else None
-        )
+        # a frame's odometry, then its road plane's map, run in this thread beside its map in
+        # the boxes and its ranging; the check waits for the road map, the publishing of the
+        # 3D array for the odometry (ARCHITECTURE.md, "A frame's path through the graph")
+        self._helper = ThreadPoolExecutor(1, thread_name_prefix="stereo-helper")
         self._vehicle_boxes: list = []  # of the previous processed frame (the odometry's mask)
         self._bias_key: tuple | None = None  # (width, geometry) of the cached column bias
         self._bias: np.ndarray | None = None
@@ -233,8 +241,7 @@ class StereoDepthNode(Node):
 
     def destroy_node(self):
         self.worker.stop()  # the frames in hand and waiting are finished first
-        if self._odometry_thread is not None:
-            self._odometry_thread.shutdown(wait=True)
+        self._helper.shutdown(wait=True)
         super().destroy_node()
 
     def _match_band(self, height: int):
@@ -304,8 +311,9 @@ class StereoDepthNode(Node):
 
     # ------------------------------------------------------------------ processing
     def _process_frame(self, item) -> None:
-        """One complete frame: its disparity map where the ranging reads it, its odometry in
-        the odometry thread meanwhile, the ranging and check, then the 3D array."""
+        """One complete frame: its disparity map where the ranging reads it, its odometry and
+        road plane's map in the helper thread meanwhile, the ranging and check, then the 3D
+        array."""
         left_msg, right_msg, det_msg = item
         stamp = stamp_ns(det_msg.header)
         self.trace("pair_start", stamp)
@@ -332,25 +340,23 @@ class StereoDepthNode(Node):
             return
         gray, gray_right = to_gray(left), to_gray(right)
         params = self._disparity_params_for(left.shape[0])
-        whole = self.map_area == "band" or self._outputs_wanted()
-        if whole:
+        if self.map_area == "band" or self._outputs_wanted():
+            # the band's map for the ranging, the road plane and the odometry
             self.trace("disparity_start", stamp)
-            disparity = scene = compute_disparity(left, right, params)
+            disparity = compute_disparity(left, right, params)
             self.trace("disparity_end", stamp)
-
-            def road():
-                return disparity
+            odometry = self._start_odometry(stamp, gray, disparity, geometry)
+            road = _Ready(disparity)
         else:
-            # the odometry's map of the scene: block matching over the band
+            # the odometry's map of the scene: block matching over the band; then, in the
+            # helper thread, the odometry and the road plane's map (the map's algorithm at
+            # half its resolution, when there are boxes to check) beside the map in the boxes
+            # and the ranging
             self.trace("scene_start", stamp)
             scene = block_matching_disparity(gray, gray_right, params)
             self.trace("scene_end", stamp)
-
-            def road():  # the road plane's: the map's algorithm at half its resolution
-                return coarse_disparity(left, right, params)
-
-        odometry = self._start_odometry(stamp, gray, scene, geometry)
-        if not whole:
+            odometry = self._start_odometry(stamp, gray, scene, geometry)
+            road = self._helper.submit(self._road_map, stamp, left, right, params) if dets else None
             self.trace("disparity_start", stamp)
             disparity = compute_disparity_in_boxes(left, right, boxes, params)
             self.trace("disparity_end", stamp)
@@ -358,8 +364,16 @@ class StereoDepthNode(Node):
         self.frames_processed += 1
         images = (gray, gray_right) if self.ranging_params.refine != "none" else None
         self._publish_detections(det_msg, dets, boxes, disparity, road, geometry, images, odometry)
-        if whole:
+        if isinstance(road, _Ready):
             self._publish_frame_outputs(disparity, geometry, det_msg.header, left)
+
+    def _road_map(self, stamp: int, left, right, params) -> np.ndarray:
+        """The helper thread's map for the road plane (traced as road_start / road_end)."""
+        self.trace("road_start", stamp)
+        try:
+            return coarse_disparity(left, right, params)
+        finally:
+            self.trace("road_end", stamp)
 
     def _outputs_wanted(self) -> bool:
         """Whether someone subscribes to the disparity image or the point cloud (they need the
@@ -395,8 +409,8 @@ class StereoDepthNode(Node):
     def _publish_detections(
         self, det_msg, dets, boxes, disparity, road, geometry, images, odometry
     ) -> None:
-        """Range and check the frame's boxes (``road()``: the map the road plane is fitted
-        to, computed only when there are boxes to check), wait for its odometry, publish."""
+        """Range and check the frame's boxes (``road.result()``: the map the road plane is
+        fitted to, None without boxes), wait for its odometry, publish."""
         stamp = stamp_ns(det_msg.header)
         self.trace("ranging_start", stamp)
         out = VehicleDetection3DArray()
@@ -410,7 +424,7 @@ class StereoDepthNode(Node):
                 [getattr(d, "observation_angle_variance", -1.0) for d in dets],
             )
             results = range_boxes(disparity, boxes, geometry, self.ranging, bins, images, alphas)
-            checks = self._check(disparity, road(), geometry, boxes, results)
+            checks = self._check(disparity, road.result(), geometry, boxes, results)
         self.trace("ranging_end", stamp)
         motion = self._camera_motion(odometry)
         if motion is not None:
@@ -441,7 +455,7 @@ class StereoDepthNode(Node):
         self._vehicle_boxes = boxes
         if self.odometry is not None:
             # the next frame's odometry tracks this one's corners: found now, in idle time
-            self._odometry_thread.submit(self.odometry.prepare(boxes))
+            self._helper.submit(self.odometry.prepare(boxes))
 
     def _column_bias(self, width: int, geometry: StereoGeometry) -> np.ndarray:
         """The ranging's disparity bias model per image column [px] (read-only); it depends
@@ -473,12 +487,12 @@ class StereoDepthNode(Node):
             return None
         job = self.odometry.begin(stamp, gray, scene)
         bias = self._column_bias(gray.shape[1], geometry)
-        return self._odometry_thread.submit(
+        return self._helper.submit(
             self._estimate_motion, stamp, job, geometry, list(self._vehicle_boxes), bias
         )
 
     def _estimate_motion(self, stamp: int, job, *args) -> CameraMotion | None:
-        """The odometry thread's work (traced as odometry_start / odometry_end)."""
+        """The helper thread's odometry (traced as odometry_start / odometry_end)."""
         self.trace("odometry_start", stamp)
         try:
             return job(*args)
