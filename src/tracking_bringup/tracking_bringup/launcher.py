@@ -369,10 +369,12 @@ class GraphLauncher:
     def _on_reports(self, msg) -> None:
         for report in reports_from_message(msg):
             name = self._report_names.get(report.node)  # this graph's nodes, by short name
-            run = self.running.get(name) if name is not None else None
+            if name is None:
+                continue
+            run = self.running.get(name)
             # only this launcher's process of that name: a stray one of the same name on the
             # domain (another graph, a leftover of an earlier run) would hide a frozen node
-            if run is not None and (report.pid is None or report.pid == run.proc.pid):
+            if run is None or report.pid is None or report.pid == run.proc.pid:
                 self.reports[name] = report
                 self.progress.seen(name, report, time.monotonic())
 
