@@ -198,3 +198,52 @@ def test_crop_keeps_the_occlusion_flags_of_the_boxes_it_keeps():
     c = crop_sample(s, 0, 0, 100, 60)
     assert len(c.boxes) == 1
     np.testing.assert_array_equal(c.occluded, [2])
+
+
+class _FlipAlways:
+    """A generator stand-in whose draws make the training mix flip (random() = 0)."""
+
+    def __init__(self, seed=0):
+        self._rng = np.random.default_rng(seed)
+
+    def random(self, *a, **k):
+        return 0.0
+
+    def __getattr__(self, name):
+        return getattr(self._rng, name)
+
+
+def test_centernet_training_path_flips_alpha_to_pi_minus_alpha_bins_and_boxes():
+    """The mirror augmentation as the CenterNet training sees it (TrainingMix.make, as
+    detector_train draws both its fresh samples and its feature bank, then the CenterNet
+    targets): alpha -> pi - alpha, bins 45 <-> 135 (0 and 90 stay), boxes mirrored."""
+    from detector_node.centernet import build_targets
+    from detector_node.dataset import sample_alphas
+
+    alphas = np.radians([10.0, 45.0, 90.0, 135.0, -30.0, -150.0]).astype(np.float32)
+    boxes = [[10 + 30 * i, 20, 30 + 30 * i, 50] for i in range(len(alphas))]
+    s = _sample(boxes, [alpha_to_bin(a) for a in alphas], w=256, h=64)
+    s.alphas = alphas
+    mix = TrainingMix(
+        [Source("real", "real", [s])],
+        256,
+        64,
+        AugmentConfig(flip=True, photometric=False, crop_probability=0, paste_probability=0),
+    )
+    out = mix.make(0, 0, _FlipAlways())
+    flipped = sample_alphas(out)
+    np.testing.assert_allclose(flipped, [flip_alpha(a) for a in alphas], atol=1e-6)
+    np.testing.assert_allclose(np.degrees(flipped[:4]), [170.0, 135.0, 90.0, 45.0], atol=1e-4)
+    assert out.bins.tolist() == [0, 3, 2, 1, 1, 3]  # before: 0, 1, 2, 3, 3, 1
+    np.testing.assert_allclose(out.boxes[:, [0, 2]], 256 - s.boxes[:, [2, 0]])
+    np.testing.assert_allclose(out.boxes[:, [1, 3]], s.boxes[:, [1, 3]])
+    assert np.array_equal(out.image, s.image[:, ::-1])
+    # the CenterNet's orientation targets follow: true 45 deg trains bin 135 once mirrored
+    _, _, _, _, _, bins, res = build_targets([out.boxes], [flipped], [out.dontcare], 16, 64)
+    assert bins.tolist() == [0, 3, 2, 1, 1, 3]
+    np.testing.assert_allclose(np.degrees(res[:2]), [-10.0, 0.0], atol=1e-4)
+    # and a mix without the flip leaves them as labelled
+    mix.aug.flip = False
+    kept = mix.make(0, 0, _FlipAlways())
+    np.testing.assert_allclose(sample_alphas(kept), alphas)
+    assert kept.bins.tolist() == [0, 1, 2, 3, 3, 1]
