@@ -22,7 +22,8 @@ per fold and pooled, written to ``WORK/NAME/cv.json``; the exact commands go to
 ``WORK/NAME/commands.sh``.
 
 Usage: python bench/detector_cv.py --name NAME [--stage1 "..."] [--extra "..."]
-       [--stage2 "..."] [--folds 1,2,3] [--parallel N] [--work /tmp/det_cv] [--score-only]
+       [--stage2 "..."] [--folds 1,2,3] [--parallel N] [--work /tmp/det_cv] [--bank DIR]
+       [--score-only]
        [--final]   # train the recipe on all training frames (WORK/NAME/final/), no scoring
 """
 
@@ -74,6 +75,8 @@ def stage_commands(fold: int | None, args, out: Path) -> list[list[str]]:
     exe = str(Path(sys.executable).parent / "detector_train")
     data = data_options(fold)
     s1 = [exe, *data, *shlex.split(args.stage1), *shlex.split(args.extra)]
+    if args.bank and "--feature-bank" in s1:
+        s1 += ["--bank-cache", str(args.bank / f"{out.name}.pt")]
     cmds = [[*s1, "--output", str(out / "stage1")]]
     if args.stage2:
         init = ["--init", str(out / "stage1" / "final.pt")]
@@ -113,6 +116,12 @@ def main() -> int:
     p.add_argument("--stage2", default="", help="options of stage 2 (--init stage 1 added)")
     p.add_argument("--folds", default="1,2,3", help="folds to run (1-based)")
     p.add_argument("--work", type=Path, default=Path("/tmp/det_cv"))
+    p.add_argument(
+        "--bank",
+        type=Path,
+        help="folder of cached feature banks (one per fold; variants that train other heads on "
+        "the same bank share it; a bank of other data or augmentation is rebuilt)",
+    )
     p.add_argument("--parallel", type=int, default=1, help="folds trained at once")
     p.add_argument("--score-only", action="store_true", help="score existing fold checkpoints")
     p.add_argument("--final", action="store_true", help="train on all training frames instead")

@@ -474,6 +474,19 @@ def test_train_cli_centernet_orientation_head_from_the_package(tmp_path, capsys)
     assert not torch.equal(model.orientation[-1].weight, start.orientation[-1].weight)
     assert train_main(args + ["--feature-bank", "2"]) == 2  # a bank needs a frozen graph
     assert "--freeze-backbone" in capsys.readouterr().err
+    # a cached bank is written once and read back by a recipe that trains other heads, in
+    # micro-batches; another seed is another bank
+    cache = tmp_path / "bank.pt"
+    heads = args + ["--freeze-backbone", "--feature-bank", "2", "--bank-cache", str(cache)]
+    assert train_main(heads + ["--micro-batch", "1"]) == 0
+    assert "feature bank: 2 samples in" in capsys.readouterr().out and cache.is_file()
+    first = load_checkpoint(out / "final.pt")[0].box.pointwise.weight.clone()
+    assert train_main(heads + ["--micro-batch", "1"]) == 0
+    assert f"feature bank: 2 samples read from {cache}" in capsys.readouterr().out
+    torch.testing.assert_close(load_checkpoint(out / "final.pt")[0].box.pointwise.weight, first)
+    assert not torch.equal(first, start.box.pointwise.weight)  # the box head trains here
+    assert train_main(heads + ["--seed", "1"]) == 0
+    assert "holds another bank: rebuilt" in capsys.readouterr().out
 
 
 def test_default_checkpoint_finds_real_cars_with_their_angle(shared_kitti):

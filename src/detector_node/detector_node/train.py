@@ -144,7 +144,20 @@ class BankItem:
 def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> list[BankItem]:
     """``--feature-bank N`` augmented samples drawn once from the training mix (same pipeline and
     weights as the epochs), passed through the frozen graph; the epochs then train the heads on
-    these stored features (float16)."""
+    these stored features (float16). With ``--bank-cache FILE`` the bank is read from FILE when
+    FILE holds the bank of the same data, augmentation, seed, size and initial weights, else
+    built and written there (recipes that differ only in how the heads train share it)."""
+    key = _bank_key(model, args)
+    if args.bank_cache and args.bank_cache.is_file():
+        stored = torch.load(args.bank_cache, weights_only=True)
+        if stored.get("key") == key:
+            bank = [
+                BankItem(f, b.numpy(), a.numpy(), d.numpy())
+                for f, b, a, d in zip(*(stored[k] for k in ("f", "b", "a", "d")), strict=True)
+            ]
+            print(f"feature bank: {len(bank)} samples read from {args.bank_cache}", flush=True)
+            return bank
+        print(f"feature bank: {args.bank_cache} holds another bank: rebuilt", flush=True)
     rng = np.random.default_rng([args.seed, 7919])
     order = mix.draw(args.feature_bank, rng)
     bank: list[BankItem] = []
@@ -157,7 +170,32 @@ def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> 
             for s, fi in zip(batch, f, strict=True):
                 bank.append(BankItem(fi.half().cpu(), s.boxes, sample_alphas(s), s.dontcare))
     print(f"feature bank: {len(bank)} samples in {time.time() - t0:.1f} s", flush=True)
+    if args.bank_cache:
+        stored = {
+            "key": key,
+            "f": [it.feature for it in bank],
+            "b": [torch.from_numpy(np.asarray(it.boxes, np.float32)) for it in bank],
+            "a": [torch.from_numpy(np.asarray(it.alphas, np.float32)) for it in bank],
+            "d": [torch.from_numpy(np.asarray(it.dontcare, np.float32)) for it in bank],
+        }
+        args.bank_cache.parent.mkdir(parents=True, exist_ok=True)
+        tmp = args.bank_cache.with_suffix(".tmp")
+        torch.save(stored, tmp)
+        tmp.replace(args.bank_cache)
     return bank
+
+
+def _bank_key(model, args: argparse.Namespace) -> str:
+    """What a feature bank depends on: data and weights, augmentation, seed, size, the graph's
+    weights (a checksum)."""
+    names = (
+        "train partial synthetic types seed feature_bank input_width input_height roi_top "
+        "no_flip no_jitter crop_probability min_scale max_scale paste_probability paste_max"
+    )
+    opts = {k: getattr(args, k, None) for k in names.split()}
+    with torch.no_grad():
+        weights = sum(float(p.double().abs().sum()) for p in model.graph.parameters())
+    return json.dumps({**opts, "graph_weights": round(weights, 3)}, sort_keys=True, default=str)
 
 
 def _centernet_batch_loss(
@@ -270,6 +308,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="centernet with --freeze-backbone: draw this many augmented samples once, store "
         "their graph features and train the heads on them (0 = fresh samples every step)",
+    )
+    p.add_argument(
+        "--bank-cache",
+        type=Path,
+        help="file for the feature bank: read when it holds the same bank, else written",
     )
     p.add_argument(
         "--orientation-only",
