@@ -166,7 +166,13 @@ def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> 
     with torch.no_grad():
         for start in range(0, len(order), args.batch_size):
             batch = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
-            f = model.features(to_tensor([s.image for s in batch], device))
+            size = args.micro_batch if args.micro_batch > 0 else len(batch)
+            f = torch.cat(
+                [
+                    model.features(to_tensor([s.image for s in batch[j : j + size]], device))
+                    for j in range(0, len(batch), size)
+                ]
+            )
             for s, fi in zip(batch, f, strict=True):
                 bank.append(BankItem(fi.half().cpu(), s.boxes, sample_alphas(s), s.dontcare))
     print(f"feature bank: {len(bank)} samples in {time.time() - t0:.1f} s", flush=True)
