@@ -24,8 +24,8 @@ Prints, for the shipped (or a given) checkpoint:
   checkpoint on the same real frames, and its time in the same run, interleaved.
 
 Usage: python bench/bench_detector.py [--checkpoint PT|NAME] [--also PT|NAME] [--threads 1]
-       [--synthetic ROOT:SEQ] [--skip-synthetic] [--skip-timing] [--skip-real] [--parts] [--runs 20] [--with-full]
-       [--input-width W --input-height H] [--json FILE]
+       [--synthetic ROOT:SEQ] [--skip-synthetic] [--skip-timing] [--skip-real] [--parts]
+       [--runs 20] [--with-full] [--input-width W --input-height H] [--json FILE]
 """
 
 from __future__ import annotations

@@ -13,7 +13,8 @@ frames @0.5, keyframes @0.3, crops @0.2, as the former recipe):
 
 - stage 1: ``--stage1`` (default :data:`STAGE1`: the former recipe, orientation head only on a
   feature bank) plus ``--extra``;
-- stage 2 (``--stage2 OPTIONS``, optional): ``--init`` stage 1's ``final.pt`` plus OPTIONS.
+- stage 2 (``--stage2 OPTIONS``, optional): ``--init`` stage 1's ``final.pt`` plus OPTIONS
+  (``--stage1-from NAME``: stage 1 as another variant trained it, not trained again).
 
 Each fold's checkpoint is scored as ``bench_detector.py`` scores the reporting split: KITTI
 2D AP|R40 (Car, moderate, IoU 0.7 and 0.5), 4-bin accuracy of the continuous angle's bin over
@@ -22,8 +23,8 @@ per fold and pooled, written to ``WORK/NAME/cv.json``; the exact commands go to
 ``WORK/NAME/commands.sh``.
 
 Usage: python bench/detector_cv.py --name NAME [--stage1 "..."] [--extra "..."]
-       [--stage2 "..."] [--folds 1,2,3] [--parallel N] [--work /tmp/det_cv] [--bank DIR]
-       [--score-only]
+       [--stage2 "..." [--stage1-from NAME]] [--folds 1,2,3] [--parallel N]
+       [--work /tmp/det_cv] [--bank DIR] [--score-only]
        [--final]   # train the recipe on all training frames (WORK/NAME/final/), no scoring
 """
 
@@ -78,8 +79,11 @@ def stage_commands(fold: int | None, args, out: Path) -> list[list[str]]:
     if args.bank and "--feature-bank" in s1:
         s1 += ["--bank-cache", str(args.bank / f"{out.name}.pt")]
     cmds = [[*s1, "--output", str(out / "stage1")]]
+    first = out / "stage1" / "final.pt"
+    if args.stage1_from:  # stage 1 as trained by another variant (same fold)
+        cmds, first = [], args.work / args.stage1_from / out.name / "stage1" / "final.pt"
     if args.stage2:
-        init = ["--init", str(out / "stage1" / "final.pt")]
+        init = ["--init", str(first)]
         cmds.append([exe, *data, *shlex.split(args.stage2), *init, "--output", str(out / "stage2")])
     return cmds
 
@@ -114,6 +118,11 @@ def main() -> int:
     p.add_argument("--stage1", default=STAGE1, help="detector_train options of stage 1")
     p.add_argument("--extra", default="", help="options added to stage 1")
     p.add_argument("--stage2", default="", help="options of stage 2 (--init stage 1 added)")
+    p.add_argument(
+        "--stage1-from",
+        default="",
+        help="skip stage 1: stage 2 starts from this variant's stage 1 (same folds, WORK/NAME)",
+    )
     p.add_argument("--folds", default="1,2,3", help="folds to run (1-based)")
     p.add_argument("--work", type=Path, default=Path("/tmp/det_cv"))
     p.add_argument(
