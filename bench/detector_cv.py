@@ -83,8 +83,10 @@ def stage_commands(fold: int | None, args, out: Path) -> list[list[str]]:
     if args.stage1_from:  # stage 1 as trained by another variant (same fold)
         cmds, first = [], args.work / args.stage1_from / out.name / "stage1" / "final.pt"
     if args.stage2:
-        init = ["--init", str(first)]
-        cmds.append([exe, *data, *shlex.split(args.stage2), *init, "--output", str(out / "stage2")])
+        s2 = [exe, *data, *shlex.split(args.stage2), "--init", str(first)]
+        if args.bank and "--feature-bank" in s2:
+            s2 += ["--bank-cache", str(args.bank / f"{out.name}.pt")]
+        cmds.append([*s2, "--output", str(out / "stage2")])
     return cmds
 
 
