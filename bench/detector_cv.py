@@ -145,10 +145,10 @@ def main() -> int:
     outs = {f: base / ("final" if f is None else f"fold{f + 1}") for f in folds}
     cmds = {f: stage_commands(f, args, outs[f]) for f in folds}
     base.mkdir(parents=True, exist_ok=True)
-    with open(base / "commands.sh", "w") as fh:
-        for f in folds:
-            fh.write(f"# {outs[f].name}\n" + "".join(shlex.join(c) + "\n" for c in cmds[f]))
     if not args.score_only:
+        with open(base / "commands.sh", "w") as fh:
+            for f in folds:
+                fh.write(f"# {outs[f].name}\n" + "".join(shlex.join(c) + "\n" for c in cmds[f]))
         t0, cpu0 = time.time(), os.times()
         pending, running = list(folds), []
         while pending or running:
