@@ -136,8 +136,17 @@ class CenterNetDetector(nn.Module):
         """Feature -> (B, 5, H/4, W/4): heat logit and (l, t, r, b) [input px]."""
         return torch.cat([self.heat(f), self.box(f) * self.box_scale], dim=1)
 
-    def orientation_at(self, f: torch.Tensor, batch: torch.Tensor, boxes: torch.Tensor):
-        """Orientation values (N, 9) of boxes (N, 4) [input px] of images ``batch`` (N,)."""
+    def orientation_at(
+        self,
+        f: torch.Tensor,
+        batch: torch.Tensor,
+        boxes: torch.Tensor,
+        view: torch.Tensor | None = None,
+    ):
+        """Orientation values (N, 9) of boxes (N, 4) [input px] of images ``batch`` (N,).
+        ``view`` (N, 2): where each box was seen, normalised to its frame (training with
+        ``--true-view``: a crop moved it in the input, not its viewing ray); None: where it is
+        in the input (inference)."""
         if not len(boxes):
             return f.new_zeros((0, 2 * NUM_BINS + 1))
         _, c, gh, gw = f.shape
@@ -172,14 +181,11 @@ class CenterNetDetector(nn.Module):
             0.0,
             0.0,
         )
-        geo = torch.stack(
-            [
-                torch.log(w / h) + aspect,
-                (x1 + x2) / 2 * ax + bx - 0.5,
-                (y1 + y2) / 2 * ay + by - 0.5,
-            ],
-            dim=1,
-        )
+        if view is None:
+            cx, cy = (x1 + x2) / 2 * ax + bx, (y1 + y2) / 2 * ay + by
+        else:
+            cx, cy = view[:, 0].to(f.dtype), view[:, 1].to(f.dtype)
+        geo = torch.stack([torch.log(w / h) + aspect, cx - 0.5, cy - 0.5], dim=1)
         return self.orientation(torch.cat([sampled.flatten(1), geo], dim=1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

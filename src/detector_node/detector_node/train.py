@@ -37,6 +37,7 @@ from .dataset import (
     load_sample,
     parse_weighted_source,
     sample_alphas,
+    sample_view,
     sources_from_args,
 )
 from .inference import choose_device, decode_output, to_tensor
@@ -139,6 +140,7 @@ class BankItem:
     boxes: np.ndarray
     alphas: np.ndarray
     dontcare: np.ndarray
+    view: np.ndarray  # (N, 2) Sample.view
 
 
 def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> list[BankItem]:
@@ -152,8 +154,8 @@ def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> 
         stored = torch.load(args.bank_cache, weights_only=True)
         if stored.get("key") == key:
             bank = [
-                BankItem(f, b.numpy(), a.numpy(), d.numpy())
-                for f, b, a, d in zip(*(stored[k] for k in ("f", "b", "a", "d")), strict=True)
+                BankItem(f, b.numpy(), a.numpy(), d.numpy(), v.numpy())
+                for f, b, a, d, v in zip(*(stored[k] for k in "fbadv"), strict=True)
             ]
             print(f"feature bank: {len(bank)} samples read from {args.bank_cache}", flush=True)
             return bank
@@ -174,7 +176,9 @@ def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> 
                 ]
             )
             for s, fi in zip(batch, f, strict=True):
-                bank.append(BankItem(fi.half().cpu(), s.boxes, sample_alphas(s), s.dontcare))
+                bank.append(
+                    BankItem(fi.half().cpu(), s.boxes, sample_alphas(s), s.dontcare, sample_view(s))
+                )
     print(f"feature bank: {len(bank)} samples in {time.time() - t0:.1f} s", flush=True)
     if args.bank_cache:
         stored = {
@@ -183,6 +187,7 @@ def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> 
             "b": [torch.from_numpy(np.asarray(it.boxes, np.float32)) for it in bank],
             "a": [torch.from_numpy(np.asarray(it.alphas, np.float32)) for it in bank],
             "d": [torch.from_numpy(np.asarray(it.dontcare, np.float32)) for it in bank],
+            "v": [torch.from_numpy(np.asarray(it.view, np.float32)) for it in bank],
         }
         args.bank_cache.parent.mkdir(parents=True, exist_ok=True)
         tmp = args.bank_cache.with_suffix(".tmp")
@@ -201,7 +206,8 @@ def _bank_key(model, args: argparse.Namespace) -> str:
     opts = {k: getattr(args, k, None) for k in names.split()}
     with torch.no_grad():
         weights = sum(float(p.double().abs().sum()) for p in model.graph.parameters())
-    return json.dumps({**opts, "graph_weights": round(weights, 3)}, sort_keys=True, default=str)
+    key = {**opts, "graph_weights": round(weights, 3), "format": 2}  # 2: with the boxes' view
+    return json.dumps(key, sort_keys=True, default=str)
 
 
 def _centernet_batch_loss(
@@ -214,6 +220,7 @@ def _centernet_batch_loss(
     residual_overlap: bool = False,
     normalisers=None,
     bin_smoothing: float = 0.0,
+    true_view: bool = False,
 ):
     """CenterNet loss of a batch of features ``f`` and their samples (boxes, alphas, DontCare);
     the orientation head sees the ground-truth boxes with each edge moved by up to 5 % of the
@@ -221,18 +228,28 @@ def _centernet_batch_loss(
     ``--balance-orientation`` (None: unweighted); ``residual_overlap``: those of
     ``--residual-overlap`` (MultiBin's overlapping bins); ``normalisers``: the whole batch's
     when ``items`` is one of its micro-batches (:func:`~detector_node.centernet.loss_normalisers`);
-    ``bin_smoothing``: that of ``--orientation-smoothing``."""
+    ``bin_smoothing``: that of ``--orientation-smoothing``; ``true_view``: the orientation head
+    is told where each box was seen (``Sample.view``), not where it is in the input
+    (``--true-view``)."""
     boxes = [it.boxes for it in items]
+    alphas = [sample_alphas(it) if isinstance(it, Sample) else it.alphas for it in items]
+    view = None
+    if true_view:  # the rows the loss evaluates: the boxes with a known angle
+        known = np.isfinite(np.concatenate([np.asarray(a, float) for a in alphas]))
+        views = np.concatenate(
+            [sample_view(it) if isinstance(it, Sample) else it.view for it in items]
+        )
+        view = torch.from_numpy(views.reshape(-1, 2)[known].astype(np.float32)).to(f.device)
 
     def orientation(batch_idx: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
         wh = (gt[:, 2:] - gt[:, :2]).repeat(1, 2)
         noise = torch.from_numpy(rng.uniform(-0.05, 0.05, gt.shape).astype(np.float32))
-        return model.orientation_at(f, batch_idx, gt + noise.to(gt.device) * wh)
+        return model.orientation_at(f, batch_idx, gt + noise.to(gt.device) * wh, view)
 
     return centernet_loss(
         model.dense(f),
         boxes,
-        [sample_alphas(it) if isinstance(it, Sample) else it.alphas for it in items],
+        alphas,
         [it.dontcare for it in items],
         {"bin": orientation_weight, "residual": orientation_weight},
         orientation,
@@ -281,6 +298,7 @@ def _centernet_step(model, batch, bank: bool, args, bin_weights, rng, device):
             args.residual_overlap,
             norm,
             args.orientation_smoothing,
+            args.true_view,
         )
         loss.backward()
         for k, v in {"loss": loss.item(), **terms}.items():
@@ -405,6 +423,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="centernet: label smoothing of the 4-bin targets: this share goes to the two "
         "neighbouring bins (0 and 135 deg are neighbours across the 180-deg fold), the nearer "
         "one taking more (0 = one-hot)",
+    )
+    p.add_argument(
+        "--true-view",
+        action="store_true",
+        help="centernet: give the orientation head where each training box was seen in its "
+        "frame (before scale jitter, crops and pastes moved it), as inference sees it",
     )
     p.add_argument(
         "--micro-batch",
