@@ -2,7 +2,7 @@
 **reporting** split of whole tracking sequences, the **training** frames, and the
 **cross-validation folds** (whole sequences) inside the training frames.
 
-Decided on 2026-11-28 (issue 34), before any training of that issue, and written here and in
+Decided on 2026-11-27 (issue 34), before any training of that issue, and written here and in
 docs/detector.md before the first run:
 
 - **Reporting split: every labelled frame here of the tracking sequences 0001, 0005, 0008 and
@@ -26,7 +26,7 @@ docs/detector.md before the first run:
   and 0011 (39; 0000 has none here), and as ``partial`` data the ``object_crops352`` crops
   without the 38 that may be frames of a reporting sequence (:data:`REPORT_CROP_IDS`): 110.
 
-**Which frames belong to which sequence** (checked 2026-11-28, ``tests/detector/
+**Which frames belong to which sequence** (checked 2026-11-27, ``tests/detector/
 test_detector_cli.py`` recomputes it). Object frames carry no sequence, and the former split's
 thumbnail check (grey 96x30 thumbnails, closest pair 8.8 grey levels apart) missed frames of
 the same drive a second apart: object 000080 is frame 207 of 0005, two frames before keyframe
