@@ -1,7 +1,8 @@
 """The whole graph at camera rate and in lockstep: frames tracked, latency, CPU per node.
 
 Usage: python bench/bench_graph.py [--synthetic-frames 100] [--no-real] [--windows 1,2]
-       [--real-frames N] [-p NODE.PARAM:=VALUE ...] [--json FILE] [--profile]
+       [--real-frames N] [--overload | --rate-multiplier X] [--cpus LIST]
+       [-p NODE.PARAM:=VALUE ...] [--json FILE] [--profile] [--compare-tree PATH [--repeat N]]
 
 Runs the graph of the demo (player, CNN detector, stereo depth, tracker, recorder; separate
 processes, the shipped parameter file) on real KITTI tracking 0005 (../shared/kitti, 16 frames)
@@ -11,22 +12,40 @@ and on a synthetic sequence (rendered once into output/bench_graph/synthetic). `
 longer real drive at the same image content: its timing figures, not its tracking accuracy (the
 camera turns back at each end).
 
-- ``realtime``: the player at 10 Hz without lockstep, as a camera: frames published, frames
-  that reached /vehicles/tracks, latency image -> tracks (p50 / p95 / max: the player's /clock
-  message of a frame, published just before its images, to the tracks of that stamp, both seen
-  by a probe node in this process), the per-stage share of it (-> 2D detections -> 3D
-  detections -> tracks), each node's frames in / out / dropped (its /diagnostics report) and
-  CPU (% of one core, from /proc, over the playback).
+- ``realtime``: the player at 10 Hz (x ``--rate-multiplier``) without lockstep, as a camera:
+  frames published, frames that reached /vehicles/tracks, latency image -> tracks (p50 / p95 /
+  max: the player's /clock message of a frame, published just before its images, to the tracks
+  of that stamp, both seen by a probe node in this process), the per-stage share of it (-> 2D
+  detections -> 3D detections -> tracks), each node's frames in / out / dropped (its
+  /diagnostics report) and CPU (% of one core, from /proc, over the playback).
 - ``lockstep K``: the player as fast as the graph goes with at most K unacknowledged frames;
   throughput in frames/s (first /clock to last tracks).
+
+Issue #33's three bars, printed for each dataset and measured in the same run:
+
+- frames tracked at camera rate against the lockstep capacity, ``frames x min(1, lockstep
+  frames/s / camera rate)`` (bar >= 0.9), and the mean latency against lockstep's (<= 1.25);
+- CPU per frame: the CPU of every node process in the lockstep run (window 1) minus that of a
+  4-frame lockstep run (both from the first frame's clock until the graph is idle after the
+  last), over the frames between them, per process and thread (the player's PNG decoding is
+  outside: it decodes the sequence before the first clock); divided by the fixed reference
+  workload ``../shared/tools/cpu_reference.py`` timed before and after (bar <= 1.0);
+- the tracking quality (tracks 3D AP @1.5 m, MOTA, HOTA) on the frames that got through, at
+  camera rate and in lockstep.
+
+Overload on a fast machine: ``--overload`` plays the camera at 2.2 x 10 Hz (the factor by which
+issue #33's slower machine is slower per core), ``--rate-multiplier X`` at any rate, ``--cpus
+LIST`` runs every node on those CPUs (``cpu_affinity``; "0": one core). ``--compare-tree PATH``
+runs this bench alternately with another checkout's ``.venv`` (today's tree) and this tree's
+(``--repeat`` pairs) and prints the CPU ratios new / old.
 
 Every run also traces each frame through the nodes (``vehicle_common.frame_trace``, the
 environment variable ``VEHICLE_TRACE_DIR`` set to the run's ``trace`` folder): when the player
 published the images, when each node received them, started and ended each step of its work (the
-CNN, the disparity map, the odometry, the ranging and its check) and published; printed as a
-median timeline after the player's clock event, and each step's wall / own-thread CPU time in the
-graph against the same step alone (``offline_stage_times``: the median over the sequence's frames
-of the same work, inputs and settings in this process).
+CNN, the scene's block-matching map, the disparity map, the odometry, the ranging and its check)
+and published; printed as a median timeline after the player's clock event, and each step's wall
+/ own-thread CPU time in the graph against the same step alone (``offline_stage_times``: the
+median over the sequence's frames of the same work, inputs and settings in this process).
 
 Prints one table; ``uptime``'s load average is printed with it (the machine may be shared).
 ``--profile`` samples every node process with py-spy during the 10 Hz runs and prints, per
@@ -114,6 +133,21 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def _thread_cpu_seconds(pid: int) -> dict[str, float]:
+    """CPU seconds of a process's threads by name (``main``: the thread that runs the node's
+    executor; the others by their kernel name, threads of one name summed)."""
+    out: dict[str, float] = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+            name = "main" if task.name == str(pid) else (task / "comm").read_text().strip()
+        except OSError:
+            continue
+        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return out
+
+
 def _start_profilers(pids: dict[str, int], out: Path, rate: int = 200) -> list:
     """``py-spy record`` on every node process (on-CPU samples of its Python threads, raw
     collapsed stacks into ``out/<node>.txt``); stops when the process exits."""
@@ -195,7 +229,7 @@ def run_case(
     launcher = GraphLauncher(
         processes, logs, ready_timeout=180, env={**os.environ, TRACE_ENV: str(trace_dir)}
     )
-    cpu0, cpu1 = {}, {}
+    cpu0, cpu1, threads0, threads1 = {}, {}, {}, {}
     t_cpu0 = t_cpu1 = 0.0
     profilers: list = []
     try:
@@ -205,6 +239,8 @@ def run_case(
             launcher.spin_reports(0.05)
         cpu0, t_cpu0 = {n: _cpu_seconds(p) for n, p in pids.items()}, time.monotonic()
         cpu1 = dict(cpu0)
+        threads0 = {n: _thread_cpu_seconds(p) for n, p in pids.items()}
+        threads1 = dict(threads0)
         profilers = _start_profilers(pids, profile) if profile is not None else []
 
         def sample():  # the last reading of each process (the player exits at the end)
@@ -212,6 +248,7 @@ def run_case(
                 c = _cpu_seconds(p)
                 if c == c:  # not nan
                     cpu1[n] = c
+                    threads1[n] = _thread_cpu_seconds(p) or threads1[n]
 
         player = launcher.running[graph.PLAYER.name].proc
         while player.poll() is None:
@@ -235,6 +272,12 @@ def run_case(
             except Exception:  # noqa: BLE001 - a profiler that hangs is killed, not fatal
                 prof.kill()
     figures = _figures(probe.times, launcher.reports, cpu0, cpu1, t_cpu1 - t_cpu0)
+    # CPU seconds of each node process from the first frame's clock until the graph was idle
+    # after the last (start-up and shutdown left out)
+    figures["cpu_s"] = {n: cpu1[n] - cpu0[n] for n in cpu1}
+    figures["thread_cpu_s"] = {
+        n: {t: c - threads0[n].get(t, 0.0) for t, c in threads1[n].items()} for n in threads1
+    }
     figures["trace"] = trace_breakdown(read_traces(trace_dir))
     return figures
 
@@ -249,15 +292,19 @@ TIMELINE = (
         (
             "left_received",
             "right_received",
+            "detections_received",
             "pair_start",
+            "scene_start",
+            "scene_end",
+            "odometry_start",
             "disparity_start",
             "disparity_end",
             "pair_end",
-            "detections_received",
             "ranging_start",
-            "odometry_start",
-            "ranging_end",
             "odometry_end",
+            "road_start",
+            "road_end",
+            "ranging_end",
             "detections_3d_published",
         ),
     ),
@@ -267,8 +314,10 @@ TIMELINE = (
 # key of the same work alone (offline_stage_times)
 STEPS = (
     ("CNN", "detect_start", "detect_end", "detect"),
+    ("scene map", "scene_start", "scene_end", "scene map"),
     ("disparity map", "disparity_start", "disparity_end", "disparity ("),
     ("odometry", "odometry_start", "odometry_end", "odometry"),
+    ("road map", "road_start", "road_end", "road map"),
     ("ranging + check", "ranging_start", "ranging_end", "ranging + check"),
 )
 
@@ -392,7 +441,14 @@ def offline_stage_times(
     import torch
     import yaml
     from detector_node.inference import CnnDetector
-    from stereo_depth_node.disparity import DisparityParams, compute_disparity, match_band
+    from stereo_depth_node.disparity import (
+        DisparityParams,
+        block_matching_disparity,
+        coarse_disparity,
+        compute_disparity,
+        compute_disparity_in_boxes,
+        match_band,
+    )
     from stereo_depth_node.plausibility import GroundEstimator, PlausibilityParams, check_boxes
     from stereo_depth_node.ranging import (
         RangingParams,
@@ -459,21 +515,34 @@ def offline_stage_times(
     for _ in range(3):  # warm-up (first allocations, caches)
         detector.detect(left0)
         compute_disparity(left0, right0, params)
+        block_matching_disparity(to_gray(left0), to_gray(right0), params)
     times: dict[str, list[float]] = {}
 
     def add(key: str, ms: float) -> None:
         times.setdefault(key, []).append(ms)
 
-    previous = None  # (gray, disparity, CNN boxes) of the frame before
+    boxes_only = stereo_param("map_area", "boxes") == "boxes"
+    previous = None  # (gray, scene map, CNN boxes) of the frame before
     for left, right in pairs:
         dets, ms = timed(lambda left=left: detector.detect(left))
         add(f"detect (CNN, {det_threads} thread)", ms)
-        c0 = time.process_time()
-        disp, ms = timed(lambda left=left, right=right: compute_disparity(left, right, params))
-        add(f"disparity ({cv_threads} thread{'s' if cv_threads > 1 else ''})", ms)
-        add("disparity CPU", (time.process_time() - c0) * 1e3)  # all its threads
         gray, gray_r = to_gray(left), to_gray(right)
         boxes = [d.box for d in dets]
+        label = f"disparity ({cv_threads} thread{'s' if cv_threads > 1 else ''})"
+        c0 = time.process_time()
+        if boxes_only:  # as the node: block matching of the band, the map in the boxes
+            scene, ms = timed(lambda g=gray, r=gray_r: block_matching_disparity(g, r, params))
+            add("scene map (block matching)", ms)
+            disp, ms = timed(
+                lambda left=left, right=right, b=boxes: compute_disparity_in_boxes(
+                    left, right, b, params
+                )
+            )
+        else:
+            disp, ms = timed(lambda left=left, right=right: compute_disparity(left, right, params))
+            scene = disp
+        add(label, ms)
+        add("disparity CPU", (time.process_time() - c0) * 1e3)  # all its threads, with the scene
         if previous is not None:
             # as the node: the reference's corners found ahead (in idle time after its 3D
             # array), then the estimate on the frame's path
@@ -491,19 +560,24 @@ def offline_stage_times(
             [d.observation_angle for d in dets], [d.observation_angle_variance for d in dets]
         )
 
+        road = disp
+        if boxes_only and boxes:  # as the node: the road plane's map at half the resolution
+            road, ms = timed(lambda left=left, right=right: coarse_disparity(left, right, params))
+            add("road map (coarse)", ms)
+
         def range_and_check(
-            disp=disp, boxes=boxes, bins=bins, alphas=alphas, images=(gray, gray_r)
+            disp=disp, road=road, boxes=boxes, bins=bins, alphas=alphas, images=(gray, gray_r)
         ):
             if not boxes:  # the node ranges and checks nothing then
                 return []
             results = range_boxes(disp, boxes, geometry, ranging, bins, images, alphas)
-            plane = ground.update(disp, geometry, bias)
+            plane = ground.update(road, geometry, bias)
             depths = [fb / r.disparity if r is not None else None for r in results]
             return check_boxes(disp, boxes, depths, geometry, plane, plausibility)
 
         _, ms = timed(range_and_check)
         add("ranging + check", ms)
-        previous = (gray, disp, boxes)
+        previous = (gray, scene, boxes)
 
     def median_ms(fn, repeats: int = 5) -> float:
         for _ in range(2):
@@ -523,12 +597,18 @@ def offline_stage_times(
 
 
 def path_alone(alone: dict[str, float]) -> float:
-    """The stereo node's critical path alone, as if each step had cores of its own: the later
-    of the CNN, the disparity map and the odometry (which needs only the pair's left image and
-    the previous map, so could start with the pair), then the ranging and its check."""
+    """The stereo node's critical path alone, as if each step had cores of its own: the CNN
+    (a frame is processed once its 2D array is there), then the scene's block-matching map
+    (when the map is only computed in the boxes), then the helper thread's odometry and road
+    map beside the map in the boxes and the ranging with its check (with the whole band's map,
+    the odometry and the ranging wait for it)."""
     det = alone_ms(alone, "detect")
     disp = alone_ms(alone, "disparity (")
-    return max(det, disp, alone["odometry"]) + alone["ranging + check"]
+    odo, rng = alone["odometry"], alone["ranging + check"]
+    scene = alone_ms(alone, "scene map", None)
+    if scene is None:
+        return det + disp + max(odo, rng)
+    return det + scene + max(odo + alone_ms(alone, "road map", 0.0), disp + rng)
 
 
 def stage_ratios(figures: dict, alone: dict[str, float]) -> dict[str, tuple[float, float]]:
@@ -549,28 +629,30 @@ def stage_ratios(figures: dict, alone: dict[str, float]) -> dict[str, tuple[floa
 
 def cores_bound_3d(alone: dict[str, float], cores: int) -> float:
     """The earliest image -> 3D detections a machine of ``cores`` cores allows with no graph
-    overhead at all: the frame's CPU work up to its 3D array (the CNN, the disparity map's CPU
-    over all its threads, the odometry, the ranging and its check) spread perfectly over the
-    cores, but no sooner than the longest chain (the later of the CNN and the map, then the
-    ranging)."""
+    overhead at all: the frame's CPU work up to its 3D array (the CNN, the maps' CPU over all
+    their threads, the odometry, the ranging and its check) spread perfectly over the cores,
+    but no sooner than the longest chain (:func:`path_alone`)."""
     det = alone_ms(alone, "detect")
-    disp = alone_ms(alone, "disparity (")
-    rng = alone["ranging + check"]
-    work = det + alone["disparity CPU"] + alone["odometry"] + rng
-    return max(max(det, disp) + rng, work / max(1, cores))
+    work = det + alone["disparity CPU"] + alone["odometry"] + alone["ranging + check"]
+    work += alone_ms(alone, "road map", 0.0)
+    return max(path_alone(alone), work / max(1, cores))
 
 
 def node_work(figures: dict, alone: dict[str, float]) -> dict[str, tuple[float, float, float]]:
     """Per compute node: (wall, CPU) ms its worker spent per frame in the graph and the same
-    work alone. detector: the CNN on a converted image; stereo_depth: a pair's conversion and
-    disparity map (its odometry then runs in another thread), alone: the disparity map. CPU
-    counts the worker thread only (OpenCV's own threads are not in it)."""
+    work alone. detector: the CNN on a converted image; stereo_depth: a frame's conversion,
+    maps, ranging and check (its odometry runs in another thread), alone: the maps, the ranging
+    and the check. CPU counts the worker thread only (OpenCV's own threads are not in it)."""
     det = alone_ms(alone, "detect")
-    disp = alone_ms(alone, "disparity (")
+    stereo = (
+        alone_ms(alone, "scene map", 0.0)
+        + alone_ms(alone, "disparity (")
+        + alone["ranging + check"]
+    )
     out = {}
     for node, label, ref in (
         (graph.DETECTOR.name, "detect", det),
-        (graph.STEREO.name, "stereo pair", disp),
+        (graph.STEREO.name, "stereo frame", stereo),
     ):
         work = figures["nodes"].get(node, {}).get("processing_ms")
         if work:
@@ -668,7 +750,99 @@ def _table(rows: list[tuple[str, str, dict]]) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
+REFERENCE = REPO.parent / "shared" / "tools" / "cpu_reference.py"
+SHORT_RUN = 4  # frames of the short lockstep run whose CPU is subtracted (start-up cancels)
+
+
+def reference_ms() -> float | None:
+    """The fixed reference workload (``../shared/tools/cpu_reference.py``: OpenCV SGBM on a
+    0005 pair plus a float32 matrix product, thread-CPU ms per round) timed now, in a fresh
+    process of this interpreter; None without it or without the real data."""
+    import subprocess
+
+    if not REFERENCE.is_file() or not (REAL_ROOT / "image_02" / "0005").is_dir():
+        return None
+    out = subprocess.run(
+        [sys.executable, str(REFERENCE), str(REAL_ROOT)],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        check=False,
+    )
+    try:
+        return float(out.stdout.split()[-1])
+    except (IndexError, ValueError):
+        return None
+
+
+def cpu_per_frame(long: dict, short: dict) -> dict[str, float]:
+    """CPU ms per frame of each node process: the CPU of a long lockstep run minus that of a
+    short one (both from the first frame's clock until the graph was idle after the last, so
+    start-up, first-frame and shutdown costs cancel), over the frames between them."""
+    frames = long["published"] - short["published"]
+    if frames <= 0:
+        return {}
+    return {
+        n: 1e3 * (long["cpu_s"][n] - short["cpu_s"].get(n, 0.0)) / frames
+        for n in long.get("cpu_s", {})
+    }
+
+
+def thread_cpu_per_frame(long: dict, short: dict) -> dict[str, dict[str, float]]:
+    """:func:`cpu_per_frame` per thread name of each node process."""
+    frames = long["published"] - short["published"]
+    if frames <= 0:
+        return {}
+    out = {}
+    for n, threads in long.get("thread_cpu_s", {}).items():
+        other = short.get("thread_cpu_s", {}).get(n, {})
+        out[n] = {t: 1e3 * (c - other.get(t, 0.0)) / frames for t, c in threads.items()}
+    return out
+
+
+def capacity_figures(realtime: dict, lockstep: dict, camera_hz: float) -> dict[str, float]:
+    """What a run at ``camera_hz`` made of the capacity its lockstep run (window 1, same
+    machine, same settings) shows: frames tracked against ``published x min(1, lockstep
+    frames/s / camera rate)`` (the bar: >= 0.9) and mean latency against lockstep's (<= 1.25)."""
+    fps = lockstep["throughput_fps"]
+    capacity = realtime["published"] * min(1.0, fps / camera_hz) if fps == fps else float("nan")
+    lat_rt, lat_ls = realtime["latency_ms"]["mean"], lockstep["latency_ms"]["mean"]
+    return {
+        "camera_hz": camera_hz,
+        "lockstep_fps": fps,
+        "capacity": capacity,
+        "tracked": realtime["tracked"],
+        "frames_ratio": realtime["tracked"] / capacity if capacity else float("nan"),
+        "latency_ms": lat_rt,
+        "lockstep_latency_ms": lat_ls,
+        "latency_ratio": lat_rt / lat_ls if lat_ls else float("nan"),
+    }
+
+
+def tracked_quality(bag: Path) -> dict[str, float] | None:
+    """Tracking quality of a recorded run on the frames that got through (frames with tracks;
+    ground truth from the bag): tracks 3D AP @1.5 m (moderate, AP|R40), MOTA (2D IoU 0.5) and
+    HOTA (2D IoU). None when the bag cannot be read or holds no ground truth."""
+    from eval_node.bag_evaluation import evaluate_bag
+    from eval_node.bag_reader import TRACKS_TOPIC, read_run
+
+    try:
+        run = read_run(bag)
+    except Exception:  # noqa: BLE001 - a run without a readable bag has no quality figure
+        return None
+    run.frames = [f for f in run.frames if TRACKS_TOPIC in f.receive_ns]
+    if not run.frames or not any(f.gt for f in run.frames):
+        return None
+    res = evaluate_bag(bag, run=run, run_filters=False)
+    return {
+        "frames": len(run.frames),
+        "tracks_ap_1.5m_moderate": 100 * res["tracks_3d"]["1.5"]["moderate"],
+        "mota": 100 * res["tracking"]["mota"],
+        "hota": 100 * res["tracking"]["hota"],
+    }
+
+
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--synthetic-frames", type=int, default=100)
     parser.add_argument("--no-real", action="store_true", help="skip KITTI 0005")
@@ -681,6 +855,38 @@ def main(argv=None) -> int:
     parser.add_argument("--no-synthetic", action="store_true")
     parser.add_argument("--windows", default="1,2", help="lockstep windows to run")
     parser.add_argument("--no-realtime", action="store_true")
+    parser.add_argument(
+        "--rate-multiplier",
+        type=float,
+        default=1.0,
+        help="the camera-rate runs play at 10 Hz x this (a faster camera: overload)",
+    )
+    parser.add_argument(
+        "--cpus",
+        default="",
+        help="run every node on these CPUs (cpu_affinity, 'taskset -c' list: '0' = one core)",
+    )
+    parser.add_argument(
+        "--overload",
+        action="store_true",
+        help=f"overload a fast machine: the camera at {OVERLOAD_RATE} x 10 Hz (the factor "
+        "by which the slower machine of issue #33 is slower per core)",
+    )
+    parser.add_argument(
+        "--no-cpu",
+        action="store_true",
+        help="skip the short lockstep runs of the CPU-per-frame figure and the reference",
+    )
+    parser.add_argument(
+        "--no-quality", action="store_true", help="skip the tracking quality of each run"
+    )
+    parser.add_argument(
+        "--compare-tree",
+        metavar="PATH",
+        help="run this bench alternately with PATH's .venv (another checkout: today's tree) "
+        "and this tree's, and print the ratios",
+    )
+    parser.add_argument("--repeat", type=int, default=1, help="--compare-tree: pairs of runs")
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NODE.PARAM:=VALUE")
     parser.add_argument("--json", help="write the figures to this file")
     parser.add_argument("--no-offline", action="store_true", help="skip the per-stage baseline")
@@ -689,7 +895,151 @@ def main(argv=None) -> int:
         action="store_true",
         help="py-spy every node process in the 10 Hz runs and print where its CPU time goes",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+OVERLOAD_RATE = 2.2
+
+
+def summarise(rows, short_runs, references, camera_hz, quality) -> dict:
+    """Per dataset: the camera-rate run against its lockstep run (window 1), the CPU per frame
+    of each node process (long lockstep run minus the short one) against the reference
+    workload, and the tracking quality of each run on the frames that got through."""
+    refs = [r for r in references if r]
+    ref = float(np.median(refs)) if refs else float("nan")
+    out: dict[str, dict] = {}
+    for label in dict.fromkeys(d for d, _, _ in rows):
+        runs = {m: f for d, m, f in rows if d == label}
+        entry: dict = {"reference_ms": ref, "references_ms": refs}
+        if "realtime" in runs and "lockstep 1" in runs:
+            entry["capacity"] = capacity_figures(runs["realtime"], runs["lockstep 1"], camera_hz)
+        if label in short_runs and "lockstep 1" in runs:
+            per_node = cpu_per_frame(runs["lockstep 1"], short_runs[label])
+            graph_ms = sum(v for n, v in per_node.items() if n != graph.PLAYER.name)
+            entry["cpu_ms_per_frame"] = per_node
+            entry["thread_cpu_ms_per_frame"] = thread_cpu_per_frame(
+                runs["lockstep 1"], short_runs[label]
+            )
+            entry["cpu_graph_ms_per_frame"] = graph_ms  # every node but the player
+            entry["cpu_vs_reference"] = graph_ms / ref if ref == ref else float("nan")
+        entry["quality"] = {m: q for (d, m), q in quality.items() if d == label}
+        out[label] = entry
+    return out
+
+
+def summary_lines(summary: dict) -> list[str]:
+    """The printed form of :func:`summarise`: the three bars of issue #33 per dataset."""
+    lines = []
+    for label, e in summary.items():
+        c = e.get("capacity")
+        if c:
+            lines.append(
+                f"  {label}: camera {c['camera_hz']:g} Hz, lockstep {c['lockstep_fps']:.1f} "
+                f"frames/s -> capacity {c['capacity']:.1f} frames; tracked {c['tracked']} = "
+                f"{c['frames_ratio']:.2f}x capacity (bar >= 0.9); mean latency "
+                f"{c['latency_ms']:.0f} ms vs lockstep {c['lockstep_latency_ms']:.0f} ms = "
+                f"{c['latency_ratio']:.2f}x (bar <= 1.25)"
+            )
+        per_node = e.get("cpu_ms_per_frame")
+        if per_node:
+            cells = ", ".join(f"{SHORT.get(n, n)} {v:.1f}" for n, v in per_node.items())
+            lines.append(
+                f"  {label}: CPU per frame (lockstep 1, long run minus {SHORT_RUN} frames) "
+                f"{e['cpu_graph_ms_per_frame']:.1f} ms without the player ({cells}); "
+                f"reference workload {e['reference_ms']:.1f} ms "
+                f"({', '.join(f'{r:.1f}' for r in e['references_ms'])}) -> "
+                f"{e['cpu_vs_reference']:.2f}x the reference (bar <= 1.0)"
+            )
+        for n, threads in e.get("thread_cpu_ms_per_frame", {}).items():
+            top = sorted(threads.items(), key=lambda kv: -kv[1])[:5]
+            lines.append(
+                f"    {SHORT.get(n, n)} by thread: "
+                + ", ".join(f"{t} {v:.1f}" for t, v in top if v >= 0.05)
+            )
+        for mode, q in e.get("quality", {}).items():
+            lines.append(
+                f"  {label}, {mode}: on the {q['frames']} frames tracked: tracks 3D AP @1.5 m "
+                f"(moderate, AP|R40) {q['tracks_ap_1.5m_moderate']:.1f}, MOTA {q['mota']:.1f}, "
+                f"HOTA (2D IoU) {q['hota']:.1f}"
+            )
+    if lines:
+        lines.insert(0, "issue #33's bars (ratios measured in this run):")
+    return lines
+
+
+def compare_trees(args, argv: list[str]) -> int:
+    """Run this bench ``--repeat`` times alternately with the other tree's interpreter (its
+    ``.venv``: its nodes, parameters and packages; this script) and this tree's, and print
+    each run's bars and the new/old ratios of CPU per frame."""
+    import subprocess
+
+    other = Path(args.compare_tree).resolve()
+    python = other / ".venv" / "bin" / "python"
+    if not python.is_file():
+        print(f"error: --compare-tree: {python} not found", file=sys.stderr)
+        return 2
+    child = []
+    skip = False
+    for a in argv:  # the same arguments without --compare-tree / --repeat / --json
+        if skip:
+            skip = False
+            continue
+        if a in ("--compare-tree", "--repeat", "--json"):
+            skip = True
+            continue
+        if a.startswith(("--compare-tree=", "--repeat=", "--json=")):
+            continue
+        child.append(a)
+    if "--no-offline" not in child:  # the offline baseline calls this tree's core functions
+        child.append("--no-offline")
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("FASTRTPS_DEFAULT_PROFILES_FILE", "RMW_IMPLEMENTATION")
+    }
+    OUT.mkdir(parents=True, exist_ok=True)
+    results: list[tuple[str, dict]] = []
+    for k in range(args.repeat):
+        for name, exe in (("old", str(python)), ("new", sys.executable)):
+            out = OUT / f"compare_{time.strftime('%Y%m%d_%H%M%S')}_{name}{k}.json"
+            print(f"[bench] {name} tree ({exe}), run {k + 1} ...", file=sys.stderr, flush=True)
+            code = subprocess.run(
+                [exe, __file__, *child, "--json", str(out)], env=env, check=False
+            ).returncode
+            if code != 0 or not out.is_file():
+                print(f"error: the {name} tree's run failed (exit {code})", file=sys.stderr)
+                return 1
+            results.append((name, json.loads(out.read_text())))
+    print(f"\n== comparison: old = {other}, new = {REPO}, {args.repeat} pair(s), alternated ==")
+    for name, res in results:
+        print(f"{name}: load {' '.join(res['load_before'])} before, {' '.join(res['load'])} after")
+        for line in summary_lines(res["summary"]):
+            print(f"  {line}")
+    for label in results[0][1]["summary"]:
+        old = [r["summary"][label] for n, r in results if n == "old"]
+        new = [r["summary"][label] for n, r in results if n == "new"]
+        ratios = [
+            b["cpu_graph_ms_per_frame"] / a["cpu_graph_ms_per_frame"]
+            for a, b in zip(old, new, strict=True)
+            if "cpu_graph_ms_per_frame" in a and "cpu_graph_ms_per_frame" in b
+        ]
+        if ratios:
+            print(
+                f"  {label}: CPU per frame new / old, each pair: "
+                + ", ".join(f"{r:.2f}x" for r in ratios)
+                + " (bar <= 0.6)"
+            )
+    if args.json:
+        Path(args.json).write_text(json.dumps([{"tree": n, **r} for n, r in results], indent=1))
+    return 0
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    if args.overload and args.rate_multiplier == 1.0:
+        args.rate_multiplier = OVERLOAD_RATE
+    if args.compare_tree:
+        return compare_trees(args, list(sys.argv[1:] if argv is None else argv))
     apply_graph_environment()
     datasets = []
     if not args.no_real:
@@ -707,23 +1057,52 @@ def main(argv=None) -> int:
     modes = ([] if args.no_realtime else [("realtime", False, 1)]) + [
         (f"lockstep {w}", True, w) for w in windows
     ]
+    overrides = list(args.param)
+    if args.cpus:
+        overrides = [f"{n.name}.cpu_affinity:={args.cpus}" for n in graph.PIPELINE] + overrides
     offline: dict[str, dict[str, float]] = {}  # per dataset label
     if not args.no_offline:
         for label, root, seq in datasets:
             print(f"[bench] offline stage times, {label} ...", file=sys.stderr, flush=True)
-            offline[label] = offline_stage_times(root, seq, overrides=args.param)
+            offline[label] = offline_stage_times(root, seq, overrides=overrides)
+    camera_hz = 10.0 * args.rate_multiplier
+    do_cpu = not args.no_cpu and 1 in windows
+    references = [reference_ms()] if do_cpu else []
     rows, stamp, profiles = [], time.strftime("%Y%m%d_%H%M%S"), []
+    short_runs: dict[str, dict] = {}
+    quality: dict[tuple[str, str], dict] = {}
+    load_before = Path("/proc/loadavg").read_text().split()[:3]
     for label, root, seq in datasets:
         for mode, lockstep, window in modes:
             logs = OUT / "runs" / stamp / f"{label.replace(' ', '_')}_{mode.replace(' ', '')}"
             print(f"[bench] {label}, {mode} ...", file=sys.stderr, flush=True)
             prof = logs / "profile" if args.profile and not lockstep else None
-            figures = run_case(root, seq, lockstep, window, args.param, logs, prof)
+            rate = [] if lockstep else [f"kitti_player.rate_multiplier:={args.rate_multiplier}"]
+            figures = run_case(root, seq, lockstep, window, rate + overrides, logs, prof)
             rows.append((label, mode, figures))
+            if not args.no_quality:
+                q = tracked_quality(logs / "bag")
+                if q is not None:
+                    quality[(label, mode)] = q
             if prof is not None:
                 profiles.append((label, mode, prof))
+        if do_cpu:
+            logs = OUT / "runs" / stamp / f"{label.replace(' ', '_')}_short"
+            print(f"[bench] {label}, lockstep 1, {SHORT_RUN} frames ...", file=sys.stderr)
+            short = [f"kitti_player.last_frame:={SHORT_RUN - 1}", *overrides]
+            short_runs[label] = run_case(root, seq, True, 1, short, logs)
+    if do_cpu:
+        references.append(reference_ms())
     load = Path("/proc/loadavg").read_text().split()[:3]
-    print(f"machine: {os.cpu_count()} CPUs, load average {' '.join(load)} (1/5/15 min)")
+    print(
+        f"machine: {os.cpu_count()} CPUs, load average {' '.join(load_before)} before, "
+        f"{' '.join(load)} after (1/5/15 min)"
+    )
+    if args.cpus or args.rate_multiplier != 1.0:
+        print(
+            f"overload: camera at {camera_hz:g} Hz"
+            + (f", every node on CPUs {args.cpus}" if args.cpus else "")
+        )
     if args.param:
         print("parameters: " + " ".join(args.param))
     for label, times in offline.items():
@@ -732,6 +1111,9 @@ def main(argv=None) -> int:
             + ", ".join(f"{k} {v:.1f}" for k, v in times.items() if k != "frames")
         )
     print(_table(rows))
+    summary = summarise(rows, short_runs, references, camera_hz, quality)
+    for line in summary_lines(summary):
+        print(line)
     print(
         "where a frame's time goes (the nodes' trace points, VEHICLE_TRACE_DIR; median ms "
         "after the player's clock event):"
@@ -773,8 +1155,10 @@ def main(argv=None) -> int:
         print(f"where each process's CPU time goes ({data}, {mode}; py-spy, {folder}):")
         print(profile_summary(folder))
     if args.json:
-        out = {"offline_ms": offline, "load": load, "parameters": args.param}
+        out = {"offline_ms": offline, "load": load, "load_before": load_before}
+        out["parameters"] = args.param
         out["runs"] = [{"data": d, "mode": m, **f} for d, m, f in rows]
+        out["summary"] = summary
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0
 

@@ -104,6 +104,14 @@ BAD_STARTS = [
         ["-p", "compresion:=zstd"],
         ["compresion: unknown parameter", "(did you mean compression?)"],
     ),
+    # every node's executor (the same function)
+    (
+        "stereo_depth_node.node",
+        "stereo_depth",
+        ["-p", "executor:=multi"],
+        ["executor", "'multi' is not one of events, single_threaded"],
+    ),
+    ("stereo_depth_node.node", "stereo_depth", ["-p", "map_area:=road"], ["map_area"]),
 ]
 
 

@@ -50,3 +50,47 @@ def test_busy_without_progress_is_a_stall_busy_with_progress_is_not():
         idle.seen("x", _report("x", 3, 3), float(t))
         idle.seen("y", _report("y", 3, 3), float(t))
     assert idle.stalled(11.0) == {}
+
+
+def test_the_launcher_takes_only_its_own_processes_reports(tmp_path):
+    """A stray process named like one of the graph's nodes on the same ROS domain (another
+    graph, a node left over by an earlier run) keeps reporting: its reports must not keep the
+    launcher's own frozen node of that name looking alive. Reports carry the process id; the
+    launcher takes those of its children only (a CI run once waited 60 s for a frozen
+    stereo_depth that a stray reporter of the same name hid)."""
+    import subprocess
+    import sys
+    from types import SimpleNamespace
+
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from tracking_bringup.launcher import GraphLauncher, ProcessSpec, _Running
+    from vehicle_common.graph_readiness import REPORT_ID
+
+    spec = ProcessSpec("stereo_depth", [sys.executable, "-c", "pass"])
+    launcher = GraphLauncher([spec], tmp_path)
+    proc = SimpleNamespace(pid=4242, poll=lambda: None)
+    launcher.running["stereo_depth"] = _Running(spec, proc, tmp_path / "l", subprocess.DEVNULL)
+
+    def message(pid):
+        values = _report("stereo_depth", 7, 7).values()
+        if pid is not None:
+            values = [*values, ("pid", str(pid))]
+        status = DiagnosticStatus(name="/stereo_depth", hardware_id=REPORT_ID)
+        status.values = [KeyValue(key=k, value=v) for k, v in values]
+        return DiagnosticArray(status=[status])
+
+    launcher._on_reports(message(999_999))  # the stray one
+    assert "stereo_depth" not in launcher.reports
+    launcher._on_reports(message(4242))  # its own child
+    assert launcher.reports["stereo_depth"].pid == 4242
+    assert launcher.reports["stereo_depth"].counts.received == 7
+    # a report without a pid (an older node) is still taken
+    launcher.reports.clear()
+    launcher._on_reports(message(None))
+    assert launcher.reports["stereo_depth"].pid is None
+
+
+def test_a_report_carries_its_process_id():
+    report = NodeReport("n", FrameCounts(1, 1, 0), pid=123)
+    assert NodeReport.from_values("/n", report.values()).pid == 123
+    assert NodeReport.from_values("/n", _report("n").values()).pid is None

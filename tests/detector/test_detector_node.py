@@ -248,3 +248,69 @@ def test_detector_offline_unwritable_output_is_one_line(tmp_path, capsys):
         rc = main(["--images", str(tmp_path / "images"), "--output", out, "--checkpoint", "x.pt"])
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2 and len(err) == 1 and err[0].startswith(f"error: {message}"), err
+
+
+def test_burst_of_images_the_newest_is_detected_and_the_older_counted_dropped(rclpy_context):
+    """While the CNN works on image 0, five more images arrive at once (the node's executor
+    takes them late). The node detects the newest, 5, and counts 1-4 as dropped before any work
+    on them: in 6, out 2, dropped 4 (latest-frame policy, issue #33)."""
+    import threading
+
+    from detector_node.node import VehicleDetectorNode
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import Image
+    from stereo_vehicle_msgs.msg import VehicleDetection2DArray
+    from vehicle_common.frame_messages import header
+    from vehicle_common.image_conversion import numpy_to_image
+
+    det = VehicleDetectorNode(
+        context=rclpy_context,
+        parameter_overrides=[Parameter("checkpoint", value="tiny_kitti")],
+    )
+    gate, started, seen = threading.Event(), threading.Event(), []
+    detect = det.cnn.detect
+
+    def held(rgb):
+        seen.append(1)
+        if len(seen) == 1:
+            started.set()
+            gate.wait(10)
+        return detect(rgb)
+
+    det.cnn.detect = held
+    test = Node("detector_burst_test", context=rclpy_context)
+    got = []
+    test.create_subscription(VehicleDetection2DArray, "/vehicles/detections_2d", got.append, 10)
+    pub = test.create_publisher(Image, "/stereo/left/image_rect", 10)
+    ex = SingleThreadedExecutor(context=rclpy_context)
+    ex.add_node(det)
+    ex.add_node(test)
+    img = np.zeros((96, 320, 3), np.uint8)
+
+    def image(k):
+        return numpy_to_image(img, "rgb8", header(1_000_000_000 + k, "left_camera_optical_frame"))
+
+    try:
+        assert _spin_until(
+            ex, lambda: pub.get_subscription_count() > 0 and det.pub.get_subscription_count() > 0
+        )
+        pub.publish(image(0))
+        assert _spin_until(ex, started.is_set)
+        for k in range(1, 6):  # the burst, while nobody spins the node's executor
+            pub.publish(image(k))
+        time.sleep(0.2)
+        assert _spin_until(ex, lambda: det.frames.snapshot().received == 6)
+        gate.set()
+        assert _spin_until(ex, lambda: len(got) == 2 and not det.worker.busy, 20)
+        ex.spin_once(timeout_sec=0.2)
+        assert [_stamp_ns(m.header) - 1_000_000_000 for m in got] == [0, 5]
+        assert len(seen) == 2  # the CNN ran on images 0 and 5 only
+        counts = det.frames.snapshot()
+        assert (counts.received, counts.published, counts.dropped) == (6, 2, 4)
+    finally:
+        gate.set()
+        ex.shutdown()
+        det.destroy_node()
+        test.destroy_node()

@@ -180,7 +180,13 @@ def test_frozen_node_is_named_and_fails_the_run(kitti_tracking_root, tmp_path):
         assert stereo is not None
         os.kill(stereo, signal.SIGSTOP)
         t0 = time.monotonic()
-        proc.wait(timeout=60)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            logs_now = {p.name: p.read_text(errors="replace")[-1500:] for p in logs.glob("*.log")}
+            raise AssertionError(
+                f"no exit 60 s after SIGSTOP:\n{''.join(lines)}\n{logs_now}"
+            ) from None
         took = time.monotonic() - t0
     finally:
         if proc.poll() is None:
@@ -190,9 +196,9 @@ def test_frozen_node_is_named_and_fails_the_run(kitti_tracking_root, tmp_path):
                 os.kill(stereo, signal.SIGKILL)
     output = "".join(lines)
     assert proc.returncode == 1, output
-    assert "error: node 'stereo_depth' stopped making progress: no report on /diagnostics" in (
-        output
-    )
+    # its reports stop reaching the launcher, or (when the launcher's DDS participant never got
+    # them: it happens) its process is seen stopped
+    assert "error: node 'stereo_depth' stopped making progress: " in output
     assert "stopped (T)" in output
     assert took < 30, (took, output)  # 5 s to notice, then the others stop cleanly
     assert not Path(f"/proc/{stereo}").exists() or "Z" in Path(f"/proc/{stereo}/stat").read_text()

@@ -8,7 +8,11 @@ import pytest
 from stereo_depth_node.disparity import (
     INVALID_DISPARITY,
     DisparityParams,
+    block_matching_disparity,
+    box_regions,
+    coarse_disparity,
     compute_disparity,
+    compute_disparity_in_boxes,
     d1_error,
     interpolate_background,
 )
@@ -69,6 +73,55 @@ def test_row_band_only_fills_its_rows():
     assert np.all(disp[:40] == INVALID_DISPARITY) and np.all(disp[100:] == INVALID_DISPARITY)
     band = disp[45:95, 80:-10]
     assert abs(float(np.median(band[band > 0])) - 20.0) < 0.5
+
+
+def test_map_in_the_boxes_is_the_band_map_there_and_invalid_elsewhere():
+    """compute_disparity_in_boxes: the band's map inside each box (the same matcher on a crop
+    with context; on this planar scene the same values), nothing outside the boxes."""
+    left, right = textured_pair(20, height=200, width=640)
+    p = DisparityParams(num_disparities=48, row_band=(20, 190))
+    band = compute_disparity(left, right, p)
+    boxes = [(300, 60, 380, 120), (560, 100, 639.5, 150), (10, 150, 60, 199)]
+    got = compute_disparity_in_boxes(left, right, boxes, p)
+    inside = np.zeros(band.shape, bool)
+    for x1, y1, x2, y2 in boxes:
+        r = (slice(int(y1), min(190, int(np.ceil(y2)) + 1)), slice(int(x1), int(np.ceil(x2)) + 1))
+        inside[r] = True
+        a, b = band[r], got[r]
+        assert (b > 0).mean() > 0.8 and abs((b > 0).mean() - (a > 0).mean()) < 0.05
+        both = (a > 0) & (b > 0)
+        assert np.median(np.abs(a[both] - b[both])) <= 0.0625  # one step of the filter
+        assert abs(float(np.median(b[b > 0])) - 20.0) < 0.5
+    assert np.all(got[~inside] == INVALID_DISPARITY)
+    # crops start on the band's half-resolution grid, overlapping crops are matched together
+    regions = box_regions(boxes, band.shape, p)
+    for r in regions:
+        assert r.crop[0] % 2 == 0 and (r.crop[1] - 20) % 2 == 0 and r.crop[3] <= 190
+    assert sorted(len(r.outputs) for r in regions) == [1, 2]
+    assert box_regions([], band.shape, p) == []
+
+
+def test_map_in_boxes_covering_most_of_the_band_is_the_band_map():
+    left, right = textured_pair(20, height=120, width=320)
+    p = DisparityParams(num_disparities=48)
+    whole = compute_disparity_in_boxes(left, right, [(0, 0, 319, 119)], p)
+    np.testing.assert_array_equal(whole, compute_disparity(left, right, p))
+
+
+def test_block_matching_and_coarse_maps_recover_the_disparity():
+    """The odometry's block-matching map and the road plane's coarse map of a planar scene:
+    the right disparity on most of the band, nothing outside it."""
+    left, right = textured_pair(24, height=160, width=480)
+    p = DisparityParams(num_disparities=64, row_band=(20, 150))
+    gray_l, gray_r = cv2.cvtColor(left, cv2.COLOR_RGB2GRAY), cv2.cvtColor(right, cv2.COLOR_RGB2GRAY)
+    for disp in (block_matching_disparity(gray_l, gray_r, p), coarse_disparity(left, right, p)):
+        assert disp.shape == gray_l.shape and disp.dtype == np.float32
+        assert np.all(disp[:20] == INVALID_DISPARITY) and np.all(disp[150:] == INVALID_DISPARITY)
+        inner = disp[30:140, 40:-10]
+        assert (inner > 0).mean() > 0.6
+        assert abs(float(np.median(inner[inner > 0])) - 24.0) < 1.0
+    with pytest.raises(ValueError):
+        block_matching_disparity(left, right, p)  # gray images only
 
 
 def test_bad_settings_and_shapes_raise():

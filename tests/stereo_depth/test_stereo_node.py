@@ -94,12 +94,13 @@ class Harness:
         h.stamp.sec, h.stamp.nanosec = sec, 500
         return h
 
-    def send_frame(self, sec, bad_step=False):
+    def send_frame(self, sec, bad_step=False, wait=True):
         hdr = self.header(sec)
         for name, info in zip(("linfo", "rinfo"), self.infos, strict=True):
             info.header = hdr
             self.pubs[name].publish(info)
-        self.spin_until(lambda: self.node.left_info is not None, 2.0)
+        if wait:
+            self.spin_until(lambda: self.node.left_info is not None, 2.0)
         left = numpy_to_image(self.left, "rgb8", hdr)
         if bad_step:
             left.step = left.step - 3  # inconsistent with width * 3
@@ -205,6 +206,23 @@ def test_camera_motion_is_published_from_the_second_frame_and_restarts_after_a_l
     assert [a.camera_motion_dt for a in harness.det3d[2:]] == [0.0, 0.0]
 
 
+def test_camera_motion_spans_the_gap_to_the_previous_3d_array(harness):
+    """The detector skipped frame 2: the stereo pair of frame 2 arrives, its 2D array never
+    does. Frame 3's camera motion must span the 2 s since frame 1, the previous frame the
+    tracker got, as the tracker predicts over that gap (before issue #33 the odometry had moved
+    on to pair 2 and frame 3 carried 1 s of motion for a 2 s gap)."""
+    harness.send_frame(1)
+    harness.send_detections(1, [])
+    assert harness.spin_until(lambda: len(harness.det3d) == 1)
+    harness.send_frame(2)  # no detections for frame 2
+    assert harness.spin_until(lambda: len(harness.node.frame_sync) == 1)
+    harness.send_frame(3)
+    harness.send_detections(3, [])
+    assert harness.spin_until(lambda: len(harness.det3d) == 2)
+    assert [a.header.stamp.sec for a in harness.det3d] == [1, 3]
+    assert harness.det3d[1].camera_motion_dt == pytest.approx(2.0)
+
+
 def test_visual_odometry_off_publishes_no_camera_motion(rclpy_context):
     h = Harness(rclpy_context, visual_odometry=False, sync_cache_size=3)
     try:
@@ -217,49 +235,101 @@ def test_visual_odometry_off_publishes_no_camera_motion(rclpy_context):
         h.close()
 
 
-def test_detections_whose_frame_never_arrives_get_an_empty_array_and_are_counted(harness):
+def test_detections_whose_images_never_arrive_are_dropped_and_counted(harness):
     harness.send_detections(50, [(150, 30, 250, 90)])  # stereo frame 50 never comes
     assert harness.spin_until(lambda: len(harness.node.frame_sync) == 1)
-    for sec in (51, 52, 53):  # frames without detections fill the cache (size 3)
+    for sec in (51, 52, 53):  # images without detections fill the cache (size 3)
         harness.send_frame(sec)
-        assert harness.spin_until(lambda s=sec: harness.node.frames_processed == s - 50)
-    assert harness.node.dropped_detection_arrays == 1
-    assert len(harness.node.frame_sync) <= 3
-    # the evicted array still gets its one (empty) output, with its own header
+        assert harness.spin_until(lambda s=sec: len(harness.node.frame_sync) == min(3, s - 49))
+    assert harness.spin_until(lambda: harness.node.dropped_detection_arrays == 1)
+    assert len(harness.node.frame_sync) == 3
+    counts = harness.node.frames.snapshot()
+    assert (counts.received, counts.published, counts.dropped) == (1, 0, 1)
+    assert harness.det3d == [] and harness.node.frames_processed == 0
+    harness.send_detections(53, [(150, 30, 250, 90)])  # completes frame 53
     assert harness.spin_until(lambda: len(harness.det3d) == 1)
-    assert (harness.det3d[0].header.stamp.sec, harness.det3d[0].header.stamp.nanosec) == (50, 500)
-    assert harness.det3d[0].detections == []
-    harness.det3d.clear()
-    harness.send_detections(53, [(150, 30, 250, 90)])
-    assert harness.spin_until(lambda: len(harness.det3d) == 1)
-    assert harness.det3d[0].header.stamp.sec == 53
+    assert harness.det3d[0].header.stamp.sec == 53 and len(harness.det3d[0].detections) == 1
+    # the older incomplete frames can no longer complete: gone from the cache
+    assert len(harness.node.frame_sync) == 0
+    counts = harness.node.frames.snapshot()
+    assert (counts.received, counts.published, counts.dropped) == (2, 1, 1)
 
 
-def test_incomplete_stereo_pair_gives_its_detection_array_an_empty_array(harness):
-    """Right image of frame 60 lost: frame 60 still gets exactly one (empty) 3D array, and the
-    next frame is ranged as usual (no stall waiting for the cache to overflow)."""
-    from stereo_vehicle_msgs.msg import VehicleDetection2DArray
-
+def test_frame_whose_image_is_lost_is_dropped_when_a_newer_one_completes(harness):
+    """Right image of frame 60 lost: once frame 61 is complete, frame 60 can never be; it is
+    dropped and counted (no 3D array: the tracker gets no frame without its detections), and
+    frame 61 is ranged at once (no stall waiting for the cache to overflow)."""
     hdr = harness.header(60)
     for name, info in zip(("linfo", "rinfo"), harness.infos, strict=True):
         info.header = hdr
         harness.pubs[name].publish(info)
     harness.pubs["left"].publish(numpy_to_image(harness.left, "rgb8", hdr))
-    det60 = VehicleDetection2DArray(header=harness.header(60))
-    det60.header.frame_id = "detector_frame"  # the output takes the detection array's header
-    harness.pubs["det"].publish(det60)
+    harness.send_detections(60, [(150, 30, 250, 90)])
     assert harness.spin_until(lambda: len(harness.node.frame_sync) == 1)
     assert harness.det3d == []
     harness.send_frame(61)
     harness.send_detections(61, [(150, 30, 250, 90)])
-    assert harness.spin_until(lambda: len(harness.det3d) == 2)
-    first, second = harness.det3d
-    assert (first.header.stamp.sec, first.header.stamp.nanosec) == (60, 500)
-    assert first.header.frame_id == "detector_frame" and first.detections == []
-    assert second.header.stamp.sec == 61 and len(second.detections) == 1
-    assert harness.node.pair_sync.dropped == {"left": 1, "right": 0}
+    assert harness.spin_until(lambda: len(harness.det3d) == 1)
+    assert harness.det3d[0].header.stamp.sec == 61 and len(harness.det3d[0].detections) == 1
+    assert harness.node.frame_sync.dropped == {"left": 1, "right": 0, "detections": 1}
+    assert harness.node.dropped_detection_arrays == 1
+    counts = harness.node.frames.snapshot()
+    assert (counts.received, counts.published, counts.dropped) == (2, 1, 1)
     assert harness.node.frames_processed == 1 and harness.node.frames_failed == 0
-    assert len(harness.node.pair_sync) == 0 and len(harness.node.frame_sync) == 0
+    assert len(harness.node.frame_sync) == 0
+
+
+def test_newest_complete_frame_is_processed_after_a_burst(harness, monkeypatch):
+    """While the node works on frame 1, the pairs of frames 2..6 arrive with the 2D arrays of
+    frames 3 and 5 only (the detector skipped the others), all at once. The node then ranges
+    frame 5, the newest complete one, and counts frame 3 as dropped: it does no work on the
+    pairs without detections nor on the superseded frame. (Before issue #33 the node matched
+    the newest PAIR, 6, whose detections never came, and dropped the detections of 3 and 5 with
+    their skipped pairs: nothing of the burst was ranged.)"""
+    import threading
+
+    import stereo_depth_node.node as stereo_node
+
+    gate, started, done = threading.Event(), threading.Event(), []
+
+    def held(compute):
+        def wrapped(*args, **kwargs):
+            done.append(1)
+            if len(done) == 1:  # frame 1: the node is busy until the burst is in
+                started.set()
+                gate.wait(10)
+            return compute(*args, **kwargs)
+
+        return wrapped
+
+    # the harness subscribes to the disparity image: the node matches the whole band
+    monkeypatch.setattr(stereo_node, "compute_disparity", held(stereo_node.compute_disparity))
+    harness.send_frame(1)
+    harness.send_detections(1, [(150, 30, 250, 90)])
+    end = time.monotonic() + 10
+    while not started.is_set() and time.monotonic() < end:
+        harness.executor.spin_once(timeout_sec=0.05)
+    assert started.is_set()
+    for sec in (2, 3, 4, 5, 6):  # the burst, taken while the worker is busy
+        harness.send_frame(sec, wait=False)
+        if sec in (3, 5):
+            harness.send_detections(sec, [(150, 30, 250, 90)])
+    end = time.monotonic() + 10
+    while harness.node.frames.snapshot().received < 3 and time.monotonic() < end:
+        harness.executor.spin_once(timeout_sec=0.05)
+    end = time.monotonic() + 1.0  # the burst's images too
+    while time.monotonic() < end:
+        harness.executor.spin_once(timeout_sec=0.05)
+    gate.set()
+    assert harness.spin_until(lambda: len(harness.det3d) == 2)
+    assert harness.spin_until(lambda: harness.node.worker.wait_idle(1.0))
+    assert [a.header.stamp.sec for a in harness.det3d] == [1, 5]
+    assert len(harness.det3d[1].detections) == 1
+    assert len(done) == 2  # maps of frames 1 and 5 only
+    counts = harness.node.frames.snapshot()
+    assert (counts.received, counts.published, counts.dropped) == (3, 2, 1)
+    assert harness.node.frames_processed == 2
+    assert harness.node.frame_sync.pending_stamps() == [6 * 10**9 + 500]
 
 
 def test_geometry_is_built_once_per_calibration_and_a_bad_one_skips_frames(harness):
@@ -317,12 +387,14 @@ def test_disparity_image_is_built_only_while_someone_subscribes(rclpy_context, m
     h = Harness(rclpy_context)
     try:
         h.send_frame(3)  # the harness subscribes to /stereo/disparity
+        h.send_detections(3, [])
         assert h.spin_until(lambda: h.disp) and built == [3]
         h.io.destroy_subscription(
             next(s for s in h.io.subscriptions if s.topic_name == "/stereo/disparity")
         )
         assert h.spin_until(lambda: h.node.pub_disparity.get_subscription_count() == 0)
         h.send_frame(4)
+        h.send_detections(4, [])
         assert h.spin_until(lambda: h.node.frames_processed == 2)
         assert built == [3]  # no one listens: nothing built for frame 4
     finally:
@@ -338,6 +410,7 @@ def test_point_cloud_is_published_when_enabled(rclpy_context):
     try:
         assert h.spin_until(lambda: h.node.pub_points.get_subscription_count() > 0)
         h.send_frame(9)
+        h.send_detections(9, [])
         assert h.spin_until(lambda: clouds)
         cloud = clouds[0]
         assert cloud.header.stamp.sec == 9
@@ -349,9 +422,16 @@ def test_point_cloud_is_published_when_enabled(rclpy_context):
         h.close()
 
 
-def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_tracking_root):
-    """offline == node: the node's 3D detections equal range_boxes on compute_disparity."""
-    from stereo_depth_node.disparity import DisparityParams, compute_disparity
+@pytest.mark.parametrize("area", ["band", "boxes"])
+def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_tracking_root, area):
+    """offline == node: the node's 3D detections equal range_boxes on compute_disparity (the
+    band's map: someone subscribes to the disparity image) or on compute_disparity_in_boxes
+    (nobody does: the map only where the ranging reads it)."""
+    from stereo_depth_node.disparity import (
+        DisparityParams,
+        compute_disparity,
+        compute_disparity_in_boxes,
+    )
     from stereo_depth_node.ranging import RangingParams, range_boxes
     from stereo_depth_node.region_matching import to_gray
     from stereo_depth_node.reprojection import StereoGeometry
@@ -367,14 +447,23 @@ def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_track
             camera_info_from_projection(seq.calib.P2, left.shape[1], left.shape[0]),
             camera_info_from_projection(seq.calib.P3, left.shape[1], left.shape[0]),
         )
+        if area == "boxes":
+            h.io.destroy_subscription(
+                next(s for s in h.io.subscriptions if s.topic_name == "/stereo/disparity")
+            )
+            assert h.spin_until(lambda: h.node.pub_disparity.get_subscription_count() == 0)
         h.send_frame(3)
         h.send_detections(3, [o.bbox for o in cars])
         assert h.spin_until(lambda: h.det3d, timeout=20.0)
         got = h.det3d[0].detections
         geo = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
-        disp = compute_disparity(left, right, DisparityParams(num_disparities=48))
-        images = (to_gray(left), to_gray(right))  # the node refines far boxes on them too
         boxes = [o.bbox for o in cars]
+        params = DisparityParams(num_disparities=48)
+        if area == "band":
+            disp = compute_disparity(left, right, params)
+        else:
+            disp = compute_disparity_in_boxes(left, right, boxes, params)
+        images = (to_gray(left), to_gray(right))  # the node refines far boxes on them too
         want = range_boxes(disp, boxes, geo, RangingParams(), [2] * len(cars), images)
         assert len(got) == sum(w is not None for w in want) > 0
         for g, w in zip(got, [w for w in want if w is not None], strict=True):
@@ -526,7 +615,8 @@ def test_a_match_band_outside_the_images_stops_the_node_and_one_partly_outside_i
 
 def test_stereo_depth_process_exits_2_naming_match_rows_at_its_first_pair(tmp_path):
     """End to end: the node process, given a 375-row pair with `match_rows:=[400, 500]`, stops
-    with one error line and exit code 2 (it used to run on, publishing nothing)."""
+    with one error line and exit code 2 (it used to run on, publishing nothing). A frame is its
+    two images and its 2D detection array (issue #33): the test sends all three."""
     import subprocess
     import sys
 
@@ -534,6 +624,7 @@ def test_stereo_depth_process_exits_2_naming_match_rows_at_its_first_pair(tmp_pa
     from rclpy.context import Context
     from sensor_msgs.msg import CameraInfo, Image
     from std_msgs.msg import Header
+    from stereo_vehicle_msgs.msg import VehicleDetection2DArray
 
     proc = subprocess.Popen(
         [sys.executable, "-m", "stereo_depth_node.node", "--ros-args", "-p",
@@ -551,6 +642,7 @@ def test_stereo_depth_process_exits_2_naming_match_rows_at_its_first_pair(tmp_pa
                 ("/stereo/right/camera_info", CameraInfo),
                 ("/stereo/left/image_rect", Image),
                 ("/stereo/right/image_rect", Image),
+                ("/vehicles/detections_2d", VehicleDetection2DArray),
             )
         }
         deadline = time.monotonic() + 60
@@ -573,6 +665,7 @@ def test_stereo_depth_process_exits_2_naming_match_rows_at_its_first_pair(tmp_pa
                 ("/stereo/right/camera_info", right_info),
                 ("/stereo/left/image_rect", numpy_to_image(img, "rgb8", hdr)),
                 ("/stereo/right/image_rect", numpy_to_image(img, "rgb8", hdr)),
+                ("/vehicles/detections_2d", VehicleDetection2DArray()),
             ):
                 msg.header = hdr
                 pubs[topic].publish(msg)

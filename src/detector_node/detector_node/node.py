@@ -174,7 +174,9 @@ class VehicleDetectorNode(Node):
             self.get_logger().warning(
                 "ORACLE backend: publishing ground-truth boxes as detections (ablation only)"
             )
-        subscribe_image(self, IMAGE_TOPIC, self._on_image, 5)  # raw or compressed
+        # raw or compressed; RELIABLE, the newest INPUT_DEPTH images (docs/ARCHITECTURE.md,
+        # "Topics"): a burst taken late is seen and counted, only the newest is detected
+        subscribe_image(self, IMAGE_TOPIC, self._on_image, max(topics.INPUT_DEPTH, p.frame_queue))
         self.health = NodeHealth(
             self, self.frames, busy=lambda: bool(self.worker and self.worker.busy)
         )

@@ -12,7 +12,7 @@ disparity, as stereo_msgs/DisparityImage documents for invalid values).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -175,14 +175,10 @@ def compute_disparity(
         raise ValueError(f"left {left_rgb.shape} and right {right_rgb.shape} image shapes differ")
     height, width = left_rgb.shape[:2]
     out = np.full((height, width), INVALID_DISPARITY, np.float32)
-    top, bottom = 0, height
-    if params.row_band is not None:
-        top = max(0, int(params.row_band[0]))
-        bottom = min(height, int(params.row_band[1]))
-        # keep the band a multiple of the scale so that the filter's resize is exact
-        bottom = top + ((bottom - top) // params.downscale) * params.downscale
-        if bottom - top < 2 * params.block_size * params.downscale:
-            return out
+    # the band is kept a multiple of the scale so that the filter's resize is exact
+    top, bottom = _band_rows(height, params)
+    if params.row_band is not None and bottom - top < 2 * params.block_size * params.downscale:
+        return out
     left_rgb, right_rgb = left_rgb[top:bottom], right_rgb[top:bottom]
     pad = 0
     if params.pad_left:
@@ -252,6 +248,174 @@ def _match(
                 conf = cv2.resize(conf, (full_w, full_h), interpolation=cv2.INTER_NEAREST)
             valid &= conf >= params.wls_min_confidence
     return np.where(valid, disp, INVALID_DISPARITY).astype(np.float32)
+
+
+#: [px, full resolution] rows of matching context above and below a box's rows, and columns
+#: beyond its search range on each side (:func:`box_regions`)
+CONTEXT_ROWS = 16
+CONTEXT_COLUMNS = 32
+#: when the boxes' matching regions cover more than this share of the band, the band is matched
+#: whole (as fast, and no region edges)
+MAX_REGION_SHARE = 0.7
+
+
+@dataclass(frozen=True)
+class MatchRegion:
+    """One rectangle matched on its own (:func:`compute_disparity_in_boxes`): ``crop`` (x1, y1,
+    x2, y2) [px, end exclusive] the pixels given to the matcher, ``outputs`` the box rectangles
+    inside it whose disparities are kept."""
+
+    crop: tuple[int, int, int, int]
+    outputs: tuple[tuple[int, int, int, int], ...]
+
+
+def _band_rows(height: int, params: DisparityParams) -> tuple[int, int]:
+    """The rows [top, bottom) the matcher covers: all, or the band cut to a multiple of the
+    scale."""
+    if params.row_band is None:
+        return 0, height
+    top = max(0, int(params.row_band[0]))
+    bottom = min(height, int(params.row_band[1]))
+    return top, top + max(0, (bottom - top) // params.downscale) * params.downscale
+
+
+def box_regions(boxes, shape: tuple[int, int], params: DisparityParams) -> list[MatchRegion]:
+    """The regions of a frame to match for ``boxes`` ((x1, y1, x2, y2) [px]): each box's pixels
+    within the band (rounded outwards), with matching context: :data:`CONTEXT_ROWS` rows above
+    and below, and to each side the disparity search range plus :data:`CONTEXT_COLUMNS` (the
+    left matcher looks that far left, the right matcher of the WLS filter that far right).
+    Boxes whose regions overlap are matched together. Crops start on the half-resolution grid
+    of the whole band (even rows from its top, even columns), so that a box's pixels are the
+    same pixels of the same matcher as in the whole band's map."""
+    height, width = shape
+    top, bottom = _band_rows(height, params)
+    scale = params.downscale
+    reach = int(disparity_range(params)[1]) + 1 + CONTEXT_COLUMNS
+    rects = []
+    for box in np.asarray(boxes, float).reshape(-1, 4):
+        if not np.all(np.isfinite(box)):
+            continue
+        x1, y1 = max(0, int(np.floor(box[0]))), max(top, int(np.floor(box[1])))
+        x2, y2 = min(width, int(np.ceil(box[2])) + 1), min(bottom, int(np.ceil(box[3])) + 1)
+        if x2 > x1 and y2 > y1:
+            rects.append((x1, y1, x2, y2))
+
+    def crop_of(r):
+        x1, y1, x2, y2 = r
+        cx1 = max(0, x1 - reach)
+        cy1 = max(top, y1 - CONTEXT_ROWS)
+        cx1 -= cx1 % scale
+        cy1 -= (cy1 - top) % scale
+        return cx1, cy1, min(width, x2 + reach), min(bottom, y2 + CONTEXT_ROWS)
+
+    groups = [[r] for r in rects]
+    merged = True
+    while merged:  # join groups whose crops overlap, until none do
+        merged = False
+        for i in range(len(groups)):
+            a = crop_of(_bounds(groups[i]))
+            for j in range(i + 1, len(groups)):
+                b = crop_of(_bounds(groups[j]))
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
+                    groups[i] += groups.pop(j)
+                    merged = True
+                    break
+            if merged:
+                break
+    return [MatchRegion(crop_of(_bounds(g)), tuple(g)) for g in groups]
+
+
+def _bounds(rects) -> tuple[int, int, int, int]:
+    a = np.asarray(rects)
+    return int(a[:, 0].min()), int(a[:, 1].min()), int(a[:, 2].max()), int(a[:, 3].max())
+
+
+def compute_disparity_in_boxes(
+    left_rgb: np.ndarray, right_rgb: np.ndarray, boxes, params: DisparityParams | None = None
+) -> np.ndarray:
+    """The disparity map of :func:`compute_disparity` where the ranging and its check read it:
+    inside ``boxes`` (within the band), each matched on its :func:`box_regions` crop with the
+    same matcher and filter; every other pixel is :data:`INVALID_DISPARITY`. When the crops
+    would cover more than :data:`MAX_REGION_SHARE` of the band, the whole band is matched
+    and returned (then every band pixel holds its value)."""
+    params = params or DisparityParams()
+    params.validate()
+    if left_rgb.shape != right_rgb.shape:
+        raise ValueError(f"left {left_rgb.shape} and right {right_rgb.shape} image shapes differ")
+    height, width = left_rgb.shape[:2]
+    regions = box_regions(boxes, (height, width), params)
+    top, bottom = _band_rows(height, params)
+    area = sum((r.crop[2] - r.crop[0]) * (r.crop[3] - r.crop[1]) for r in regions)
+    if area > MAX_REGION_SHARE * width * max(1, bottom - top):
+        return compute_disparity(left_rgb, right_rgb, params)
+    out = np.full((height, width), INVALID_DISPARITY, np.float32)
+    for region in regions:
+        x1, y1, x2, y2 = region.crop
+        # the crop is its own band; the left border is padded only where it is the image's
+        crop_params = replace(params, row_band=None, pad_left=params.pad_left and x1 == 0)
+        disp = compute_disparity(left_rgb[y1:y2, x1:x2], right_rgb[y1:y2, x1:x2], crop_params)
+        for ox1, oy1, ox2, oy2 in region.outputs:
+            out[oy1:oy2, ox1:ox2] = disp[oy1 - y1 : oy2 - y1, ox1 - x1 : ox2 - x1]
+    return out
+
+
+def block_matching_disparity(
+    left_gray: np.ndarray, right_gray: np.ndarray, params: DisparityParams | None = None
+) -> np.ndarray:
+    """A fast, sparser disparity map of the band for what needs the whole scene but not the
+    ranging's accuracy (the visual odometry's corners, the road plane): OpenCV block matching
+    (``cv2.StereoBM``, 9 x 9 blocks, its texture and uniqueness checks and the left-right check
+    ``disp12_max_diff``) at 1/``downscale`` resolution over the band, the left border padded,
+    nearest-neighbour back to full resolution. Gray uint8 images; float32 [px], invalid pixels
+    :data:`INVALID_DISPARITY`. About a tenth of the cost of :func:`compute_disparity`."""
+    params = params or DisparityParams()
+    params.validate()
+    if left_gray.shape != right_gray.shape or left_gray.ndim != 2:
+        raise ValueError(f"gray images of one size needed: {left_gray.shape}, {right_gray.shape}")
+    height, width = left_gray.shape
+    out = np.full((height, width), INVALID_DISPARITY, np.float32)
+    top, bottom = _band_rows(height, params)
+    scale = params.downscale
+    n = _round16(params.num_disparities / scale)
+    if bottom - top < 2 * BM_BLOCK * scale:
+        return out
+    pad = n * scale if params.pad_left else 0
+
+    def prepared(img: np.ndarray) -> np.ndarray:
+        img = img[top:bottom]
+        if pad:
+            img = cv2.copyMakeBorder(img, 0, 0, pad, 0, cv2.BORDER_CONSTANT, value=0)
+        return _shrink(img, scale)
+
+    bm = cv2.StereoBM_create(numDisparities=n, blockSize=BM_BLOCK)
+    bm.setMinDisparity(int(params.min_disparity // scale))
+    bm.setUniquenessRatio(params.uniqueness_ratio)
+    bm.setDisp12MaxDiff(params.disp12_max_diff)
+    bm.setSpeckleWindowSize(params.speckle_window_size)
+    bm.setSpeckleRange(params.speckle_range)
+    disp = bm.compute(prepared(left_gray), prepared(right_gray)).astype(np.float32) / 16.0
+    disp = disp[:, pad // scale :]
+    if scale != 1:
+        disp = cv2.resize(disp, (width, bottom - top), interpolation=cv2.INTER_NEAREST) * scale
+    out[top:bottom] = np.where(disp > max(0.0, float(params.min_disparity)), disp, out[top:bottom])
+    return out
+
+
+#: block size of :func:`block_matching_disparity` (at the matching resolution)
+BM_BLOCK = 9
+
+
+def coarse_disparity(
+    left_rgb: np.ndarray, right_rgb: np.ndarray, params: DisparityParams | None = None
+) -> np.ndarray:
+    """The map of :func:`compute_disparity` at half its resolution, for a large smooth surface
+    (the road plane): the same matchers and filter over the same band at twice the
+    ``downscale`` (at most 4), the filter guided at the matching resolution (a quarter of the
+    pixels and half the disparities to search). About a third of the cost of the band's map;
+    invalid pixels :data:`INVALID_DISPARITY`."""
+    params = params or DisparityParams()
+    coarse = replace(params, downscale=min(4, 2 * params.downscale), wls_full_res_guide=False)
+    return compute_disparity(left_rgb, right_rgb, coarse)
 
 
 def disparity_range(params: DisparityParams) -> tuple[float, float]:

@@ -1,20 +1,22 @@
-"""ROS 2 node ``stereo_depth``: disparity, optional point cloud, and 3D ranging of 2D detections.
+"""ROS 2 node ``stereo_depth``: 3D ranging of 2D detections, visual odometry, optional disparity.
 
 Subscribes to the rectified stereo pair, its CameraInfos and ``/vehicles/detections_2d``; publishes
-``/stereo/disparity`` (stereo_msgs/DisparityImage, invalid pixels -1.0), ``/stereo/points``
-(sensor_msgs/PointCloud2, off by default) and ``/vehicles/detections_3d``; with the visual
-odometry, ``/stereo/odometry`` (nav_msgs/Odometry), odom -> camera (or base) on ``/tf`` and the
-rig on ``/tf_static`` (:mod:`.odometry_output`). Left and right images
-are paired, and detection arrays matched to their stereo frame, by exact header stamp through
-bounded caches (:mod:`.stamp_sync`); every detection array gets exactly one 3D array (empty when
-its stereo frame is lost or failed). All computation is in the pure core modules.
+``/vehicles/detections_3d``, ``/stereo/disparity`` (stereo_msgs/DisparityImage, invalid pixels
+-1.0, built only while someone subscribes) and ``/stereo/points`` (sensor_msgs/PointCloud2, off by
+default); with the visual odometry, ``/stereo/odometry`` (nav_msgs/Odometry), odom -> camera (or
+base) on ``/tf`` and the rig on ``/tf_static`` (:mod:`.odometry_output`). A frame is the complete
+set of its three inputs with one stamp: the left and right images and the 2D detection array
+(:mod:`.stamp_sync`, in order). The newest complete set is processed; a set still waiting when a
+newer one is complete, and a set that can no longer complete (a newer one did), is dropped and
+counted before any work on it. Each processed set gets exactly one 3D array (empty when its
+images cannot be used). All computation is in the pure core modules.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import sys
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -53,8 +55,11 @@ from .conversions import build_point_cloud, detection_3d_message, disparity_mess
 from .disparity import (
     DisparityParams,
     RowBandError,
+    block_matching_disparity,
     check_match_rows,
+    coarse_disparity,
     compute_disparity,
+    compute_disparity_in_boxes,
     match_band,
 )
 from .odometry_output import OdometryOutput, OdometryOutputParameters
@@ -72,6 +77,8 @@ from .stamp_sync import ExactStampSync
 from .visual_odometry import FrameToFrameOdometry
 
 NODE_NAME = "stereo_depth"
+#: the inputs of one frame, paired by stamp
+FRAME_SLOTS = ("left", "right", "detections")
 TOPIC_LEFT = topics.LEFT_IMAGE
 TOPIC_RIGHT = topics.RIGHT_IMAGE
 TOPIC_LEFT_INFO = topics.LEFT_INFO
@@ -135,7 +142,11 @@ class StereoNodeParameters:
     points_rgb: bool = False
     sync_cache_size: int = param(10, low=1)
     num_threads: int = param(2, low=1)  # OpenCV threads of the matcher (cv2.setNumThreads)
-    frame_queue: int = param(1, low=1)  # newest stereo pairs kept waiting (1: latest frame)
+    frame_queue: int = param(1, low=1)  # newest complete frames kept waiting (1: latest frame)
+    # where the ranging's disparity map is computed: "boxes" (the 2D boxes with their matching
+    # context; the odometry and the road plane take a block-matching map of the band) or
+    # "band" (the whole band for everything, as before issue #33)
+    map_area: str = param("boxes", choices=("boxes", "band"))
     # the camera-dependent settings: 0 / [-1, -1] = derived from the CameraInfo pair at run
     # time (vehicle_common.camera_settings); a value given wins
     # [px] disparity range (>= 16, the DisparityParams field); 0: fx * baseline / 4.05 m
@@ -163,21 +174,18 @@ def _stamp_text(ns: int) -> str:
     return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
 
 
+@dataclasses.dataclass(frozen=True)
+class _Ready:
+    """A result already computed, read like a Future's."""
+
+    value: object
+
+    def result(self):
+        return self.value
+
+
 class _NoGeometry(ValueError):
     """No usable stereo geometry (no CameraInfo yet, or a bad calibration)."""
-
-
-@dataclasses.dataclass
-class _Frame:
-    """A processed stereo frame waiting for its detection array (None fields: it failed)."""
-
-    header: object
-    disparity: np.ndarray | None
-    geometry: StereoGeometry | None
-    images: tuple[np.ndarray, np.ndarray] | None = None  # gray (left, right), for refinement
-    odometry: Future | None = None  # its camera motion since the previous processed pair
-    params: DisparityParams | None = None  # the matcher's settings of its camera
-    skipped: bool = False  # superseded by a newer pair (latest-frame policy): no 3D array
 
 
 class StereoDepthNode(Node):
@@ -226,20 +234,18 @@ class StereoDepthNode(Node):
         self.points_max_depth = p.points_max_depth
         self.points_rgb = p.points_rgb
         cv2.setNumThreads(p.num_threads)  # process-wide
+        self.map_area = p.map_area
         self.odometry = FrameToFrameOdometry() if p.visual_odometry else None
         self.odometry_out = OdometryOutput(odom_params) if p.visual_odometry else None
-        # the odometry of a pair runs in this thread once the pair's disparity map is done
-        # (the map is first: the ranging needs it), beside the ranging; only the publishing of
-        # the 3D array waits for it (ARCHITECTURE.md, "A frame's path through the graph")
-        self._odometry_thread = (
-            ThreadPoolExecutor(1, thread_name_prefix="odometry") if p.visual_odometry else None
-        )
-        self._vehicle_boxes: list = []
+        # a frame's odometry, then its road plane's map, run in this thread beside its map in
+        # the boxes and its ranging; the check waits for the road map, the publishing of the
+        # 3D array for the odometry (ARCHITECTURE.md, "A frame's path through the graph")
+        self._helper = ThreadPoolExecutor(1, thread_name_prefix="stereo-helper")
+        self._vehicle_boxes: list = []  # of the previous processed frame (the odometry's mask)
         self._bias_key: tuple | None = None  # (width, geometry) of the cached column bias
-        self._bias: np.ndarray | None = None  # of the latest ranged frame, kept out of the odometry
-        cache = p.sync_cache_size
-        self.pair_sync = ExactStampSync(("left", "right"), cache, in_order=True)
-        self.frame_sync = ExactStampSync(("frame", "detections"), cache, in_order=True)
+        self._bias: np.ndarray | None = None
+        # a frame = its left image, right image and 2D detection array (one stamp; in order)
+        self.frame_sync = ExactStampSync(FRAME_SLOTS, p.sync_cache_size, in_order=True)
         self.left_info = None
         self.right_info = None
         self.geometry: StereoGeometry | None = None  # from the latest CameraInfo pair
@@ -250,23 +256,26 @@ class StereoDepthNode(Node):
         #: camera changes seen by the executor / handled by the worker (odometry, road plane)
         self._camera_generation = 0
         self._worker_generation = 0
-        self.dropped_detection_arrays = 0
+        self.dropped_detection_arrays = 0  # whose images never arrived (lost or superseded)
         self.unranged_detections = 0
         self.frames_processed = 0
         self.frames_failed = 0
-        # frames = detection arrays: in, 3D arrays out, dropped with their skipped pair.
-        # Everything after stereo pairing runs in order in one worker thread; a pair still
-        # waiting when a newer one is complete is skipped (latest-frame policy).
+        # frames = detection arrays: in, 3D arrays out, dropped (superseded while waiting, or
+        # their images never arrived). The complete sets are processed in one worker thread;
+        # a set still waiting when a newer one is complete is dropped (latest-frame policy).
         self.frames = FrameCounter()
         self.worker = LatestFrameWorker(
-            self._work,
+            self._process_frame,
+            self.frames,
             name="stereo",
             on_error=self._work_failed,
-            skip=self._skip_pair,
             max_waiting=p.frame_queue,
-            timing=self.frames,  # frames are counted on the detection arrays, timed on pairs
         )
 
+        # QoS (docs/ARCHITECTURE.md, "Topics"): RELIABLE (lockstep loses nothing), the newest
+        # INPUT_DEPTH messages of each input: a burst the executor takes late is still seen,
+        # and dropped and counted here before any work; older ones are never taken
+        qos_in = QoSProfile(depth=max(topics.INPUT_DEPTH, p.frame_queue))
         self.pub_disparity = self.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)
         self.pub_points = None
         if self.publish_points:
@@ -282,25 +291,23 @@ class StereoDepthNode(Node):
                 latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
                 self.pub_tf_static = self.create_publisher(TFMessage, topics.TF_STATIC, latched)
         # camera infos first: the executor runs ready callbacks in creation order, so a frame's
-        # CameraInfo that arrives with its images is read before the pair is matched (else the
-        # first frame was skipped for "no CameraInfo yet" in some runs)
-        self.create_subscription(CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, 5)
-        self.create_subscription(CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, 5)
+        # CameraInfo that arrives with its images is read before the frame is processed
+        self.create_subscription(CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, 1)
+        self.create_subscription(CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, 1)
         # raw or compressed (parameter image_transport)
-        subscribe_image(self, TOPIC_LEFT, lambda m: self._on_image("left", m), 5)
-        subscribe_image(self, TOPIC_RIGHT, lambda m: self._on_image("right", m), 5)
+        subscribe_image(self, TOPIC_LEFT, lambda m: self._on_input("left", m), qos_in)
+        subscribe_image(self, TOPIC_RIGHT, lambda m: self._on_input("right", m), qos_in)
         self.create_subscription(
             VehicleDetection2DArray,
             TOPIC_DETECTIONS_2D,
-            self._on_detections,
-            QoSProfile(depth=10),
+            lambda m: self._on_input("detections", m),
+            qos_in,
         )
         self.health = NodeHealth(self, self.frames, busy=lambda: self.worker.busy)
 
     def destroy_node(self):
         self.worker.stop()  # the frames in hand and waiting are finished first
-        if self._odometry_thread is not None:
-            self._odometry_thread.shutdown(wait=True)
+        self._helper.shutdown(wait=True)
         super().destroy_node()
 
     def _disparity_params_for(self, height: int, settings: StereoSettings) -> DisparityParams:
@@ -392,76 +399,48 @@ class StereoDepthNode(Node):
         if tf is not None and self.pub_tf is not None:
             self.pub_tf.publish(tf)
 
-    def _on_image(self, side: str, msg) -> None:
+    def _on_input(self, slot: str, msg) -> None:
+        """An image or a 2D detection array: into the frame's set; a complete set goes to the
+        worker, and the sets it leaves behind (older, never to complete) are dropped."""
         stamp = stamp_ns(msg.header)
-        self.trace(f"{side}_received", stamp)
-        group = self.pair_sync.add(stamp, side, msg)
-        for ev in self.pair_sync.take_evicted():
+        self.trace(f"{slot}_received", stamp)
+        if slot == "detections":
+            self.frames.received()
+        group = self.frame_sync.add(stamp, slot, msg)
+        for ev in self.frame_sync.take_evicted():
+            if "detections" not in ev.values:
+                continue  # images of a frame the detector skipped (it counted it)
+            self.frames.dropped()
+            self.dropped_detection_arrays += 1
             self.get_logger().warning(
-                f"stereo pair at stamp {_stamp_text(ev.stamp)} incomplete (missing "
-                f"{', '.join(ev.missing(self.pair_sync.slots))}); dropped"
+                f"{TOPIC_DETECTIONS_2D}: detection array at stamp {_stamp_text(ev.stamp)} "
+                f"dropped: its {' and '.join(ev.missing(FRAME_SLOTS))} image never arrived "
+                f"(lost, or superseded by a newer one); {self.dropped_detection_arrays} so far",
+                throttle_duration_sec=5.0,
             )
-            # its detection array (waiting or still to come) gets an empty 3D array
-            header = next(iter(ev.values.values())).header
-            self.worker.submit(("frame", ev.stamp, _Frame(header, None, None)), frame=False)
         if group is not None:
-            self.worker.submit(("pair", group["left"], group["right"]))
-
-    def _on_detections(self, msg) -> None:
-        stamp = stamp_ns(msg.header)
-        self.trace("detections_received", stamp)
-        self.frames.received()
-        self.worker.submit(("detections", stamp, msg), frame=False)
-
-    def _work(self, item) -> None:
-        kind, a, b = item
-        if kind == "pair":
-            self._process_pair(a, b)
-        elif kind == "outputs":
-            self._publish_frame_outputs(a, b)
-        else:
-            self._add_to_frame_sync(a, kind, b)
-
-    def _skip_pair(self, item) -> None:
-        left = item[1]
-        self._add_to_frame_sync(
-            stamp_ns(left.header), "frame", _Frame(left.header, None, None, skipped=True)
-        )
+            self.worker.submit((group["left"], group["right"], group["detections"]))
 
     def _work_failed(self, exc: Exception, item) -> None:
         self.get_logger().warning(f"stereo processing failed: {exc}")
-        if item[0] == "pair":
-            self._add_to_frame_sync(
-                stamp_ns(item[1].header), "frame", _Frame(item[1].header, None, None)
-            )
-
-    def _add_to_frame_sync(self, key, slot, value) -> None:
-        group = self.frame_sync.add(key, slot, value)
-        for ev in self.frame_sync.take_evicted():
-            if "detections" in ev.values:
-                self.dropped_detection_arrays += 1
-                self.get_logger().warning(
-                    f"{TOPIC_DETECTIONS_2D}: detection array at stamp {_stamp_text(ev.stamp)} "
-                    "not ranged, its stereo frame never arrived; empty 3D array published "
-                    f"({self.dropped_detection_arrays} so far)"
-                )
-                self._publish_empty(ev.values["detections"])
-        if group is not None:
-            self._publish_detections(group["frame"], group["detections"])
+        self._publish_empty(item[2])
 
     # ------------------------------------------------------------------ processing
-    def _process_pair(self, left_msg, right_msg) -> None:
-        frame = _Frame(left_msg.header, None, None)
-        stamp = stamp_ns(left_msg.header)
+    def _process_frame(self, item) -> None:
+        """One complete frame: its disparity map where the ranging reads it, its odometry and
+        road plane's map in the helper thread meanwhile, the ranging and check, then the 3D
+        array."""
+        left_msg, right_msg, det_msg = item
+        stamp = stamp_ns(det_msg.header)
         self.trace("pair_start", stamp)
-        gray = None
+        dets = list(det_msg.detections)
+        boxes = [bbox_to_xyxy(d.bbox) for d in dets]
         try:
             geometry, settings = self.geometry, self.settings
             if geometry is None or settings is None:
                 raise _NoGeometry(self._geometry_error)
-            frame.geometry = geometry
             if self._worker_generation != self._camera_generation:
-                # another camera: the previous pair and road plane are not this camera's
+                # another camera: the previous frame and road plane are not this camera's
                 self._worker_generation = self._camera_generation
                 self.ground.reset()
                 if self.odometry is not None:
@@ -470,13 +449,7 @@ class StereoDepthNode(Node):
             right = image_to_rgb(right_msg)
             # sizes and frame ids of the images and their camera_infos
             check_stereo_images(left_msg, right_msg, left, right, self.left_info, self.right_info)
-            gray = to_gray(left)
-            params = frame.params = self._disparity_params_for(left.shape[0], settings)
-            self.trace("disparity_start", stamp)
-            frame.disparity = compute_disparity(left, right, params)
-            self.trace("disparity_end", stamp)
-            if self.ranging_params.refine != "none":
-                frame.images = (gray, to_gray(right))
+            params = self._disparity_params_for(left.shape[0], settings)
         except (ImageConversionError, ValueError) as exc:
             self.frames_failed += 1
             # a bad calibration was reported when it arrived; a missing one is reported here
@@ -486,66 +459,97 @@ class StereoDepthNode(Node):
             if self.fatal_error is not None:  # the node stops with that one line
                 log = self.get_logger().debug
             log(f"{TOPIC_LEFT}/{TOPIC_RIGHT}: {exc}; frame skipped")
-            frame.disparity = None
-        self._start_odometry(frame, gray)
+            if self.odometry is not None:
+                self.odometry.reset()  # a lost frame breaks the odometry's chain
+            self._publish_empty(det_msg)
+            return
+        gray, gray_right = to_gray(left), to_gray(right)
+        if self.map_area == "band" or self._outputs_wanted():
+            # the band's map for the ranging, the road plane and the odometry
+            self.trace("disparity_start", stamp)
+            disparity = compute_disparity(left, right, params)
+            self.trace("disparity_end", stamp)
+            odometry = self._start_odometry(stamp, gray, disparity, geometry)
+            road = _Ready(disparity)
+        else:
+            # the odometry's map of the scene: block matching over the band; then, in the
+            # helper thread, the odometry and the road plane's map (the map's algorithm at
+            # half its resolution, when there are boxes to check) beside the map in the boxes
+            # and the ranging
+            self.trace("scene_start", stamp)
+            scene = block_matching_disparity(gray, gray_right, params)
+            self.trace("scene_end", stamp)
+            odometry = self._start_odometry(stamp, gray, scene, geometry)
+            road = self._helper.submit(self._road_map, stamp, left, right, params) if dets else None
+            self.trace("disparity_start", stamp)
+            disparity = compute_disparity_in_boxes(left, right, boxes, params)
+            self.trace("disparity_end", stamp)
         self.trace("pair_end", stamp)
-        if frame.disparity is not None:
-            self.frames_processed += 1
-        self._add_to_frame_sync(stamp, "frame", frame)
-        if frame.disparity is not None and (self.publish_disparity or self.pub_points is not None):
-            # off the ranging path: queued behind a detection array that is already waiting
-            self.worker.submit(("outputs", frame, left if self.points_rgb else None), frame=False)
+        self.frames_processed += 1
+        images = (gray, gray_right) if self.ranging_params.refine != "none" else None
+        self._publish_detections(det_msg, dets, boxes, disparity, road, geometry, images, odometry)
+        if isinstance(road, _Ready):
+            self._publish_frame_outputs(disparity, geometry, params, det_msg.header, left)
 
-    def _publish_frame_outputs(self, frame: _Frame, left: np.ndarray | None) -> None:
-        """The pair's disparity image and point cloud (when enabled and subscribed to: nothing
+    def _road_map(self, stamp: int, left, right, params) -> np.ndarray:
+        """The helper thread's map for the road plane (traced as road_start / road_end)."""
+        self.trace("road_start", stamp)
+        try:
+            return coarse_disparity(left, right, params)
+        finally:
+            self.trace("road_end", stamp)
+
+    def _outputs_wanted(self) -> bool:
+        """Whether someone subscribes to the disparity image or the point cloud (they need the
+        whole band's map)."""
+        if self.publish_disparity and self.pub_disparity.get_subscription_count() > 0:
+            return True
+        return self.pub_points is not None and self.pub_points.get_subscription_count() > 0
+
+    def _publish_frame_outputs(self, disparity, geometry, params, header, left) -> None:
+        """The frame's disparity image and point cloud (when enabled and subscribed to: nothing
         is built for no one)."""
         if self.publish_disparity and self.pub_disparity.get_subscription_count() > 0:
-            self.pub_disparity.publish(
-                disparity_message(frame.disparity, frame.geometry, frame.params, frame.header)
-            )
+            self.pub_disparity.publish(disparity_message(disparity, geometry, params, header))
         if self.pub_points is not None and self.pub_points.get_subscription_count() > 0:
             pts, rgb = decimated_points(
-                frame.disparity,
-                frame.geometry,
+                disparity,
+                geometry,
                 self.points_decimation,
-                left,
+                left if self.points_rgb else None,
                 self.points_max_depth,
             )
-            self.pub_points.publish(build_point_cloud(pts, rgb, frame.header))
+            self.pub_points.publish(build_point_cloud(pts, rgb, header))
 
     def _publish_empty(self, det_msg) -> None:
-        """An empty 3D array for a detection array that cannot be ranged."""
+        """An empty 3D array for a detection array whose frame cannot be used."""
         out = VehicleDetection3DArray()
         out.header = det_msg.header
-        self._publish_odometry(out.header, None)  # extrapolated: no pair, no motion
+        self._publish_odometry(out.header, None)  # extrapolated: no frame, no motion
         self.pub_det3d.publish(out)
         self.frames.published()
 
-    def _publish_detections(self, frame: _Frame, det_msg) -> None:
-        if frame.skipped:
-            self.frames.dropped()
-            return
+    def _publish_detections(
+        self, det_msg, dets, boxes, disparity, road, geometry, images, odometry
+    ) -> None:
+        """Range and check the frame's boxes (``road.result()``: the map the road plane is
+        fitted to, None without boxes), wait for its odometry, publish."""
         stamp = stamp_ns(det_msg.header)
         self.trace("ranging_start", stamp)
         out = VehicleDetection3DArray()
-        out.header = frame.header if frame.disparity is not None else det_msg.header
-        dets = list(det_msg.detections)
+        out.header = det_msg.header
         results, checks = [None] * len(dets), [None] * len(dets)
-        if frame.disparity is not None and dets:
-            boxes = [bbox_to_xyxy(d.bbox) for d in dets]
+        if dets:
             bins = [int(d.orientation_bin) for d in dets]
             # the detector's continuous observation angle where it gives one (variance >= 0)
             alphas = observation_angles_of(
                 [getattr(d, "observation_angle", float("nan")) for d in dets],
                 [getattr(d, "observation_angle_variance", -1.0) for d in dets],
             )
-            results = range_boxes(
-                frame.disparity, boxes, frame.geometry, self.ranging, bins, frame.images, alphas
-            )
-            checks = self._check(frame, boxes, results)
+            results = range_boxes(disparity, boxes, geometry, self.ranging, bins, images, alphas)
+            checks = self._check(disparity, road.result(), geometry, boxes, results)
         self.trace("ranging_end", stamp)
-        self._vehicle_boxes = [bbox_to_xyxy(d.bbox) for d in dets]
-        motion = self._camera_motion(frame)
+        motion = self._camera_motion(odometry)
         if motion is not None:
             out.camera_motion_dt = motion.dt
             write_transform(motion.rotation, motion.translation, out.camera_motion)
@@ -572,9 +576,10 @@ class StereoDepthNode(Node):
         self.pub_det3d.publish(out)
         self.trace("detections_3d_published", stamp)
         self.frames.published()
-        if self.odometry is not None and frame.disparity is not None:
-            # the next pair's odometry tracks this one's corners: found now, in idle time
-            self._odometry_thread.submit(self.odometry.prepare(self._vehicle_boxes))
+        self._vehicle_boxes = boxes
+        if self.odometry is not None:
+            # the next frame's odometry tracks this one's corners: found now, in idle time
+            self._helper.submit(self.odometry.prepare(boxes))
 
     def _column_bias(self, width: int, geometry: StereoGeometry) -> np.ndarray:
         """The ranging's disparity bias model per image column [px] (read-only); it depends
@@ -588,12 +593,12 @@ class StereoDepthNode(Node):
             self._bias_key, self._bias = key, bias
         return self._bias
 
-    def _check(self, frame: _Frame, boxes, results) -> list:
-        """Plausibility of the ranged boxes (:mod:`.plausibility`) against this frame's road
-        plane (fitted to the disparity map with the ranging's bias model subtracted)."""
-        geo = frame.geometry
-        bias = self._column_bias(frame.disparity.shape[1], geo)
-        plane = self.ground.update(frame.disparity, geo, bias)
+    def _check(self, disparity, road, geo: StereoGeometry, boxes, results) -> list:
+        """Plausibility of the ranged boxes (:mod:`.plausibility`, on the ranging's map)
+        against this frame's road plane (fitted to the ``road`` map with the ranging's bias
+        model subtracted)."""
+        bias = self._column_bias(disparity.shape[1], geo)
+        plane = self.ground.update(road, geo, bias)
         report = self.ground_check.add(plane)
         if report is not None:
             level, line = report
@@ -601,39 +606,35 @@ class StereoDepthNode(Node):
         fb = geo.fx * geo.baseline
         depths = [fb / r.disparity if r is not None else None for r in results]
         stds = [r.disparity_std if r is not None else None for r in results]
-        return check_boxes(frame.disparity, boxes, depths, geo, plane, self.plausibility, stds)
+        return check_boxes(disparity, boxes, depths, geo, plane, self.plausibility, stds)
 
-    def _start_odometry(self, frame: _Frame, gray: np.ndarray | None) -> None:
-        """Start the visual odometry of a pair (the camera's motion since the previous
-        processed pair) in its thread once the pair's disparity map is done; the pair becomes
-        the next reference at once. A lost pair (no disparity) breaks the chain."""
+    def _start_odometry(self, stamp: int, gray: np.ndarray, scene: np.ndarray, geometry):
+        """Start the visual odometry of a frame (the camera's motion since the previous
+        processed frame: the span the tracker predicts over, however long) in its thread; the
+        frame, with its scene map, becomes the next reference at once. None without odometry."""
         if self.odometry is None:
-            return
-        if frame.disparity is None:
-            self.odometry.reset()
-            return
-        stamp = stamp_ns(frame.header)
-        job = self.odometry.begin(stamp, gray, frame.disparity)
-        bias = self._column_bias(gray.shape[1], frame.geometry)
-        frame.odometry = self._odometry_thread.submit(
-            self._estimate_motion, stamp, job, frame.geometry, list(self._vehicle_boxes), bias
+            return None
+        job = self.odometry.begin(stamp, gray, scene)
+        bias = self._column_bias(gray.shape[1], geometry)
+        return self._helper.submit(
+            self._estimate_motion, stamp, job, geometry, list(self._vehicle_boxes), bias
         )
 
     def _estimate_motion(self, stamp: int, job, *args) -> CameraMotion | None:
-        """The odometry thread's work (traced as odometry_start / odometry_end)."""
+        """The helper thread's odometry (traced as odometry_start / odometry_end)."""
         self.trace("odometry_start", stamp)
         try:
             return job(*args)
         finally:
             self.trace("odometry_end", stamp)
 
-    def _camera_motion(self, frame: _Frame) -> CameraMotion | None:
+    def _camera_motion(self, odometry) -> CameraMotion | None:
         """The frame's camera motion, once its odometry is done (None: no odometry, or it
         failed: reported)."""
-        if frame.odometry is None:
+        if odometry is None:
             return None
         try:
-            return frame.odometry.result()
+            return odometry.result()
         except (ValueError, cv2.error) as exc:
             self.get_logger().warning(f"visual odometry failed: {exc}")
             return None

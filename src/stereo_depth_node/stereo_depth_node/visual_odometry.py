@@ -40,7 +40,8 @@ class OdometryParams:
     max_corners: int = 400  # Shi-Tomasi corners detected in the earlier image
     corner_quality: float = 0.01  # relative corner-strength threshold
     min_corner_distance: int = 5  # [px, resized]
-    lk_window: int = 15  # [px, resized] Lucas-Kanade window side
+    lk_window: int = 11  # [px, resized] Lucas-Kanade window side (15 before issue #33: the
+    # same accuracy against ORB-SLAM3 on 0005, half the tracking's CPU; docs/stereo_depth.md)
     lk_levels: int = 3  # pyramid levels above the image
     max_fb_error: float = 0.5  # [px, resized] forward-backward tracking error
     min_disparity: float = 1.0  # [px] nearer than f * B / min_disparity only

@@ -47,7 +47,8 @@ class MotionFilter(Protocol):
 
 class PassThroughFilter:
     """The unfiltered baseline: a track's position is its last detection's (held while
-    coasting), its velocity the finite difference of its last two detections."""
+    coasting), its velocity the finite difference of its last two detections (over the time
+    between them: frames dropped at camera rate make it longer than a frame period)."""
 
     name = "none"
 
@@ -56,11 +57,12 @@ class PassThroughFilter:
     ):
         self.pos_var = float(init_position_var)
         self.vel_var = float(init_velocity_var)
-        self.dt = float(dt)  # [s] frame period assumed by velocity_cov
+        self.dt = float(dt)  # [s] frame period (the span of a difference not yet taken)
         self._pos = np.zeros((0, 3))
         self._vel = np.zeros((0, 3))
         self._R = np.zeros((0, 3, 3))
         self._elapsed = np.zeros(0)
+        self._span = np.zeros(0)  # [s] between the two detections of the last difference
         self._seen = np.zeros(0, dtype=bool)
 
     def __len__(self) -> int:
@@ -74,6 +76,7 @@ class PassThroughFilter:
         self._vel = np.concatenate([self._vel, np.zeros((m, 3))])
         self._R = np.concatenate([self._R, R])
         self._elapsed = np.concatenate([self._elapsed, np.zeros(m)])
+        self._span = np.concatenate([self._span, np.full(m, self.dt)])
         self._seen = np.concatenate([self._seen, np.zeros(m, dtype=bool)])
 
     def restart_velocity(self, rows: np.ndarray, static_velocity: np.ndarray) -> None:
@@ -82,6 +85,7 @@ class PassThroughFilter:
     def keep(self, mask: np.ndarray) -> None:
         self._pos, self._vel, self._R = self._pos[mask], self._vel[mask], self._R[mask]
         self._elapsed, self._seen = self._elapsed[mask], self._seen[mask]
+        self._span = self._span[mask]
 
     def predict(self, dt: float) -> None:
         self._elapsed = self._elapsed + dt
@@ -105,7 +109,9 @@ class PassThroughFilter:
     def update(self, rows: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:
         if not len(rows):
             return
-        self._vel[rows] = (z - self._pos[rows]) / np.maximum(self._elapsed[rows], 1e-6)[:, None]
+        span = np.maximum(self._elapsed[rows], 1e-6)
+        self._vel[rows] = (z - self._pos[rows]) / span[:, None]
+        self._span[rows] = span
         self._seen[rows] = True
         self._pos[rows] = z
         self._R[rows] = R
@@ -127,7 +133,8 @@ class PassThroughFilter:
 
     @property
     def velocity_cov(self) -> np.ndarray:
-        v = np.where(self._seen, 2.0 * np.trace(self._R, axis1=1, axis2=2) / 3.0 / self.dt**2, 0.0)
+        # the difference of two detections' noise over the time between them
+        v = 2.0 * np.trace(self._R, axis1=1, axis2=2) / 3.0 / self._span**2
         v = np.where(self._seen, v, self.vel_var)
         return v[:, None, None] * np.eye(3)
 

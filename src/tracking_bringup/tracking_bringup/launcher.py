@@ -9,8 +9,11 @@ default for other sources, starts them only once the rest is up), and exits non-
 node when one dies.
 
 A node that stops making progress while the graph runs (no report on /diagnostics, or a frame
-in process without progress, for ``stall_timeout`` s: a frozen or hung process) ends the run
-with exit code 1 naming it, and is killed (``ProgressWatch``).
+in process without progress, for ``stall_timeout`` s: a frozen or hung process; or its process
+stopped, state T in /proc, for as long: SIGSTOP, a debugger) ends the run with exit code 1
+naming it, and is killed (``ProgressWatch``). The process state is read as well because the
+launcher's DDS participant sometimes never receives one node's reports (the other nodes do:
+seen about 1 run in 6 here, and once in CI), which left a stopped node unnoticed.
 
 Stopping (end of the sequence, Ctrl-C or SIGTERM): the sources are stopped first, the frames in
 flight are let through the graph (until every node reports on /diagnostics that it holds no
@@ -172,6 +175,7 @@ class GraphLauncher:
         #: for ``stall_timeout`` s) end the run (:meth:`wait`); they are killed at shutdown
         self.progress = ProgressWatch(stall_timeout)
         self.stalled: dict[str, str] = {}
+        self._stopped_since: dict[str, float] = {}  # node -> when its process was seen stopped
         #: topics of this graph that another publisher outside it also publishes on (once ready)
         self.foreign: list[str] = []
         self._ready = False
@@ -234,8 +238,16 @@ class GraphLauncher:
     def _check_progress(self) -> None:
         """Raise LaunchError naming a running node that stopped making progress (a frozen
         process, a hung callback): see :class:`ProgressWatch`."""
+        now = time.monotonic()
         alive = [n for n, r in self.running.items() if r.proc.poll() is None]
-        stalled = self.progress.stalled(time.monotonic(), alive)
+        stalled = self.progress.stalled(now, alive)
+        for name in alive:
+            if _process_state(self.running[name].proc.pid).endswith(("(T)", "(t)")):
+                since = self._stopped_since.setdefault(name, now)
+                if now - since >= self.progress.timeout_s and name not in stalled:
+                    stalled[name] = f"its process has been stopped for {now - since:.1f} s"
+            else:
+                self._stopped_since.pop(name, None)
         if not stalled:
             return
         self.stalled = stalled
@@ -369,7 +381,12 @@ class GraphLauncher:
     def _on_reports(self, msg) -> None:
         for report in reports_from_message(msg):
             name = self._report_names.get(report.node)  # this graph's nodes, by short name
-            if name is not None:
+            if name is None:
+                continue
+            run = self.running.get(name)
+            # only this launcher's process of that name: a stray one of the same name on the
+            # domain (another graph, a leftover of an earlier run) would hide a frozen node
+            if run is None or report.pid is None or report.pid == run.proc.pid:
                 self.reports[name] = report
                 self.progress.seen(name, report, time.monotonic())
 
@@ -482,7 +499,13 @@ def _death(run: _Running, code: int, what: str) -> LaunchError:
 
 def _process_state(pid: int) -> str:
     """``stopped (T)``, ``running (R)``, ... of a process, from /proc (Linux)."""
-    names = {"R": "running", "S": "sleeping", "D": "in uninterruptible wait", "T": "stopped"}
+    names = {
+        "R": "running",
+        "S": "sleeping",
+        "D": "in uninterruptible wait",
+        "T": "stopped",
+        "t": "stopped by a debugger",
+    }
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
     except (OSError, IndexError):

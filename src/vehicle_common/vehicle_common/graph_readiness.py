@@ -43,13 +43,17 @@ class NodeReport:
     """What one node reports: frame counts, whether a frame is in process, per published
     topic the number of matched subscriptions, and the median (wall, CPU) milliseconds its
     worker spent per frame (``processing_ms``; None for a node without a frame worker or
-    before its first frame)."""
+    before its first frame), and the reporting process's id (``pid``; None when not given), so
+    that a launcher takes only its own processes' reports: a stray process of the same name on
+    the same ROS domain (another graph, one left by an earlier run) must not keep a frozen node
+    looking alive."""
 
     node: str
     counts: FrameCounts = FrameCounts()
     busy: bool = False
     matched: dict[str, int] = field(default_factory=dict)
     processing_ms: tuple[float, float] | None = None
+    pid: int | None = None
 
     @property
     def idle(self) -> bool:
@@ -70,6 +74,8 @@ class NodeReport:
                 ("processing_ms_p50", f"{self.processing_ms[0]:.2f}"),
                 ("processing_cpu_ms_p50", f"{self.processing_ms[1]:.2f}"),
             ]
+        if self.pid is not None:
+            out.append(("pid", str(self.pid)))
         return out + [(_MATCHED + t, str(n)) for t, n in sorted(self.matched.items())]
 
     @classmethod
@@ -86,9 +92,10 @@ class NodeReport:
             timing = None
             if "processing_ms_p50" in kv:
                 timing = (float(kv["processing_ms_p50"]), float(kv["processing_cpu_ms_p50"]))
+            pid = int(kv["pid"]) if "pid" in kv else None
         except (ValueError, KeyError) as exc:
             raise ValueError(f"report of {node}: {exc}") from None
-        return cls(node.lstrip("/"), counts, kv.get("busy") == "1", matched, timing)
+        return cls(node.lstrip("/"), counts, kv.get("busy") == "1", matched, timing, pid)
 
 
 def unready_topics(

@@ -29,9 +29,18 @@ CPU_AFFINITY_PARAMETER = "cpu_affinity"
 NICE_PARAMETER = "nice"
 #: whether a node's process keeps freed memory for reuse (node_runtime.apply_process_settings)
 KEEP_FREED_MEMORY_PARAMETER = "keep_freed_memory"
+#: the rclpy executor that spins a node's process (node_runtime.spin_until_stopped)
+EXECUTOR_PARAMETER = "executor"
+#: its values: rclpy's EventsExecutor (the default) or its SingleThreadedExecutor
+EXECUTORS = ("events", "single_threaded")
 #: parameters every node process takes besides its core's config (node_runtime), passed over by
 #: :func:`config_from_values` when an offline tool builds a core's config from a node's section
-PROCESS_PARAMETERS = (CPU_AFFINITY_PARAMETER, NICE_PARAMETER, KEEP_FREED_MEMORY_PARAMETER)
+PROCESS_PARAMETERS = (
+    CPU_AFFINITY_PARAMETER,
+    NICE_PARAMETER,
+    KEEP_FREED_MEMORY_PARAMETER,
+    EXECUTOR_PARAMETER,
+)
 
 
 class ParameterError(ValueError):

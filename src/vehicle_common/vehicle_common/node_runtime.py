@@ -13,7 +13,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import signal
+import sys
 import time
 from collections.abc import Callable, Iterable
 
@@ -60,6 +63,7 @@ class NodeHealth:
             self._busy(),
             matched,
             self.counter.processing_ms(),
+            os.getpid(),
         )
 
     def _check(self) -> None:
@@ -145,6 +149,34 @@ class StopRequest:
             raise KeyboardInterrupt
 
 
+def _has_fileno(stream) -> bool:
+    try:
+        stream.fileno()
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation: both
+        return False
+    return True
+
+
+def make_executor(kind: str, context):
+    """The executor that spins a node's process (its ``executor`` parameter): ``events``,
+    rclpy's EventsExecutor (its wait on the middleware's events is in C++: on this project's
+    nodes about a sixth of the SingleThreadedExecutor's CPU while idle, a quarter per message;
+    docs/ARCHITECTURE.md, "CPU affinity, priority and memory"), or ``single_threaded``."""
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        # its constructor enables faulthandler on sys.stderr, which needs a file descriptor:
+        # not there when stderr is replaced (pytest's capture, a host application's stream)
+        if _has_fileno(sys.stderr):
+            return EventsExecutor(context=context)
+        if _has_fileno(sys.__stderr__):
+            with contextlib.redirect_stderr(sys.__stderr__):
+                return EventsExecutor(context=context)
+    from rclpy.executors import SingleThreadedExecutor
+
+    return SingleThreadedExecutor(context=context)
+
+
 def spin_until_stopped(
     node,
     stop: StopRequest,
@@ -155,9 +187,7 @@ def spin_until_stopped(
     """Spin ``node`` until a stop signal (or ``done()``), then call ``on_stop`` (e.g. drain the
     frame workers), publish the final report and log the exit line. rclpy is left initialised
     (the caller destroys the node and calls ``rclpy.try_shutdown``)."""
-    from rclpy.executors import SingleThreadedExecutor
-
-    executor = SingleThreadedExecutor(context=node.context)
+    executor = make_executor(getattr(node, "executor_kind", "events"), node.context)
     executor.add_node(node)
     stop.arm()
     try:
@@ -181,7 +211,9 @@ def apply_process_settings(node) -> None:
     - ``nice``: the niceness of its threads, as ``nice -n`` (0 = as started; 1..19 lower
       priority), and of its session group where it leads one (:mod:`.process_priority`);
     - ``keep_freed_memory`` (true): freed memory stays in the process for reuse, so that a
-      frame's large buffers cost no fresh pages (:mod:`.malloc_policy`).
+      frame's large buffers cost no fresh pages (:mod:`.malloc_policy`);
+    - ``executor``: ``events`` (rclpy's EventsExecutor, the default) or ``single_threaded``,
+      the executor :func:`spin_until_stopped` spins the node with (``node.executor_kind``).
 
     Called first in each node's construction, so that the threads started later inherit them.
     A value this process cannot take is a ParameterError naming the parameter; a platform
@@ -192,6 +224,8 @@ def apply_process_settings(node) -> None:
     from .malloc_policy import keep_freed_memory
     from .node_parameters import (
         CPU_AFFINITY_PARAMETER,
+        EXECUTOR_PARAMETER,
+        EXECUTORS,
         KEEP_FREED_MEMORY_PARAMETER,
         NICE_PARAMETER,
         ParameterError,
@@ -211,6 +245,12 @@ def apply_process_settings(node) -> None:
         KEEP_FREED_MEMORY_PARAMETER, True, ParameterDescriptor(dynamic_typing=True)
     ).value
     keep = check_value(KEEP_FREED_MEMORY_PARAMETER, raw_keep, True)
+    raw_executor = node.declare_parameter(
+        EXECUTOR_PARAMETER, EXECUTORS[0], ParameterDescriptor(dynamic_typing=True)
+    ).value
+    node.executor_kind = check_value(
+        EXECUTOR_PARAMETER, raw_executor, EXECUTORS[0], {"choices": EXECUTORS}
+    )
     try:
         cpus = check_cpu_list(text)
     except ValueError as exc:

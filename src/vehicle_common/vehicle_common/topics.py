@@ -82,6 +82,11 @@ TYPES = {
 #: topics whose publishers keep their last message for late subscribers (TRANSIENT_LOCAL, as
 #: tf2's static broadcaster); their subscribers (the recorder) ask for it too
 TRANSIENT_LOCAL = (TF_STATIC,)
+#: KEEP_LAST depth of a processing node's frame inputs (images, 2D detection arrays): a burst
+#: of this many frames that its executor takes late is still seen, dropped and counted by the
+#: node itself (only the newest frame is processed); older ones are never taken (0.5 s at
+#: 10 Hz). docs/ARCHITECTURE.md, "Topics".
+INPUT_DEPTH = 5
 #: what the bag recorder records by default (the graph's recorder node subscribes to these)
 RECORDED = (
     LEFT_INFO,
