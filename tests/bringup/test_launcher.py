@@ -199,8 +199,8 @@ def test_node_reports_are_filed_by_node_name_within_the_graphs_namespace(tmp_pat
 def test_a_stopped_process_is_a_stall_even_without_its_reports(tmp_path):
     """A node whose process is stopped (SIGSTOP, a debugger) stops the run naming it after
     ``stall_timeout`` s, also when none of its /diagnostics reports ever reached the launcher
-    (it happens: the launcher's DDS participant never received one node's reports in about 1
-    run in 6 of the frozen-node test, and once in CI, so the stop went unnoticed for 60 s)."""
+    (it happens: the launcher's DDS participant never received one node's reports in 3 of 16
+    runs of the frozen-node test, and once in CI, so the stop went unnoticed for 60 s)."""
     import signal
     import time
 

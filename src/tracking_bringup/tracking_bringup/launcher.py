@@ -13,7 +13,7 @@ in process without progress, for ``stall_timeout`` s: a frozen or hung process; 
 stopped, state T in /proc, for as long: SIGSTOP, a debugger) ends the run with exit code 1
 naming it, and is killed (``ProgressWatch``). The process state is read as well because the
 launcher's DDS participant sometimes never receives one node's reports (the other nodes do:
-seen about 1 run in 6 here, and once in CI), which left a stopped node unnoticed.
+seen in 3 of 16 runs here, and once in CI), which left a stopped node unnoticed.
 
 Stopping (end of the sequence, Ctrl-C or SIGTERM): the sources are stopped first, the frames in
 flight are let through the graph (until every node reports on /diagnostics that it holds no
