@@ -215,11 +215,15 @@ def apply_process_settings(node) -> None:
     - ``executor``: ``events`` (rclpy's EventsExecutor, the default) or ``single_threaded``,
       the executor :func:`spin_until_stopped` spins the node with (``node.executor_kind``).
 
+    numpy's BLAS runs on one thread in every node (:mod:`.blas_threads`: its idle threads spun
+    after each small matrix product; the nodes' parallel work is in OpenCV and ONNX Runtime).
+
     Called first in each node's construction, so that the threads started later inherit them.
     A value this process cannot take is a ParameterError naming the parameter; a platform
     without affinities, priorities or ``mallopt`` logs a warning and runs on."""
     from rcl_interfaces.msg import ParameterDescriptor
 
+    from .blas_threads import set_blas_threads
     from .cpu_affinity import check_cpu_list, pin_process
     from .malloc_policy import keep_freed_memory
     from .node_parameters import (
@@ -255,6 +259,7 @@ def apply_process_settings(node) -> None:
         cpus = check_cpu_list(text)
     except ValueError as exc:
         raise ParameterError(CPU_AFFINITY_PARAMETER, str(exc)) from None
+    set_blas_threads(1)
     if keep:
         try:
             keep_freed_memory()
