@@ -1,9 +1,10 @@
 """Benchmark of the 2D vehicle detector: accuracy and CPU inference time.
 
 Prints, for the shipped (or a given) checkpoint:
-- on the detector's fixed real validation split (detector_node.real_split: ../shared/kitti
-  tracking 0001 and 0005, the tracking keyframes of 0001/0005/0008/0010 and object frames
-  000060-000079, 99 frames; never trained on), with --parts on each of its three parts, and on a
+- on the detector's fixed real reporting split (detector_node.real_split since issue 34: every
+  labelled frame in ../shared/kitti of tracking sequences 0001, 0005, 0008 and 0010: tracking
+  0001 and 0005, their tracking keyframes and the 11 object frames that are frames of them, 90
+  frames; never trained on, no choice made on it), with --parts on each of its three parts, and on a
   held-out synthetic sequence (generated here with a seed not used for training,
   or given with --synthetic ROOT:SEQ): 2D AP at IoU 0.5 and 0.7 (eval_node.detection_metrics:
   KITTI devkit AP_R40 per difficulty, and the detector's own all-boxes VOC AP), orientation
@@ -18,11 +19,13 @@ Prints, for the shipped (or a given) checkpoint:
   graph's detector setting),
   the CenterNet on ONNX Runtime when installed (``--runtime``; with --compare-torch on PyTorch
   beside it), 3
-  warm-up runs, the ratio to tiny_kitti and the load average before and after.
+  warm-up runs, the ratio to tiny_kitti and the load average before and after;
+- with ``--also CHECKPOINT`` (e.g. the previous release's file), the same figures of that
+  checkpoint on the same real frames, and its time in the same run, interleaved.
 
-Usage: python bench/bench_detector.py [--checkpoint PT|NAME] [--synthetic ROOT:SEQ] [--threads 2]
-       [--skip-synthetic] [--skip-timing] [--skip-real] [--parts] [--runs 20] [--with-full]
-       [--input-width W --input-height H] [--json FILE]
+Usage: python bench/bench_detector.py [--checkpoint PT|NAME] [--also PT|NAME] [--threads 1]
+       [--synthetic ROOT:SEQ] [--skip-synthetic] [--skip-timing] [--skip-real] [--parts]
+       [--runs 20] [--with-full] [--input-width W --input-height H] [--json FILE]
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from detector_node.checkpoint import SHIPPED_CHECKPOINT, load_checkpoint
 from detector_node.dataset import frames_from_source, label_bin
 from detector_node.inference import CnnDetector
 from detector_node.model import YoloV2Passthrough, preset
-from detector_node.real_split import val_sources
+from detector_node.real_split import report_sources
 from detector_node.validation import FrameResult, evaluate_frames
 from vehicle_common.kitti import KittiObject, read_png
 from vehicle_common.malloc_policy import keep_freed_memory
@@ -191,6 +194,12 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     p.add_argument("--checkpoint", default="", help="detector checkpoint ('' = shipped)")
+    p.add_argument(
+        "--also",
+        default="",
+        help="a second checkpoint (file or name, e.g. the previous release's) scored on the same "
+        "real frames and timed in the same run, its runs interleaved with the checkpoint's",
+    )
     p.add_argument("--synthetic", help="held-out synthetic data ROOT:SEQ (default: generate)")
     p.add_argument("--frames", type=int, default=100, help="frames of the generated sequence")
     p.add_argument(
@@ -204,9 +213,9 @@ def main() -> None:
     )
     p.add_argument("--score-threshold", type=float, default=0.05)
     p.add_argument("--skip-timing", action="store_true")
-    p.add_argument("--skip-synthetic", action="store_true", help="real validation frames only")
+    p.add_argument("--skip-synthetic", action="store_true", help="real reporting frames only")
     p.add_argument("--json", type=Path, help="also write the figures to this JSON file")
-    p.add_argument("--parts", action="store_true", help="also each part of the validation split")
+    p.add_argument("--parts", action="store_true", help="also each part of the reporting split")
     p.add_argument("--skip-real", action="store_true", help="no real-data evaluation")
     p.add_argument("--input-width", type=int, default=0, help="override (0 = checkpoint's)")
     p.add_argument("--input-height", type=int, default=0, help="override (0 = checkpoint's)")
@@ -243,25 +252,35 @@ def main() -> None:
         input_height=args.input_height,
         runtime=args.runtime,
     )
-    c = det.config
-    print(
-        f"checkpoint: {args.checkpoint or 'shipped'}: {c.size} (width {c.width}, depth "
-        f"{c.depth}), input {c.input_width}x{c.input_height}, runtime {det.runtime}, threads "
-        f"{args.threads}"
-    )
+    dets = {"": det}
+    if args.also:
+        dets["also"] = CnnDetector.from_checkpoint(
+            args.also, "cpu", score_threshold=args.score_threshold, runtime=args.runtime
+        )
+    for key, d in dets.items():
+        c = d.config
+        print(
+            f"{key or 'checkpoint'}: {(args.also if key else args.checkpoint) or 'shipped'}: "
+            f"{c.size} (width {c.width}, depth {c.depth}), input {c.input_width}x"
+            f"{c.input_height}, runtime {d.runtime}, threads {args.threads}"
+        )
     results = {}
     if args.skip_real:
         pass
     elif (SHARED_KITTI / "README.md").is_file():
-        val = val_sources(SHARED_KITTI)
-        results["real_val"] = evaluate(
-            det,
-            val,
-            "real validation split (0001, 0005, keyframes of 0001/0005/0008/0010, object 60-79)",
-        )
-        if args.parts:
-            for key, spec in zip(("tracking", "keyframes", "object"), val, strict=True):
-                results[f"real_val_{key}"] = evaluate(det, [spec], f"validation part: {key}")
+        val = report_sources(SHARED_KITTI)
+        for pre, d in dets.items():
+            tag = f"[{args.also}] " if pre else ""
+            results[f"{pre}real_val"] = evaluate(
+                d,
+                val,
+                f"{tag}real reporting split (every frame here of sequences 0001, 0005, 0008, "
+                "0010: tracking, keyframes, object frames)",
+            )
+            if args.parts:
+                for key, spec in zip(("tracking", "keyframes", "object"), val, strict=True):
+                    label = f"{tag}reporting part: {key}"
+                    results[f"{pre}real_val_{key}"] = evaluate(d, [spec], label)
     else:
         print(f"\n(real KITTI frames not found at {SHARED_KITTI}; skipped)")
     if not args.skip_synthetic:
@@ -282,6 +301,8 @@ def main() -> None:
             f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}"
         )
         models = {f"checkpoint ({det.runtime})": det}
+        if args.also:
+            models[f"also {args.also} ({dets['also'].runtime})"] = dets["also"]
         if det.runtime != "torch" and args.compare_torch:
             models["checkpoint (torch)"] = CnnDetector(det.model, "cpu", 0.3, runtime="torch")
         base, _ = load_checkpoint(BASELINE, "cpu")
@@ -296,6 +317,10 @@ def main() -> None:
             print(f"  {k:34s} {1000 * v:7.1f} ms  {1 / v:5.1f} fps")
         ratio = t["checkpoint"] / t["baseline tiny_kitti"]
         print(f"  checkpoint / tiny_kitti time ratio: {ratio:.2f} (same run)")
+        if args.also:
+            also = t[f"also {args.also} ({dets['also'].runtime})"]
+            results["timing_ratio_to_also"] = t["checkpoint"] / also
+            print(f"  checkpoint / {args.also} time ratio: {t['checkpoint'] / also:.2f} (same run)")
         print(f"  load average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
         results["timing_s"] = t
         results["timing_ratio_to_tiny_kitti"] = ratio

@@ -4,10 +4,13 @@ Used by ``bench/bench_tracker.py real --source camera`` (issue 23's camera bench
 detector core (``detector_node.inference.CnnDetector``: the ``vehicle_detector`` node's
 inference, the graph's score threshold and NMS) runs offline on the detector VALIDATION frames
 fixed by the lead (interfaces.md): every frame of tracking sequences 0005 and 0001 here, the
-``tracking_keyframes`` of 0005, 0001, 0008 and 0010, and object frames 000060-000079; frames
-the checkpoint was trained on (``detector_node.real_split``'s training tracking sequences and
-object ids) are left out. Detections are matched to the labels (2D IoU >= 0.5, by score); the
-statistics, per labelled Car:
+``tracking_keyframes`` of 0005, 0001, 0008 and 0010, and the object frames that are frames of
+these sequences (``detector_node.real_split.REPORT_OBJECT_IDS`` since issue 34, when these four
+sequences became the detector's reporting split; object frames 000060-000079 before); frames
+of ``detector_node.real_split``'s training tracking sequences and object ids are left out
+(the split of the current checkpoint: the former one trained on 8 of those 11 object frames).
+Detections are matched to the labels (2D IoU >= 0.5, by score); the statistics, per labelled
+Car:
 
 - miss rate by box height and by occlusion level (a Car is detected when a detection matches
   it); truncated Cars (truncation > 0.3) and Cars under 10 px are kept apart;
@@ -34,6 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from detector_node.real_split import REPORT_OBJECT_IDS
 
 REPO = Path(__file__).resolve().parent.parent
 KITTI = REPO.parent / "shared" / "kitti"
@@ -41,7 +45,9 @@ CACHE = REPO / ".cache" / "camera_stats"
 #: The detector VALIDATION frames of interfaces.md (lead's decision 4)
 VALIDATION_SEQUENCES = ("0005", "0001")  # every frame of these here
 VALIDATION_KEYFRAME_SEQUENCES = ("0005", "0001", "0008", "0010")
-VALIDATION_OBJECT_IDS = tuple(range(60, 80))
+#: the object frames that are frames of these sequences (detector_node.real_split, issue 34;
+#: object 60-79 until then)
+VALIDATION_OBJECT_IDS = REPORT_OBJECT_IDS
 HEIGHT_BINS = (0.0, 25.0, 40.0, 60.0, 100.0, math.inf)  # [px] box height
 VEHICLES = ("Car", "Van", "Truck", "Tram")
 SCHEMA = 3
@@ -63,10 +69,7 @@ def validation_frames(kitti: Path = KITTI) -> list[LabelledFrame]:
     # whole tracking sequences the shipped checkpoint trained on (none since the pretrained
     # CenterNet: it trains on keyframes of other sequences; tiny_kitti.pt trained on 0001)
     trained_seqs = set(getattr(real_split, "TRAIN_TRACKING_SEQUENCES", ()))
-    trained_ids: set[int] = set()
-    for item in real_split.TRAIN_OBJECT_IDS.split(","):
-        lo, _, hi = item.partition("-")
-        trained_ids.update(range(int(lo), int(hi or lo) + 1))
+    trained_ids = set(real_split.TRAIN_OBJECT_ID_LIST)
     tracking = kitti / "tracking" / "training"
     out, seen = [], set()
     for seq in VALIDATION_SEQUENCES:

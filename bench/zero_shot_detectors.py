@@ -31,7 +31,7 @@ from detector_node.boxes import nms  # noqa: E402
 from detector_node.inference import Detection  # noqa: E402
 from detector_node.model import preset  # noqa: E402
 from detector_node.pretrained import centernet_json  # noqa: E402
-from detector_node.real_split import val_sources  # noqa: E402
+from detector_node.real_split import report_sources  # noqa: E402
 from detector_node.tfjs_graph import TfjsGraph, read_tfjs_model  # noqa: E402
 
 COCO_CAR = 2
@@ -202,7 +202,7 @@ def main() -> None:
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)
-    val = val_sources(SHARED_KITTI)
+    val = report_sources(SHARED_KITTI)
     print(f"load average {os.getloadavg()}")
     for s in [] if args.skip_centernet else args.sizes:
         w, h = map(int, s.split("x"))

@@ -198,3 +198,119 @@ def test_crop_keeps_the_occlusion_flags_of_the_boxes_it_keeps():
     c = crop_sample(s, 0, 0, 100, 60)
     assert len(c.boxes) == 1
     np.testing.assert_array_equal(c.occluded, [2])
+
+
+class _FlipAlways:
+    """A generator stand-in whose draws make the training mix flip (random() = 0)."""
+
+    def __init__(self, seed=0):
+        self._rng = np.random.default_rng(seed)
+
+    def random(self, *a, **k):
+        return 0.0
+
+    def __getattr__(self, name):
+        return getattr(self._rng, name)
+
+
+def test_centernet_training_path_flips_alpha_to_pi_minus_alpha_bins_and_boxes():
+    """The mirror augmentation as the CenterNet training sees it (TrainingMix.make, as
+    detector_train draws both its fresh samples and its feature bank, then the CenterNet
+    targets): alpha -> pi - alpha, bins 45 <-> 135 (0 and 90 stay), boxes mirrored."""
+    from detector_node.centernet import build_targets
+    from detector_node.dataset import sample_alphas
+
+    alphas = np.radians([10.0, 45.0, 90.0, 135.0, -30.0, -150.0]).astype(np.float32)
+    boxes = [[10 + 30 * i, 20, 30 + 30 * i, 50] for i in range(len(alphas))]
+    s = _sample(boxes, [alpha_to_bin(a) for a in alphas], w=256, h=64)
+    s.alphas = alphas
+    mix = TrainingMix(
+        [Source("real", "real", [s])],
+        256,
+        64,
+        AugmentConfig(flip=True, photometric=False, crop_probability=0, paste_probability=0),
+    )
+    out = mix.make(0, 0, _FlipAlways())
+    flipped = sample_alphas(out)
+    np.testing.assert_allclose(flipped, [flip_alpha(a) for a in alphas], atol=1e-6)
+    np.testing.assert_allclose(np.degrees(flipped[:4]), [170.0, 135.0, 90.0, 45.0], atol=1e-4)
+    assert out.bins.tolist() == [0, 3, 2, 1, 1, 3]  # before: 0, 1, 2, 3, 3, 1
+    np.testing.assert_allclose(out.boxes[:, [0, 2]], 256 - s.boxes[:, [2, 0]])
+    np.testing.assert_allclose(out.boxes[:, [1, 3]], s.boxes[:, [1, 3]])
+    assert np.array_equal(out.image, s.image[:, ::-1])
+    # the CenterNet's orientation targets follow: true 45 deg trains bin 135 once mirrored
+    _, _, _, _, _, bins, res = build_targets([out.boxes], [flipped], [out.dontcare], 16, 64)
+    assert bins.tolist() == [0, 3, 2, 1, 1, 3]
+    np.testing.assert_allclose(np.degrees(res[:2]), [-10.0, 0.0], atol=1e-4)
+    # and a mix without the flip leaves them as labelled
+    mix.aug.flip = False
+    kept = mix.make(0, 0, _FlipAlways())
+    np.testing.assert_allclose(sample_alphas(kept), alphas)
+    assert kept.bins.tolist() == [0, 1, 2, 3, 3, 1]
+
+
+def test_boxes_keep_where_they_were_seen_through_crops_pastes_framing_and_flips():
+    """``Sample.view`` (``detector_train --true-view``): the box centre in its own frame as
+    inference frames it (below roi_top), normalised; scale jitter and crops move the box in
+    the input, not its view; a flip mirrors it; a pasted car keeps its source's view."""
+    from dataclasses import replace
+
+    from detector_node.dataset import sample_view
+
+    s = _sample([[100, 60, 140, 90], [10, 50, 50, 80]], [2, 3], w=400, h=100)
+    s.alphas = np.radians([90.0, 130.0]).astype(np.float32)
+    crops = collect_car_crops([replace(s, view=np.array([[0.3, 0.75], [0.075, 0.65]]))])
+    assert [c.view for c in crops] == [(0.3, 0.75), (0.075, 0.65)]
+    mix = TrainingMix(
+        [Source("real", "real", [s])],
+        200,
+        40,
+        AugmentConfig(
+            flip=False, photometric=False, crop_probability=1.0, paste_probability=0.0, roi_top=0.2
+        ),
+    )
+    moved = 0
+    for seed in range(6):
+        out = mix.make(0, 0, np.random.default_rng(seed))
+        expect = {0: (0.3, (75 - 20) / 80), 1: (0.075, (65 - 20) / 80)}  # below the top 20 %
+        now = sample_view(replace(out, view=None))  # where the boxes are in the input
+        for k, v in enumerate(out.view):
+            i = 0 if np.isclose(v[0], 0.3) else 1
+            np.testing.assert_allclose(v, expect[i], atol=1e-6)
+            moved += not np.allclose(now[k], expect[i], atol=0.01)
+    assert moved  # the crops did move boxes in the input
+    f = flip_sample(out)
+    np.testing.assert_allclose(f.view[:, 0], 1.0 - out.view[:, 0])
+    np.testing.assert_allclose(f.view[:, 1], out.view[:, 1])
+    # a pasted car keeps its source's view (mirrored with it), the frame's own boxes theirs
+    bg = _sample([[300, 60, 340, 90]], [2], w=400, h=100)
+    rows = RowSizeModel(0.5, 20.0, 0.0, (70.0, 95.0))
+    got = paste_cars(bg, crops[:1], rows, np.random.default_rng(1), 1)
+    assert len(got.boxes) == 2
+    np.testing.assert_allclose(got.view[0], [0.8, 0.75])
+    assert any(np.allclose(got.view[1], v) for v in ([0.3, 0.75], [0.7, 0.75]))
+    assert not np.allclose(sample_view(replace(got, view=None))[1], got.view[1], atol=0.01)
+
+
+def test_orientation_head_takes_the_view_in_place_of_the_box_position():
+    """With a view the head's position inputs are the view (training with --true-view); without
+    one, the box centre in the input (inference): the same when the view is that centre."""
+    from types import SimpleNamespace
+
+    from detector_node.centernet import CenterNetDetector
+
+    torch.manual_seed(0)
+    head = torch.nn.Linear(128 * 9 + 3, 9)
+    fake = SimpleNamespace(orientation=head, geo_frame=None)
+    f = torch.randn(1, 128, 8, 16)  # an input of 64 x 32 px at stride 4
+    boxes = torch.tensor([[8.0, 4.0, 24.0, 20.0], [30.0, 10.0, 50.0, 28.0]])
+    batch = torch.zeros(2, dtype=torch.long)
+    at = CenterNetDetector.orientation_at
+    here = torch.tensor([[16.0 / 64, 12.0 / 32], [40.0 / 64, 19.0 / 32]])
+    torch.testing.assert_close(at(fake, f, batch, boxes, here), at(fake, f, batch, boxes))
+    elsewhere = torch.tensor([[0.9, 0.5], [0.1, 0.5]])
+    moved = at(fake, f, batch, boxes, elsewhere) - at(fake, f, batch, boxes)
+    assert (moved.abs() > 1e-6).all()
+    # only the position inputs differ: exactly the head's weights on them times the shift
+    shift = torch.cat([torch.zeros(2, 1), elsewhere - here], 1)
+    torch.testing.assert_close(moved, shift @ head.weight[:, -3:].T)

@@ -149,23 +149,3 @@ def test_train_cli_mixes_real_partial_synthetic_and_starts_from_init(tmp_path, c
     assert state["epoch"] == 0 and len(model.config.anchors) == 5
     bad = [a if a != f"{crops}@1" else f"{crops}@many" for a in args]
     assert train_main(bad) == 2
-
-
-def test_real_split_is_disjoint_and_reads_every_frame_size(shared_kitti):
-    from detector_node.dataset import frames_from_source, load_full_sample
-    from detector_node.real_split import partial_source, train_sources, val_sources
-
-    val = [r for s in val_sources(shared_kitti) for r in frames_from_source(s)]
-    train = [r for s in train_sources(shared_kitti) for r in frames_from_source(s)]
-    assert len(val) == 99 and len(train) == 123
-    assert not {r.image_path for r in val} & {r.image_path for r in train}
-    n_car = sum(o.type == "Car" for r in val for o in r.objects)
-    assert n_car == 463
-    # keyframes are labelled from the tracking labels of their sequence and frame
-    assert any(r.name.startswith("kf0008/") and r.objects for r in val)
-    sizes = {load_full_sample(r, ("Car",)).image.shape[:2] for r in train}
-    assert (375, 1242) in sizes and len(sizes) > 1  # object frames of other sizes are read
-    crops = frames_from_source(partial_source(shared_kitti))
-    assert len(crops) == 145 and not {"000135", "000138", "000218"} & {
-        r.image_path.stem for r in crops
-    }

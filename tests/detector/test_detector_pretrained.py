@@ -474,6 +474,19 @@ def test_train_cli_centernet_orientation_head_from_the_package(tmp_path, capsys)
     assert not torch.equal(model.orientation[-1].weight, start.orientation[-1].weight)
     assert train_main(args + ["--feature-bank", "2"]) == 2  # a bank needs a frozen graph
     assert "--freeze-backbone" in capsys.readouterr().err
+    # a cached bank is written once and read back by a recipe that trains other heads, in
+    # micro-batches; another seed is another bank
+    cache = tmp_path / "bank.pt"
+    heads = args + ["--freeze-backbone", "--feature-bank", "2", "--bank-cache", str(cache)]
+    assert train_main(heads + ["--micro-batch", "1"]) == 0
+    assert "feature bank: 2 samples in" in capsys.readouterr().out and cache.is_file()
+    first = load_checkpoint(out / "final.pt")[0].box.pointwise.weight.clone()
+    assert train_main(heads + ["--micro-batch", "1"]) == 0
+    assert f"feature bank: 2 samples read from {cache}" in capsys.readouterr().out
+    torch.testing.assert_close(load_checkpoint(out / "final.pt")[0].box.pointwise.weight, first)
+    assert not torch.equal(first, start.box.pointwise.weight)  # the box head trains here
+    assert train_main(heads + ["--seed", "1"]) == 0
+    assert "holds another bank: rebuilt" in capsys.readouterr().out
 
 
 def test_default_checkpoint_finds_real_cars_with_their_angle(shared_kitti):
@@ -497,3 +510,80 @@ def test_default_checkpoint_finds_real_cars_with_their_angle(shared_kitti):
     assert (best >= 0.5).all() and best.mean() >= 0.65 and (best >= 0.7).sum() >= 1, best
     assert all(d.observation_angle_variance > 0 for d in dets)
     assert all(-math.pi / 2 <= d.observation_angle < math.pi / 2 for d in dets)
+
+
+def _loss_batch():
+    """A batch of 4 images with Cars of known and unknown alpha for the CenterNet loss."""
+    rng = np.random.default_rng(3)
+    boxes, alphas, dontcare = [], [], []
+    for i in range(4):
+        n = i + 1
+        x1 = rng.uniform(0, 200, n)
+        y1 = rng.uniform(0, 40, n)
+        b = np.stack([x1, y1, x1 + rng.uniform(12, 50, n), y1 + rng.uniform(10, 30, n)], 1)
+        a = rng.uniform(-math.pi, math.pi, n)
+        a[rng.random(n) < 0.3] = np.nan  # some unknown
+        boxes.append(b.astype(np.float32))
+        alphas.append(a.astype(np.float32))
+        dontcare.append(np.array([[0.0, 0.0, 8.0 * i, 8.0]], np.float32).reshape(-1, 4))
+    return boxes, alphas, dontcare
+
+
+@pytest.mark.parametrize("options", [{}, {"bin_weights": (1.0, 2.0, 0.5, 1.5)}, {"smooth": 0.2}])
+def test_micro_batches_with_the_batch_normalisers_sum_to_the_whole_batch_loss(options):
+    """``detector_train --micro-batch``: the losses (and so the gradients) of the micro-batches,
+    each normalised by the whole batch's denominators, add up to the whole batch's loss."""
+    import torch
+    from detector_node.centernet import centernet_loss, loss_normalisers
+
+    boxes, alphas, dontcare = _loss_batch()
+    torch.manual_seed(0)
+    raw = torch.randn(4, 5, 16, 64, requires_grad=True)
+    head = torch.randn(64, 9, requires_grad=True)  # one orientation row per box, in order
+    bw, smooth = options.get("bin_weights"), options.get("smooth", 0.0)
+
+    def loss_of(lo, hi, norm):
+        first = sum(len(b) for b in boxes[:lo])
+
+        def orientation(batch, gt):
+            rows = [first + j for j in range(sum(len(b) for b in boxes[lo:hi]))]
+            known = np.concatenate([np.isfinite(a) for a in alphas[lo:hi]])
+            return head[torch.tensor(rows)[torch.from_numpy(known)]]
+
+        loss, terms = centernet_loss(
+            raw[lo:hi], boxes[lo:hi], alphas[lo:hi], dontcare[lo:hi], None, orientation,
+            bw, True, norm, smooth,
+        )  # fmt: skip
+        return loss, terms
+
+    whole, _ = loss_of(0, 4, None)
+    whole.backward()
+    g_raw, g_head = raw.grad.clone(), head.grad.clone()
+    raw.grad = head.grad = None
+    norm = loss_normalisers(boxes, alphas, dontcare, 16, 64, bw, True)
+    parts = [loss_of(lo, lo + 2, norm)[0] for lo in (0, 2)]
+    total = parts[0] + parts[1]
+    total.backward()
+    assert total.item() == pytest.approx(whole.item(), rel=1e-5)
+    torch.testing.assert_close(raw.grad, g_raw, rtol=1e-4, atol=1e-7)
+    torch.testing.assert_close(head.grad, g_head, rtol=1e-4, atol=1e-7)
+    # without the whole batch's denominators each micro-batch would be its own mean
+    alone = sum(float(loss_of(lo, lo + 2, None)[0]) for lo in (0, 2))
+    assert alone != pytest.approx(float(whole), rel=1e-3)
+
+
+def test_smoothed_bin_targets_share_with_the_neighbours_across_the_fold():
+    from detector_node.centernet import smoothed_bin_targets
+
+    b, r = alpha_to_bin_residual(np.radians([0.0, 170.0, 100.0, 135.0 + 22.5 - 1e-6]))
+    t = smoothed_bin_targets(np.asarray(b), np.asarray(r), 0.2)
+    np.testing.assert_allclose(t.sum(1), 1.0, atol=1e-6)
+    # at a bin centre: 0.1 to each neighbour; bin 0's neighbours are 45 and 135 (across 180)
+    np.testing.assert_allclose(t[0], [0.8, 0.1, 0.0, 0.1], atol=1e-6)
+    # 170 deg = bin 0, residual -10 deg: the nearer neighbour is 135 deg (across the fold)
+    np.testing.assert_allclose(t[1], [0.8, 0.2 * (0.5 - 10 / 45), 0.0, 0.2 * (0.5 + 10 / 45)])
+    # 100 deg = bin 90, residual +10: 135 takes more than 45
+    assert t[2, 3] > t[2, 1] > 0 and t[2, 0] == 0 and t[2, 2] == pytest.approx(0.8)
+    # at the edge of bin 135 towards 180: nearly all the smoothing goes to bin 0
+    assert t[3, 0] == pytest.approx(0.2, abs=1e-5) and t[3, 2] == pytest.approx(0.0, abs=1e-5)
+    assert (smoothed_bin_targets(np.asarray(b), np.asarray(r), 0.0) == np.eye(4)[b]).all()

@@ -280,6 +280,11 @@ def test_orientation_accuracy_and_confusion():
     expected[2, 2] = 1  # pi/2 and -pi/2 fold to the same bin
     expected[1, 3] = 1
     np.testing.assert_array_equal(res.confusion, expected)
+    # a label without an angle (KITTI's -10: 2D-only labels) is matched, not counted
+    gt[0].append(car(0, x1=1000, alpha=-10.0))
+    res = orientation_accuracy(gt, pred)
+    assert res.n_pairs == 4 and res.accuracy == pytest.approx(3 / 4)
+    np.testing.assert_array_equal(res.confusion, expected)
 
 
 def test_labels_against_themselves(kitti_tracking_root):

@@ -18,7 +18,7 @@ import numpy as np
 from vehicle_common.box2d import overlap_over_first
 from vehicle_common.orientation_bins import flip_alpha, flip_bin
 
-from .dataset import Sample, sample_alphas, select_boxes
+from .dataset import Sample, box_view, sample_alphas, sample_view, select_boxes
 
 #: A box cut by a crop stays a positive when at least this share of its area is kept; less
 #: visible boxes become ignore regions (neither positive nor background).
@@ -31,12 +31,17 @@ def _truncation(sample: Sample) -> np.ndarray:
 
 
 def flip_sample(sample: Sample) -> Sample:
-    """Horizontal flip: boxes mirrored, orientation bins 45 <-> 135 (alpha -> pi - alpha)."""
+    """Horizontal flip: boxes mirrored, orientation bins 45 <-> 135 (alpha -> pi - alpha), the
+    boxes' view (:attr:`~detector_node.dataset.Sample.view`) mirrored (x -> 1 - x)."""
     w = sample.image.shape[1]
     b = sample.boxes.copy()
     b[:, [0, 2]] = w - sample.boxes[:, [2, 0]]
     d = sample.dontcare.copy()
     d[:, [0, 2]] = w - sample.dontcare[:, [2, 0]]
+    view = None
+    if sample.view is not None:
+        view = sample.view.copy()
+        view[:, 0] = 1.0 - view[:, 0]
     return replace(
         sample,
         image=np.ascontiguousarray(sample.image[:, ::-1]),
@@ -44,6 +49,7 @@ def flip_sample(sample: Sample) -> Sample:
         bins=flip_bin(sample.bins),
         dontcare=d,
         alphas=None if sample.alphas is None else flip_alpha(sample.alphas).astype(np.float32),
+        view=view,
     )
 
 
@@ -94,7 +100,12 @@ def crop_roi_top(sample: Sample, roi_top: float) -> Sample:
         return sample
     h, w = sample.image.shape[:2]
     top = int(round(roi_top * h))
-    return crop_sample(sample, 0, top, w, h - top)
+    out = crop_sample(sample, 0, top, w, h - top)
+    if out.view is not None:  # the framing is inference's: the view is relative to it
+        view = out.view.copy()
+        view[:, 1] = (view[:, 1] * h - top) / (h - top)
+        out = replace(out, view=view)
+    return out
 
 
 def random_crop(
@@ -214,11 +225,13 @@ class RowSizeModel:
 
 @dataclass
 class CarCrop:
-    """A fully visible car cut from a real frame: its pixels and orientation bin."""
+    """A fully visible car cut from a real frame: its pixels, orientation bin and angle, and
+    where it was seen (its :attr:`~detector_node.dataset.Sample.view` in its frame)."""
 
     patch: np.ndarray
     bin: int
     alpha: float = float("nan")
+    view: tuple[float, float] = (0.5, 0.5)
 
 
 def collect_car_crops(samples: list[Sample], min_height: float = 25.0) -> list[CarCrop]:
@@ -249,7 +262,8 @@ def collect_car_crops(samples: list[Sample], min_height: float = 25.0) -> list[C
             ):
                 continue
             alpha = float(sample_alphas(s)[i])
-            crops.append(CarCrop(s.image[y1:y2, x1:x2].copy(), int(s.bins[i]), alpha))
+            view = tuple(float(v) for v in sample_view(s)[i])
+            crops.append(CarCrop(s.image[y1:y2, x1:x2].copy(), int(s.bins[i]), alpha, view))
     return crops
 
 
@@ -272,12 +286,14 @@ def paste_cars(
     """Paste up to ``count`` random car crops (randomly mirrored) onto the frame: bottom row y2
     uniform in the rows seen in real labels, height from ``rows`` (with its spread), x uniform,
     not touching any existing box, DontCare region or earlier paste. Pasted cars are positives
-    with truncation 0 and their crop's (mirrored) orientation bin."""
+    with truncation 0 and their crop's (mirrored) orientation bin, angle and view (where the car
+    was seen: its angle belongs to that viewing ray, not to the place it is pasted at)."""
     if not crops or count <= 0:
         return sample
     img = sample.image.copy()
     H, W = img.shape[:2]
     boxes, bins, alphas = [sample.boxes.reshape(-1, 4)], [sample.bins], [sample_alphas(sample)]
+    views = [sample_view(sample)]
     occupied = np.concatenate([sample.boxes.reshape(-1, 4), sample.dontcare.reshape(-1, 4)])
     added = 0
     for _ in range(count * tries):
@@ -298,9 +314,10 @@ def paste_cars(
         bw, bh = bx[2] - bx[0], bx[3] - bx[1]
         if bw < 4 or bh < 4:
             continue
-        patch, obin, alpha = crop.patch, crop.bin, crop.alpha
+        patch, obin, alpha, view = crop.patch, crop.bin, crop.alpha, crop.view
         if rng.random() < 0.5:
             patch, obin, alpha = patch[:, ::-1], flip_bin(obin), flip_alpha(alpha)
+            view = (1.0 - view[0], view[1])
         patch = cv2.resize(np.ascontiguousarray(patch), (bw, bh), interpolation=cv2.INTER_AREA)
         mask = _feathered_mask(bh, bw, max(1, min(bw, bh) // 12))
         region = img[bx[1] : bx[3], bx[0] : bx[2]].astype(np.float32)
@@ -309,6 +326,7 @@ def paste_cars(
         boxes.append(box)
         bins.append(np.array([obin], np.int64))
         alphas.append(np.array([alpha], np.float32))
+        views.append(np.array([view], np.float32))
         occupied = np.concatenate([occupied, box])
         added += 1
     if not added:
@@ -320,6 +338,7 @@ def paste_cars(
         boxes=np.concatenate(boxes).astype(np.float32),
         bins=np.concatenate(bins),
         alphas=np.concatenate(alphas).astype(np.float32),
+        view=np.concatenate(views).astype(np.float32),
         truncation=np.concatenate([_truncation(sample), np.zeros(n_new, np.float32)]),
         occluded=None
         if sample.occluded is None
@@ -347,6 +366,7 @@ def paste_native_crop(background: Sample, crop: Sample, x0: int, y0: int) -> Sam
         boxes=np.concatenate([background.boxes[~touch], cboxes]).astype(np.float32),
         bins=np.concatenate([background.bins[~touch], crop.bins]),
         alphas=np.concatenate([sample_alphas(background)[~touch], sample_alphas(crop)]),
+        view=np.concatenate([sample_view(background)[~touch], box_view(cboxes, W, H)]),
         truncation=np.concatenate([_truncation(background)[~touch], _truncation(crop)]),
         occluded=None,
         dontcare=np.concatenate(

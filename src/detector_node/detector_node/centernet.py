@@ -141,8 +141,17 @@ class CenterNetDetector(nn.Module):
         """Feature -> (B, 5, H/4, W/4): heat logit and (l, t, r, b) [input px]."""
         return torch.cat([self.heat(f), self.box(f) * self.box_scale], dim=1)
 
-    def orientation_at(self, f: torch.Tensor, batch: torch.Tensor, boxes: torch.Tensor):
-        """Orientation values (N, 9) of boxes (N, 4) [input px] of images ``batch`` (N,)."""
+    def orientation_at(
+        self,
+        f: torch.Tensor,
+        batch: torch.Tensor,
+        boxes: torch.Tensor,
+        view: torch.Tensor | None = None,
+    ):
+        """Orientation values (N, 9) of boxes (N, 4) [input px] of images ``batch`` (N,).
+        ``view`` (N, 2): where each box was seen, normalised to its frame (training with
+        ``--true-view``: a crop moved it in the input, not its viewing ray); None: where it is
+        in the input (inference)."""
         if not len(boxes):
             return f.new_zeros((0, 2 * NUM_BINS + 1))
         _, c, gh, gw = f.shape
@@ -177,14 +186,11 @@ class CenterNetDetector(nn.Module):
             0.0,
             0.0,
         )
-        geo = torch.stack(
-            [
-                torch.log(w / h) + aspect,
-                (x1 + x2) / 2 * ax + bx - 0.5,
-                (y1 + y2) / 2 * ay + by - 0.5,
-            ],
-            dim=1,
-        )
+        if view is None:
+            cx, cy = (x1 + x2) / 2 * ax + bx, (y1 + y2) / 2 * ay + by
+        else:
+            cx, cy = view[:, 0].to(f.dtype), view[:, 1].to(f.dtype)
+        geo = torch.stack([torch.log(w / h) + aspect, cx - 0.5, cy - 0.5], dim=1)
         return self.orientation(torch.cat([sampled.flatten(1), geo], dim=1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -376,6 +382,55 @@ def ltrb_iou(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return inter / (area_p + area_t - inter).clamp(min=1e-6)
 
 
+def smoothed_bin_targets(bins: np.ndarray, residuals: np.ndarray, smoothing: float) -> np.ndarray:
+    """Soft 4-bin targets (N, 4) of angles given as (bin, residual [rad]): 1 - ``smoothing`` on
+    the true bin, ``smoothing`` shared by its two neighbours on the circle of folded angles
+    (the bins of 0 and 135 deg are neighbours across the 180-deg fold), the nearer one taking
+    more in proportion to the residual: ``smoothing`` x (1/2 +- residual / 45 deg)."""
+    n = len(bins)
+    t = np.zeros((n, NUM_BINS), np.float32)
+    rows = np.arange(n)
+    share = np.clip(0.5 + np.asarray(residuals, float) / MAX_RESIDUAL, 0.0, 1.0)
+    t[rows, bins] = 1.0 - smoothing
+    t[rows, (bins + 1) % NUM_BINS] += smoothing * share
+    t[rows, (bins - 1) % NUM_BINS] += smoothing * (1.0 - share)
+    return t
+
+
+def loss_normalisers(
+    samples_boxes,
+    samples_alphas,
+    samples_dontcare,
+    gh,
+    gw,
+    bin_weights=None,
+    residual_overlap=False,
+) -> dict[str, float]:
+    """The denominators of :func:`centernet_loss`'s terms for a batch: positive heat-map cells,
+    positive boxes, the summed bin weights of the boxes with a known alpha, and the trained
+    residuals. Passed to :func:`centernet_loss` for each micro-batch of the batch, they make
+    the micro-batches' losses sum to the whole batch's (``detector_train --micro-batch``)."""
+    heat_t, _, _, cells, _, bins, res = build_targets(
+        samples_boxes, samples_alphas, samples_dontcare, gh, gw
+    )
+    return _normalisers(heat_t, cells, bins, res, bin_weights, residual_overlap)
+
+
+def _normalisers(heat_t, cells, bins, res, bin_weights, residual_overlap) -> dict[str, float]:
+    known = bins >= 0
+    w = np.ones(NUM_BINS) if bin_weights is None else np.asarray(bin_weights, float)
+    if residual_overlap and known.any():
+        n_res = float(overlap_residual_targets(bins[known], res[known])[1].sum())
+    else:
+        n_res = float(known.sum())
+    return {
+        "heat": float(max(int((heat_t == 1.0).sum()), 1)),
+        "box": float(max(len(cells), 1)),
+        "bin": float(w[bins[known]].sum()) or 1.0,
+        "residual": n_res or 1.0,
+    }
+
+
 def centernet_loss(
     raw,
     samples_boxes,
@@ -385,6 +440,8 @@ def centernet_loss(
     orientation=None,
     bin_weights=None,
     residual_overlap=False,
+    normalisers=None,
+    bin_smoothing=0.0,
 ):
     """CenterNet loss of a batch and its terms: penalty-reduced focal loss on the heat map
     (alpha 2, beta 4; negatives inside DontCare / ignore regions not counted), box L1 (in
@@ -399,22 +456,26 @@ def centernet_loss(
     MultiBin's overlapping bins (Mousavian et al. 2017): the residual of every bin whose centre
     lies within ``MAX_RESIDUAL`` (45 deg) of the true angle is trained, i.e. the true bin's and
     the nearer neighbour's, so that a box whose bin logit picks the neighbour still decodes to
-    the right angle (False: the true bin's residual only)."""
+    the right angle (False: the true bin's residual only). ``normalisers``: the denominators of
+    the terms (:func:`loss_normalisers`; None: this batch's own, each term then a mean); with
+    those of a whole batch, the losses of its micro-batches sum to the batch's.
+    ``bin_smoothing``: the bin cross-entropy against :func:`smoothed_bin_targets` (label
+    smoothing to the two neighbouring bins, across the 180-deg fold too; 0 = one-hot)."""
     w = {"heat": 1.0, "l1": 0.1, "iou": 1.0, "bin": 1.0, "residual": 1.0, **(weights or {})}
     dev = raw.device
     b, _, gh, gw = raw.shape
     heat_t, negw, bi, cells, ltrb, bins, res = build_targets(
         samples_boxes, samples_alphas, samples_dontcare, gh, gw
     )
+    norm = normalisers or _normalisers(heat_t, cells, bins, res, bin_weights, residual_overlap)
     heat_t = torch.from_numpy(heat_t).to(dev)
     negw = torch.from_numpy(negw).to(dev)
     logit = raw[:, HEAT]
     p = torch.sigmoid(logit).clamp(1e-4, 1 - 1e-4)
     pos = heat_t == 1.0
-    n_pos = max(int(pos.sum()), 1)
     pos_loss = -(torch.log(p) * (1 - p) ** 2)[pos].sum()
     neg_loss = -(torch.log(1 - p) * p**2 * (1 - heat_t) ** 4 * negw)[~pos].sum()
-    l_heat = (pos_loss + neg_loss) / n_pos
+    l_heat = (pos_loss + neg_loss) / norm["heat"]
     zero = raw.sum() * 0.0
     l_l1 = l_iou = l_bin = l_res = zero
     if len(cells):
@@ -422,8 +483,8 @@ def centernet_loss(
         cells_t = torch.from_numpy(cells).to(dev)
         vals = raw.flatten(2)[bi_t, :, cells_t]  # (N, 14)
         tgt = torch.from_numpy(ltrb).to(dev)
-        l_l1 = (vals[:, BOX] - tgt).abs().sum(1).mean() / STRIDE
-        l_iou = (1 - ltrb_iou(vals[:, BOX], tgt)).mean()
+        l_l1 = (vals[:, BOX] - tgt).abs().sum(1).sum() / STRIDE / norm["box"]
+        l_iou = (1 - ltrb_iou(vals[:, BOX], tgt)).sum() / norm["box"]
         known = torch.from_numpy(bins >= 0).to(dev)
         if known.any() and orientation is not None:
             gt_boxes = torch.from_numpy(
@@ -432,7 +493,13 @@ def centernet_loss(
             tb = torch.from_numpy(bins).to(dev)[known]
             v = orientation(bi_t[known], gt_boxes[known])
             bw = None if bin_weights is None else v.new_tensor(bin_weights)
-            l_bin = F.cross_entropy(v[:, 0:NUM_BINS], tb, weight=bw)
+            if bin_smoothing > 0:
+                soft = smoothed_bin_targets(bins[bins >= 0], res[bins >= 0], bin_smoothing)
+                ce = -(v.new_tensor(soft) * F.log_softmax(v[:, 0:NUM_BINS], dim=1)).sum(1)
+                l_bin = (ce if bw is None else ce * bw[tb]).sum() / norm["bin"]
+            else:
+                ce = F.cross_entropy(v[:, 0:NUM_BINS], tb, weight=bw, reduction="sum")
+                l_bin = ce / norm["bin"]
             res_raw = v[:, NUM_BINS : 2 * NUM_BINS]
             logvar = v[:, 2 * NUM_BINS].clamp(*LOGVAR_RANGE)
             if residual_overlap:
@@ -440,11 +507,11 @@ def centernet_loss(
                 target, mask = torch.from_numpy(target).to(dev), torch.from_numpy(mask).to(dev)
                 err = MAX_RESIDUAL * torch.tanh(res_raw) - target
                 nll = 0.5 * (err**2 * torch.exp(-logvar)[:, None] + logvar[:, None])
-                l_res = nll[mask].mean()
+                l_res = nll[mask].sum() / norm["residual"]
             else:
                 pred_res = MAX_RESIDUAL * torch.tanh(res_raw.gather(1, tb[:, None])[:, 0])
                 err = pred_res - torch.from_numpy(res).to(dev)[known]
-                l_res = (0.5 * (err**2 * torch.exp(-logvar) + logvar)).mean()
+                l_res = (0.5 * (err**2 * torch.exp(-logvar) + logvar)).sum() / norm["residual"]
     total = (
         w["heat"] * l_heat
         + w["l1"] * l_l1

@@ -63,6 +63,11 @@ class Sample:
     occluded: np.ndarray | None = None
     #: (N,) observation angle alpha [rad] of each box, NaN = unknown (None = all unknown)
     alphas: np.ndarray | None = None
+    #: (N, 2) where each box was seen: its centre (x, y) in the frame it was labelled in, as
+    #: inference frames that frame, normalised to [0, 1]; scale jitter and crops move a box in
+    #: the network input but not its viewing ray (``detector_train --true-view``); None =
+    #: where the box is now
+    view: np.ndarray | None = None
 
 
 def sample_alphas(sample: Sample) -> np.ndarray:
@@ -72,9 +77,23 @@ def sample_alphas(sample: Sample) -> np.ndarray:
     return sample.alphas
 
 
+def box_view(boxes: np.ndarray, width: float, height: float) -> np.ndarray:
+    """(N, 2) box centres normalised by the frame size (see :attr:`Sample.view`)."""
+    b = np.asarray(boxes, np.float32).reshape(-1, 4)
+    return np.stack([(b[:, 0] + b[:, 2]) / (2 * width), (b[:, 1] + b[:, 3]) / (2 * height)], 1)
+
+
+def sample_view(sample: Sample) -> np.ndarray:
+    """(N, 2) :attr:`Sample.view` of a sample's boxes (where they are now when not set)."""
+    if sample.view is not None:
+        return sample.view
+    h, w = sample.image.shape[:2]
+    return box_view(sample.boxes, w, h)
+
+
 def select_boxes(sample: Sample, keep: np.ndarray) -> Sample:
     """``sample`` with only the boxes where ``keep`` holds, and their per-box fields (bins,
-    truncation, occlusion) with them."""
+    truncation, occlusion, alphas, view) with them."""
     return replace(
         sample,
         boxes=sample.boxes[keep],
@@ -82,6 +101,7 @@ def select_boxes(sample: Sample, keep: np.ndarray) -> Sample:
         truncation=None if sample.truncation is None else sample.truncation[keep],
         occluded=None if sample.occluded is None else sample.occluded[keep],
         alphas=None if sample.alphas is None else sample.alphas[keep],
+        view=None if sample.view is None else sample.view[keep],
     )
 
 

@@ -38,6 +38,7 @@ from .dataset import (
     load_sample,
     parse_weighted_source,
     sample_alphas,
+    sample_view,
     sources_from_args,
 )
 from .inference import choose_device, decode_output, to_tensor
@@ -140,12 +141,26 @@ class BankItem:
     boxes: np.ndarray
     alphas: np.ndarray
     dontcare: np.ndarray
+    view: np.ndarray  # (N, 2) Sample.view
 
 
 def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> list[BankItem]:
     """``--feature-bank N`` augmented samples drawn once from the training mix (same pipeline and
     weights as the epochs), passed through the frozen graph; the epochs then train the heads on
-    these stored features (float16)."""
+    these stored features (float16). With ``--bank-cache FILE`` the bank is read from FILE when
+    FILE holds the bank of the same data, augmentation, seed, size and initial weights, else
+    built and written there (recipes that differ only in how the heads train share it)."""
+    key = _bank_key(model, args)
+    if args.bank_cache and args.bank_cache.is_file():
+        stored = torch.load(args.bank_cache, weights_only=True)
+        if stored.get("key") == key:
+            bank = [
+                BankItem(f, b.numpy(), a.numpy(), d.numpy(), v.numpy())
+                for f, b, a, d, v in zip(*(stored[k] for k in "fbadv"), strict=True)
+            ]
+            print(f"feature bank: {len(bank)} samples read from {args.bank_cache}", flush=True)
+            return bank
+        print(f"feature bank: {args.bank_cache} holds another bank: rebuilt", flush=True)
     rng = np.random.default_rng([args.seed, 7919])
     order = mix.draw(args.feature_bank, rng)
     bank: list[BankItem] = []
@@ -154,11 +169,46 @@ def _feature_bank(model, mix: TrainingMix, args: argparse.Namespace, device) -> 
     with torch.no_grad():
         for start in range(0, len(order), args.batch_size):
             batch = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
-            f = model.features(to_tensor([s.image for s in batch], device))
+            size = args.micro_batch if args.micro_batch > 0 else len(batch)
+            f = torch.cat(
+                [
+                    model.features(to_tensor([s.image for s in batch[j : j + size]], device))
+                    for j in range(0, len(batch), size)
+                ]
+            )
             for s, fi in zip(batch, f, strict=True):
-                bank.append(BankItem(fi.half().cpu(), s.boxes, sample_alphas(s), s.dontcare))
+                bank.append(
+                    BankItem(fi.half().cpu(), s.boxes, sample_alphas(s), s.dontcare, sample_view(s))
+                )
     print(f"feature bank: {len(bank)} samples in {time.time() - t0:.1f} s", flush=True)
+    if args.bank_cache:
+        stored = {
+            "key": key,
+            "f": [it.feature for it in bank],
+            "b": [torch.from_numpy(np.asarray(it.boxes, np.float32)) for it in bank],
+            "a": [torch.from_numpy(np.asarray(it.alphas, np.float32)) for it in bank],
+            "d": [torch.from_numpy(np.asarray(it.dontcare, np.float32)) for it in bank],
+            "v": [torch.from_numpy(np.asarray(it.view, np.float32)) for it in bank],
+        }
+        args.bank_cache.parent.mkdir(parents=True, exist_ok=True)
+        tmp = args.bank_cache.with_suffix(".tmp")
+        torch.save(stored, tmp)
+        tmp.replace(args.bank_cache)
     return bank
+
+
+def _bank_key(model, args: argparse.Namespace) -> str:
+    """What a feature bank depends on: data and weights, augmentation, seed, size, the graph's
+    weights (a checksum)."""
+    names = (
+        "train partial synthetic types seed feature_bank input_width input_height roi_top "
+        "no_flip no_jitter crop_probability min_scale max_scale paste_probability paste_max"
+    )
+    opts = {k: getattr(args, k, None) for k in names.split()}
+    with torch.no_grad():
+        weights = sum(float(p.double().abs().sum()) for p in model.graph.parameters())
+    key = {**opts, "graph_weights": round(weights, 3), "format": 2}  # 2: with the boxes' view
+    return json.dumps(key, sort_keys=True, default=str)
 
 
 def _centernet_batch_loss(
@@ -169,29 +219,92 @@ def _centernet_batch_loss(
     orientation_weight: float,
     bin_weights=None,
     residual_overlap: bool = False,
+    normalisers=None,
+    bin_smoothing: float = 0.0,
+    true_view: bool = False,
 ):
     """CenterNet loss of a batch of features ``f`` and their samples (boxes, alphas, DontCare);
     the orientation head sees the ground-truth boxes with each edge moved by up to 5 % of the
     box size (as the predicted boxes it meets at inference); ``bin_weights``: those of
     ``--balance-orientation`` (None: unweighted); ``residual_overlap``: those of
-    ``--residual-overlap`` (MultiBin's overlapping bins)."""
+    ``--residual-overlap`` (MultiBin's overlapping bins); ``normalisers``: the whole batch's
+    when ``items`` is one of its micro-batches (:func:`~detector_node.centernet.loss_normalisers`);
+    ``bin_smoothing``: that of ``--orientation-smoothing``; ``true_view``: the orientation head
+    is told where each box was seen (``Sample.view``), not where it is in the input
+    (``--true-view``)."""
     boxes = [it.boxes for it in items]
+    alphas = [sample_alphas(it) if isinstance(it, Sample) else it.alphas for it in items]
+    view = None
+    if true_view:  # the rows the loss evaluates: the boxes with a known angle
+        known = np.isfinite(np.concatenate([np.asarray(a, float) for a in alphas]))
+        views = np.concatenate(
+            [sample_view(it) if isinstance(it, Sample) else it.view for it in items]
+        )
+        view = torch.from_numpy(views.reshape(-1, 2)[known].astype(np.float32)).to(f.device)
 
     def orientation(batch_idx: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
         wh = (gt[:, 2:] - gt[:, :2]).repeat(1, 2)
         noise = torch.from_numpy(rng.uniform(-0.05, 0.05, gt.shape).astype(np.float32))
-        return model.orientation_at(f, batch_idx, gt + noise.to(gt.device) * wh)
+        return model.orientation_at(f, batch_idx, gt + noise.to(gt.device) * wh, view)
 
     return centernet_loss(
         model.dense(f),
         boxes,
-        [sample_alphas(it) if isinstance(it, Sample) else it.alphas for it in items],
+        alphas,
         [it.dontcare for it in items],
         {"bin": orientation_weight, "residual": orientation_weight},
         orientation,
         bin_weights,
         residual_overlap,
+        normalisers,
+        bin_smoothing,
     )
+
+
+def _centernet_step(model, batch, bank: bool, args, bin_weights, rng, device):
+    """Loss terms of one CenterNet batch, its gradients accumulated (``backward``): the whole
+    batch at once, or with ``--micro-batch M`` in micro-batches of M samples whose losses,
+    normalised by the whole batch's denominators, sum to the batch's (less memory: the large
+    intermediate maps stay below glibc's mmap threshold and are reused, 2-4x less CPU time)."""
+    size = args.micro_batch if args.micro_batch > 0 else len(batch)
+    norm = None
+    if size < len(batch):
+        from .centernet import STRIDE, loss_normalisers
+
+        gh, gw = model.config.input_height // STRIDE, model.config.input_width // STRIDE
+        norm = loss_normalisers(
+            [it.boxes for it in batch],
+            [it.alphas if bank else sample_alphas(it) for it in batch],
+            [it.dontcare for it in batch],
+            gh,
+            gw,
+            bin_weights,
+            args.residual_overlap,
+        )
+    sums: dict[str, float] = {}
+    for start in range(0, len(batch), size):
+        items = batch[start : start + size]
+        if bank:
+            f = torch.stack([it.feature for it in items]).to(device).float()
+            f = f.contiguous(memory_format=torch.channels_last)  # 2x faster depthwise heads
+        else:
+            f = model.features(to_tensor([s.image for s in items], device))
+        loss, terms = _centernet_batch_loss(
+            model,
+            f,
+            items,
+            rng,
+            args.orientation_weight,
+            bin_weights,
+            args.residual_overlap,
+            norm,
+            args.orientation_smoothing,
+            args.true_view,
+        )
+        loss.backward()
+        for k, v in {"loss": loss.item(), **terms}.items():
+            sums[k] = sums.get(k, 0.0) + v
+    return sums
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -220,6 +333,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="centernet with --freeze-backbone: draw this many augmented samples once, store "
         "their graph features and train the heads on them (0 = fresh samples every step)",
+    )
+    p.add_argument(
+        "--bank-cache",
+        type=Path,
+        help="file for the feature bank: read when it holds the same bank, else written",
     )
     p.add_argument(
         "--orientation-only",
@@ -300,6 +418,27 @@ def build_parser() -> argparse.ArgumentParser:
         "--orientation-weight", type=float, default=1.0, help="weight of the orientation loss"
     )
     p.add_argument(
+        "--orientation-smoothing",
+        type=float,
+        default=0.0,
+        help="centernet: label smoothing of the 4-bin targets: this share goes to the two "
+        "neighbouring bins (0 and 135 deg are neighbours across the 180-deg fold), the nearer "
+        "one taking more (0 = one-hot)",
+    )
+    p.add_argument(
+        "--true-view",
+        action="store_true",
+        help="centernet: give the orientation head where each training box was seen in its "
+        "frame (before scale jitter, crops and pastes moved it), as inference sees it",
+    )
+    p.add_argument(
+        "--micro-batch",
+        type=int,
+        default=0,
+        help="centernet: run each batch in micro-batches of this many samples, the gradients "
+        "accumulated (same loss as the whole batch, less memory and CPU; 0 = whole batch)",
+    )
+    p.add_argument(
         "--ema",
         type=float,
         default=0.0,
@@ -331,6 +470,12 @@ def _train(args: argparse.Namespace) -> int:
 
     make_output_dir(args.output)  # before the data is loaded: a bad path fails at once
     torch.set_num_threads(max(1, args.num_threads))
+    try:  # large maps freed and allocated every step: keep them in the heap for reuse
+        from vehicle_common.malloc_policy import keep_freed_memory
+
+        keep_freed_memory()
+    except RuntimeError:  # not glibc
+        pass
     seed_everything(args.seed)
     device = choose_device(args.device)
     overrides = {
@@ -487,21 +632,22 @@ def _train(args: argparse.Namespace) -> int:
         )
         for start in bar:
             if centernet:
+                opt.zero_grad(set_to_none=True)
                 if bank is not None:
-                    items = [bank[j] for j in bank_order[start : start + args.batch_size]]
-                    f = torch.stack([it.feature for it in items]).to(device).float()
+                    batch = [bank[j] for j in bank_order[start : start + args.batch_size]]
                 else:
-                    items = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
-                    f = model.features(to_tensor([s.image for s in items], device))
-                loss, terms = _centernet_batch_loss(
+                    pairs = order[start : start + args.batch_size]
+                    batch = [mix.make(k, i, rng) for k, i in pairs]
+                terms = _centernet_step(
                     model,
-                    f,
-                    items,
-                    rng,
-                    args.orientation_weight,
+                    batch,
+                    bank is not None,
+                    args,
                     weights.orientation_bin_weights,
-                    args.residual_overlap,
+                    rng,
+                    device,
                 )
+                opt.step()
             else:
                 batch = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
                 raw = model(to_tensor([s.image for s in batch], device))
@@ -513,13 +659,14 @@ def _train(args: argparse.Namespace) -> int:
                     config,
                     weights,
                 )
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                terms = {"loss": loss.item(), **terms}
             if ema is not None:
                 ema.update_parameters(model)
             nb += 1
-            for k, v in {"loss": loss.item(), **terms}.items():
+            for k, v in terms.items():
                 sums[k] = sums.get(k, 0.0) + v
             bar.set_postfix({k: f"{v / nb:.3f}" for k, v in sums.items()})
         means = {k: round(v / max(nb, 1), 4) for k, v in sums.items()}

@@ -6,7 +6,9 @@ Kinds of source:
 - ``real``: real KITTI frames with complete labels (object or tracking layout), kept at full
   resolution; pipeline: copy-paste of real car crops (probability ``paste_probability``, 1 to
   ``paste_max`` cars), scale jitter + random crop keeping the frame's aspect (probability
-  ``crop_probability``), resize, horizontal flip, photometric jitter / blur / noise;
+  ``crop_probability``), resize, horizontal flip, photometric jitter / blur / noise; each box
+  keeps where it was seen (``Sample.view``, set before the crops; a pasted car's is its
+  source's);
 - ``partial``: native-resolution crops with incomplete Car-only labels (``object_crops352``): each
   is pasted at its native position into a random real frame (its area ignored for the background
   term, see :func:`~detector_node.augmentation.paste_native_crop`), then the ``real`` pipeline;
@@ -18,7 +20,7 @@ it uniformly. The real:synthetic ratio is therefore the ratio of the weights.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -33,7 +35,7 @@ from .augmentation import (
     random_crop,
     resize_sample,
 )
-from .dataset import Sample, select_boxes
+from .dataset import Sample, sample_view, select_boxes
 
 KINDS = ("real", "partial", "synthetic")
 
@@ -134,6 +136,7 @@ class TrainingMix:
             if self.rows is not None and rng.random() < a.paste_probability:
                 count = int(rng.integers(1, a.paste_max + 1))
                 s = paste_cars(s, self.car_crops, self.rows, rng, count)
+            s = replace(s, view=sample_view(s))  # where each box is seen, before any crop
             s = crop_roi_top(s, a.roi_top)
             if rng.random() < a.crop_probability:
                 s = random_crop(s, rng, a.min_scale, a.max_scale)

@@ -567,7 +567,9 @@ def orientation_accuracy(
     """Accuracy of the 4 orientation bins (the detector's ``orientation.alpha_to_bin`` of
     ``alpha``: folded modulo pi, bins centred on 0, 45, 90, 135 deg) over ground
     truth / prediction pairs matched per frame by 2D IoU >= ``iou`` (Hungarian). Ground truth of
-    class ``cls`` only (within ``difficulty`` when given); predictions of class ``cls``."""
+    class ``cls`` only (within ``difficulty`` when given); predictions of class ``cls``. A
+    ground truth without an angle (KITTI's -10 placeholder, below -pi: 2D-only labels) is
+    matched but not counted (it once counted as the 135-deg bin that -10 rad folds to)."""
     level = DIFFICULTIES[difficulty] if isinstance(difficulty, str) else difficulty
     confusion = np.zeros((4, 4), dtype=int)
     for k in _frame_keys(gt, pred):
@@ -578,7 +580,8 @@ def orientation_accuracy(
         ]
         p = [o for o in pred.get(k, []) if class_status(o.type, cls) == 1]
         for gi, pi, _ in match_2d(g, p, iou):
-            confusion[alpha_to_bin(g[gi].alpha), alpha_to_bin(p[pi].alpha)] += 1
+            if g[gi].alpha >= -math.pi:
+                confusion[alpha_to_bin(g[gi].alpha), alpha_to_bin(p[pi].alpha)] += 1
     n = int(confusion.sum())
     acc = float(np.trace(confusion) / n) if n else math.nan
     return OrientationResult(acc, confusion, n)
