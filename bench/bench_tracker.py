@@ -440,8 +440,15 @@ def cmd_graph(args) -> None:
     import real_motion as rm
     from eval_node.bag_reader import read_run
     from scipy.optimize import linear_sum_assignment
+    from vehicle_common.bag_files import BagError
 
-    run = read_run(args.bag)
+    bag = Path(args.bag)
+    if (bag / "bag").is_dir() and not (bag / "metadata.yaml").exists():
+        bag = bag / "bag"  # the demo's output folder
+    try:
+        run = read_run(bag)
+    except BagError as exc:
+        sys.exit(f"error: {exc}")
     seq = args.sequence or run.sequence
     gt = {f.frame: f.gt for f in run.frames}
     off = run.frames[0].offset if run.frames else np.zeros(3)
