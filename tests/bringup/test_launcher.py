@@ -231,3 +231,22 @@ def test_a_stopped_process_is_a_stall_even_without_its_reports(tmp_path):
         proc.kill()
         proc.wait(10)
         launcher.running["sleeper"].log_file.close()
+
+
+def test_a_silent_node_short_of_cpu_is_not_a_stall_a_frozen_or_spinning_one_is():
+    """The watchdog's excuse for a node silent on /diagnostics: its main thread was runnable (R)
+    and used under half a core (a fresh-clone suite beside two busy loops once had the graph's
+    stereo_depth, at nice 10, killed while it worked: no report for 5.1 s, process running)."""
+    from tracking_bringup.launcher import starved_not_frozen
+
+    def samples(states, cpu_per_s):
+        return [(t * 0.2, states[t % len(states)], t * 0.2 * cpu_per_s) for t in range(26)]
+
+    now, window = 5.0, 5.0
+    assert starved_not_frozen(samples("RSRS", 0.05), now, window)  # waits for a CPU, works
+    assert starved_not_frozen(samples("SSSSR", 0.01), now, window)
+    assert not starved_not_frozen(samples("T", 0.0), now, window)  # SIGSTOP
+    assert not starved_not_frozen(samples("S", 0.001), now, window)  # deadlocked
+    assert not starved_not_frozen(samples("R", 0.98), now, window)  # a callback spinning
+    assert not starved_not_frozen(samples("R", 0.05)[:3], now, window)  # too few samples
+    assert not starved_not_frozen([], now, window)

@@ -28,6 +28,7 @@ Command line: ``stereo_tracking_launch [--params FILE] [--nodes a,b] [-p node.pa
 from __future__ import annotations
 
 import argparse
+import collections
 import contextlib
 import ctypes
 import os
@@ -176,6 +177,8 @@ class GraphLauncher:
         self.progress = ProgressWatch(stall_timeout)
         self.stalled: dict[str, str] = {}
         self._stopped_since: dict[str, float] = {}  # node -> when its process was seen stopped
+        #: node -> recent (time, main thread state, main thread CPU s) samples of its process
+        self._samples: dict[str, collections.deque] = {}
         #: topics of this graph that another publisher outside it also publishes on (once ready)
         self.foreign: list[str] = []
         self._ready = False
@@ -240,7 +243,21 @@ class GraphLauncher:
         process, a hung callback): see :class:`ProgressWatch`."""
         now = time.monotonic()
         alive = [n for n, r in self.running.items() if r.proc.poll() is None]
+        window = self.progress.timeout_s
+        for name in alive:
+            sample = _main_thread_sample(self.running[name].proc.pid)
+            if sample is not None:
+                samples = self._samples.setdefault(name, collections.deque(maxlen=200))
+                samples.append((now, *sample))
         stalled = self.progress.stalled(now, alive)
+        for name, why in list(stalled.items()):
+            silent = self.progress.silent_s(name, now)
+            if (
+                why.startswith("no report")
+                and silent < STARVED_LIMIT * window
+                and starved_not_frozen(self._samples.get(name, ()), now, window)
+            ):
+                del stalled[name]  # waiting for a CPU (a loaded machine, nice 10), not frozen
         for name in alive:
             if _process_state(self.running[name].proc.pid).endswith(("(T)", "(t)")):
                 since = self._stopped_since.setdefault(name, now)
@@ -495,6 +512,39 @@ def _death(run: _Running, code: int, what: str) -> LaunchError:
         + _tail(run.log_path),
         node=name,
     )
+
+
+#: a node silent on /diagnostics whose process waits for a CPU is given this many
+#: ``stall_timeout`` before it counts as stalled all the same
+STARVED_LIMIT = 6.0
+
+
+def _main_thread_sample(pid: int) -> tuple[str, float] | None:
+    """(state letter, CPU seconds) of a process's main thread (the executor's, which runs the
+    report timer), from /proc (Linux); None when unreadable."""
+    try:
+        fields = Path(f"/proc/{pid}/task/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return fields[0], (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def starved_not_frozen(samples, now: float, window: float) -> bool:
+    """Whether a node silent on /diagnostics for ``window`` s is only short of CPU: its main
+    thread was runnable (state R) at least once in that window and used under half a core
+    (a stopped process is T, a deadlocked one sleeps, S, a callback spinning forever keeps its
+    thread busy). Under two busy loops at nice 0 the graph's stereo_depth, at nice 10, went 5 s
+    without a report while working, and the watchdog killed it (a fresh-clone suite run).
+    ``samples``: (time, state, main-thread CPU s), oldest first."""
+    recent = [s for s in samples if s[0] >= now - window]
+    if len(recent) < 2:
+        return False
+    span = recent[-1][0] - recent[0][0]
+    if span < 0.5 * window:
+        return False
+    runnable = any(state == "R" for _, state, _ in recent)
+    cpu = recent[-1][2] - recent[0][2]
+    return runnable and cpu < 0.5 * span
 
 
 def _process_state(pid: int) -> str:

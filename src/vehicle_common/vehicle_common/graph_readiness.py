@@ -149,6 +149,11 @@ class ProgressWatch:
         for table in (self._last_report, self._last_change, self._last):
             table.pop(name, None)
 
+    def silent_s(self, name: str, now: float) -> float:
+        """Seconds since the last report of ``name`` (0 when it is not watched)."""
+        last = self._last_report.get(name)
+        return 0.0 if last is None else now - last
+
     def stalled(self, now: float, names: Iterable[str] | None = None) -> dict[str, str]:
         """``{node: why}`` of the watched nodes (restricted to ``names``) that stalled."""
         watched = [n for n in self._last_report if names is None or n in set(names)]
