@@ -244,9 +244,11 @@ class GraphLauncher:
         now = time.monotonic()
         alive = [n for n, r in self.running.items() if r.proc.poll() is None]
         window = self.progress.timeout_s
+        states = {}  # node -> its process's state letter (its main thread's, in /proc)
         for name in alive:
             sample = _main_thread_sample(self.running[name].proc.pid)
             if sample is not None:
+                states[name] = sample[0]
                 samples = self._samples.setdefault(name, collections.deque(maxlen=200))
                 samples.append((now, *sample))
         stalled = self.progress.stalled(now, alive)
@@ -259,7 +261,7 @@ class GraphLauncher:
             ):
                 del stalled[name]  # waiting for a CPU (a loaded machine, nice 10), not frozen
         for name in alive:
-            if _process_state(self.running[name].proc.pid).endswith(("(T)", "(t)")):
+            if states.get(name) in ("T", "t"):
                 since = self._stopped_since.setdefault(name, now)
                 if now - since >= self.progress.timeout_s and name not in stalled:
                     stalled[name] = f"its process has been stopped for {now - since:.1f} s"
