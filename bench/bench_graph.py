@@ -428,84 +428,56 @@ def offline_stage_times(
 ) -> dict[str, float]:
     """Median ms per frame of each stage run alone in this process, over the sequence's first
     ``max_frames`` frames (successive, as the odometry sees them; all 16 of real 0005): the
-    same core functions, thread
-    counts, match band, malloc policy and inputs as the graph's nodes (``-p NODE.PARAM:=VALUE``
-    overrides included). The baseline the graph's stages are compared with. The odometry of
-    frame k runs from frame k-1 (its disparity map and the previous frame's CNN boxes, as the
-    node keeps them); "ranging + check" ranges the CNN's boxes with their orientation bins and
-    angles and checks them against the frame's road plane, as the node does before it
-    publishes the 3D array."""
-    import dataclasses
-
+    stereo node's own frame path (``stereo_depth_node.pipeline.StereoPipeline`` with the
+    parameter file's ``stereo_depth`` section, ``-p NODE.PARAM:=VALUE`` overrides included),
+    its side work run in order in this thread (``SerialExecutor``) and timed by its trace
+    points; the CNN of the detector node, thread counts and malloc policy as the graph's nodes.
+    The baseline the graph's stages are compared with. The odometry of frame k runs from frame
+    k-1 (its scene map and the previous frame's CNN boxes; its corners found ahead after frame
+    k-1's output: "corners ahead"); "ranging + check" ranges the CNN's boxes with their
+    orientation bins and angles and checks them against the frame's road plane."""
     import cv2
     import torch
-    import yaml
     from detector_node.inference import CnnDetector
-    from stereo_depth_node.disparity import (
-        DisparityParams,
-        block_matching_disparity,
-        coarse_disparity,
-        compute_disparity,
-        compute_disparity_in_boxes,
-        match_band,
-    )
-    from stereo_depth_node.plausibility import GroundEstimator, PlausibilityParams, check_boxes
-    from stereo_depth_node.ranging import (
-        RangingParams,
-        RangingSetup,
-        disparity_bias_at,
-        observation_angles_of,
-        range_boxes,
-    )
+    from stereo_depth_node.disparity import block_matching_disparity, compute_disparity
+    from stereo_depth_node.offline import FRAME_NS, parameter_values
+    from stereo_depth_node.parameters import stereo_config_from_values
+    from stereo_depth_node.pipeline import FrameBoxes, StereoPipeline
     from stereo_depth_node.region_matching import to_gray
-    from stereo_depth_node.reprojection import StereoGeometry
-    from stereo_depth_node.visual_odometry import estimate_camera_motion, reference_corners
-    from vehicle_common.camera_settings import CameraModel, stereo_settings
     from vehicle_common.image_conversion import image_to_rgb, numpy_to_image
     from vehicle_common.kitti import TrackingSequence
     from vehicle_common.malloc_policy import keep_freed_memory
 
     seq = TrackingSequence.open(root, sequence)
     frames = seq.frame_ids[:max_frames]
-
-    def stereo_param(name: str, default):
-        ovs = graph.node_overrides(overrides, graph.STEREO.name)
-        value = graph.parameter_value(PARAMS_FILE, ovs, graph.STEREO.name, name, default)
-        return yaml.safe_load(value) if isinstance(value, str) else value
+    # the stereo node's parameters: the file's section as the node reads it, then the -p's
+    values = dict(graph.file_parameters(PARAMS_FILE).get(graph.STEREO.name, {}))
+    values.update(parameter_values(None, graph.node_overrides(overrides, graph.STEREO.name)))
+    config = stereo_config_from_values(values)
 
     def threads(node: str) -> int:
         ovs = graph.node_overrides(overrides, node)
         return int(graph.parameter_value(PARAMS_FILE, ovs, node, "num_threads", 2))
 
-    det_threads, cv_threads = threads(graph.DETECTOR.name), threads(graph.STEREO.name)
+    det_threads, cv_threads = threads(graph.DETECTOR.name), config.node.num_threads
     torch.set_num_threads(det_threads)
     detector = CnnDetector.from_checkpoint("", "cpu")
     cv2.setNumThreads(cv_threads)
-    # the stereo node's settings: its defaults are the parameter file's, plus the file's match
-    # band and malloc policy (a node keeps freed memory for reuse: keep_freed_memory)
+    # the stereo node's settings: its parameter file's section, plus its malloc policy (a node
+    # keeps freed memory for reuse: keep_freed_memory)
     pairs = [seq.read_stereo(f) for f in frames]
     left0, right0 = pairs[0]
-    # the camera-dependent settings as the node derives them (vehicle_common.camera_settings)
-    camera = CameraModel.from_projections(
-        left0.shape[1], left0.shape[0], seq.calib.P2, seq.calib.P3
-    )
-    derived = stereo_settings(
-        camera,
-        int(stereo_param("num_disparities", 0)),
-        tuple(int(v) for v in stereo_param("match_rows", [-1, -1])),
-    )
-    band, _ = match_band(derived.match_rows, left0.shape[0], DisparityParams())  # as the node does
-    params = dataclasses.replace(
-        DisparityParams(), num_disparities=derived.num_disparities, row_band=band
-    )
-    if stereo_param("keep_freed_memory", True):
+    if values.get("keep_freed_memory", True):
         keep_freed_memory()
-    geometry = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
-    ranging = RangingSetup.from_params(RangingParams())
-    plausibility = PlausibilityParams()
-    ground = GroundEstimator(plausibility, ranging.params.ground_height)
-    bias = np.asarray(disparity_bias_at(np.arange(left0.shape[1]), geometry, ranging.params))
-    fb = geometry.fx * geometry.baseline
+    points: dict[str, tuple[float, float]] = {}  # trace point -> (wall, CPU) [s], this frame
+
+    def trace(point: str, stamp: int) -> None:
+        points[point] = (time.perf_counter(), time.process_time())
+
+    pipeline = StereoPipeline.from_config(config, trace=trace)
+    pipeline.camera_from_projections(left0, seq.calib.P2, seq.calib.P3)
+    geometry, settings = pipeline.camera()
+    params = pipeline.disparity_params_for(left0.shape[0], settings)
 
     def timed(fn, clock=time.perf_counter):
         t0 = clock()
@@ -521,63 +493,38 @@ def offline_stage_times(
     def add(key: str, ms: float) -> None:
         times.setdefault(key, []).append(ms)
 
-    boxes_only = stereo_param("map_area", "boxes") == "boxes"
-    previous = None  # (gray, scene map, CNN boxes) of the frame before
-    for left, right in pairs:
+    def span(start: str, end: str, cpu: bool = False) -> float:
+        return (points[end][cpu] - points[start][cpu]) * 1e3
+
+    label = f"disparity ({cv_threads} thread{'s' if cv_threads > 1 else ''})"
+    for k, (left, right) in enumerate(pairs):
         dets, ms = timed(lambda left=left: detector.detect(left))
         add(f"detect (CNN, {det_threads} thread)", ms)
-        gray, gray_r = to_gray(left), to_gray(right)
-        boxes = [d.box for d in dets]
-        label = f"disparity ({cv_threads} thread{'s' if cv_threads > 1 else ''})"
-        c0 = time.process_time()
-        if boxes_only:  # as the node: block matching of the band, the map in the boxes
-            scene, ms = timed(lambda g=gray, r=gray_r: block_matching_disparity(g, r, params))
-            add("scene map (block matching)", ms)
-            disp, ms = timed(
-                lambda left=left, right=right, b=boxes: compute_disparity_in_boxes(
-                    left, right, b, params
-                )
-            )
-        else:
-            disp, ms = timed(lambda left=left, right=right: compute_disparity(left, right, params))
-            scene = disp
-        add(label, ms)
-        add("disparity CPU", (time.process_time() - c0) * 1e3)  # all its threads, with the scene
-        if previous is not None:
-            # as the node: the reference's corners found ahead (in idle time after its 3D
-            # array), then the estimate on the frame's path
-            g0, d0, b0 = previous
-            ref, ms = timed(lambda g0=g0, d0=d0, b0=b0: reference_corners(g0, d0, b0))
-            add("corners ahead (odometry)", ms)
-            _, ms = timed(
-                lambda g0=g0, d0=d0, b0=b0, gray=gray, ref=ref: estimate_camera_motion(
-                    g0, d0, gray, geometry, b0, None, bias, ref
-                )
-            )
-            add("odometry", ms)
-        bins = [d.orientation_bin for d in dets]
-        alphas = observation_angles_of(
-            [d.observation_angle for d in dets], [d.observation_angle_variance for d in dets]
+        boxes = FrameBoxes(
+            [d.box for d in dets],
+            [d.orientation_bin for d in dets],
+            [d.observation_angle for d in dets],
+            [d.observation_angle_variance for d in dets],
+            [d.score for d in dets],
+            [str(i) for i in range(len(dets))],
         )
-
-        road = disp
-        if boxes_only and boxes:  # as the node: the road plane's map at half the resolution
-            road, ms = timed(lambda left=left, right=right: coarse_disparity(left, right, params))
-            add("road map (coarse)", ms)
-
-        def range_and_check(
-            disp=disp, road=road, boxes=boxes, bins=bins, alphas=alphas, images=(gray, gray_r)
-        ):
-            if not boxes:  # the node ranges and checks nothing then
-                return []
-            results = range_boxes(disp, boxes, geometry, ranging, bins, images, alphas)
-            plane = ground.update(road, geometry, bias)
-            depths = [fb / r.disparity if r is not None else None for r in results]
-            return check_boxes(disp, boxes, depths, geometry, plane, plausibility)
-
-        _, ms = timed(range_and_check)
-        add("ranging + check", ms)
-        previous = (gray, scene, boxes)
+        points.clear()
+        pipeline.process(frames[k] * FRAME_NS, left, right, geometry, params, boxes)
+        add(label, span("disparity_start", "disparity_end"))
+        cpu = span("disparity_start", "disparity_end", cpu=True)
+        if "scene_start" in points:  # the map in the boxes: with the scene's block matching
+            add("scene map (block matching)", span("scene_start", "scene_end"))
+            cpu += span("scene_start", "scene_end", cpu=True)
+        add("disparity CPU", cpu)  # all its threads, with the scene
+        if k > 0:
+            add("odometry", span("odometry_start", "odometry_end"))
+        if "road_start" in points:  # the road plane's map at half the resolution
+            add("road map (coarse)", span("road_start", "road_end"))
+        add("ranging + check", span("ranging_start", "ranging_end"))
+        # the next frame's corners, found ahead (in idle time after the 3D array)
+        _, ms = timed(lambda b=boxes.boxes: pipeline.frame_done(b))
+        if k + 1 < len(pairs):
+            add("corners ahead (odometry)", ms)
 
     def median_ms(fn, repeats: int = 5) -> float:
         for _ in range(2):

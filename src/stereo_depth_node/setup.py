@@ -19,6 +19,7 @@ setup(
     entry_points={
         "console_scripts": [
             "stereo_depth = stereo_depth_node.node:main",
+            "stereo_offline = stereo_depth_node.offline:main",
         ],
     },
 )

@@ -28,8 +28,10 @@ def test_missing_tx_is_named(harness):
     harness.send_frame(1)
     harness.send_detections(1, BOX)
     assert harness.spin_until(lambda: len(harness.det3d) == 1)
-    assert harness.node.geometry is None and harness.det3d[0].detections == []
-    assert "right camera_info: P[0,3] (Tx) is 0: no baseline" in harness.node._geometry_error
+    assert harness.node.pipeline.geometry is None and harness.det3d[0].detections == []
+    assert (
+        "right camera_info: P[0,3] (Tx) is 0: no baseline" in harness.node.pipeline.geometry_error
+    )
 
 
 def _send_pair(harness, sec, left_frame, right_frame, info_size=(W, H)):

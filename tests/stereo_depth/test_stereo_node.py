@@ -164,7 +164,7 @@ def test_publishes_one_3d_detection_per_rangeable_2d_detection(harness):
     assert det.bbox.size_x == 100.0
     cov = np.array(det.position_covariance).reshape(3, 3)
     assert np.allclose(cov, cov.T) and cov[2, 2] > 0
-    assert harness.node.unranged_detections == 1
+    assert harness.node.pipeline.unranged_detections == 1
     disp = harness.disp[0]
     assert disp.header.stamp.sec == 7 and disp.image.encoding == "32FC1"
     assert (disp.f, disp.t) == (FX, pytest.approx(B))
@@ -245,7 +245,7 @@ def test_detections_whose_images_never_arrive_are_dropped_and_counted(harness):
     assert len(harness.node.frame_sync) == 3
     counts = harness.node.frames.snapshot()
     assert (counts.received, counts.published, counts.dropped) == (1, 0, 1)
-    assert harness.det3d == [] and harness.node.frames_processed == 0
+    assert harness.det3d == [] and harness.node.pipeline.frames_processed == 0
     harness.send_detections(53, [(150, 30, 250, 90)])  # completes frame 53
     assert harness.spin_until(lambda: len(harness.det3d) == 1)
     assert harness.det3d[0].header.stamp.sec == 53 and len(harness.det3d[0].detections) == 1
@@ -275,7 +275,7 @@ def test_frame_whose_image_is_lost_is_dropped_when_a_newer_one_completes(harness
     assert harness.node.dropped_detection_arrays == 1
     counts = harness.node.frames.snapshot()
     assert (counts.received, counts.published, counts.dropped) == (2, 1, 1)
-    assert harness.node.frames_processed == 1 and harness.node.frames_failed == 0
+    assert harness.node.pipeline.frames_processed == 1 and harness.node.frames_failed == 0
     assert len(harness.node.frame_sync) == 0
 
 
@@ -288,7 +288,7 @@ def test_newest_complete_frame_is_processed_after_a_burst(harness, monkeypatch):
     their skipped pairs: nothing of the burst was ranged.)"""
     import threading
 
-    import stereo_depth_node.node as stereo_node
+    import stereo_depth_node.pipeline as stereo_pipeline
 
     gate, started, done = threading.Event(), threading.Event(), []
 
@@ -303,7 +303,9 @@ def test_newest_complete_frame_is_processed_after_a_burst(harness, monkeypatch):
         return wrapped
 
     # the harness subscribes to the disparity image: the node matches the whole band
-    monkeypatch.setattr(stereo_node, "compute_disparity", held(stereo_node.compute_disparity))
+    monkeypatch.setattr(
+        stereo_pipeline, "compute_disparity", held(stereo_pipeline.compute_disparity)
+    )
     harness.send_frame(1)
     harness.send_detections(1, [(150, 30, 250, 90)])
     end = time.monotonic() + 10
@@ -328,7 +330,7 @@ def test_newest_complete_frame_is_processed_after_a_burst(harness, monkeypatch):
     assert len(done) == 2  # maps of frames 1 and 5 only
     counts = harness.node.frames.snapshot()
     assert (counts.received, counts.published, counts.dropped) == (3, 2, 1)
-    assert harness.node.frames_processed == 2
+    assert harness.node.pipeline.frames_processed == 2
     assert harness.node.frame_sync.pending_stamps() == [6 * 10**9 + 500]
 
 
@@ -336,21 +338,21 @@ def test_geometry_is_built_once_per_calibration_and_a_bad_one_skips_frames(harne
     harness.send_frame(1)
     harness.send_detections(1, [(150, 30, 250, 90)])
     assert harness.spin_until(lambda: len(harness.det3d) == 1)
-    geometry = harness.node.geometry
+    geometry = harness.node.pipeline.geometry
     assert geometry.fx == FX and geometry.baseline == pytest.approx(B)
     harness.send_frame(2)  # same calibration again: the geometry object is kept
     harness.send_detections(2, [(150, 30, 250, 90)])
     assert harness.spin_until(lambda: len(harness.det3d) == 2)
-    assert harness.node.geometry is geometry and len(harness.det3d[1].detections) == 1
+    assert harness.node.pipeline.geometry is geometry and len(harness.det3d[1].detections) == 1
     K = np.array([[FX, 0, W / 2], [0, FX, H / 2], [0, 0, 1]])
     bad_right = camera_info_from_projection(np.hstack([K, np.zeros((3, 1))]), W, H)
     harness.pubs["rinfo"].publish(bad_right)  # zero baseline
-    assert harness.spin_until(lambda: harness.node.geometry is None)
+    assert harness.spin_until(lambda: harness.node.pipeline.geometry is None)
     harness.infos = (harness.infos[0], bad_right)
     harness.send_frame(3)  # no geometry: the frame is skipped, its output is empty
     harness.send_detections(3, [(150, 30, 250, 90)])
     assert harness.spin_until(lambda: len(harness.det3d) == 3)
-    assert harness.node.geometry is None and harness.node.frames_failed == 1
+    assert harness.node.pipeline.geometry is None and harness.node.frames_failed == 1
     assert harness.det3d[2].header.stamp.sec == 3 and harness.det3d[2].detections == []
 
 
@@ -367,9 +369,12 @@ def test_parameters_accept_yaml_integers_and_reach_the_core(rclpy_context):
         ],
     )
     try:
-        assert node.disparity_params.p1_factor == 6.0 and node.disparity_params.downscale == 1
-        assert node.ranging_params.depth_offset == (0.0, 0.0, 1.0, 0.0)
-        assert node.ranging_params.method == "median"
+        assert (
+            node.pipeline.disparity_params.p1_factor == 6.0
+            and node.pipeline.disparity_params.downscale == 1
+        )
+        assert node.pipeline.ranging_params.depth_offset == (0.0, 0.0, 1.0, 0.0)
+        assert node.pipeline.ranging_params.method == "median"
     finally:
         node.destroy_node()
     with pytest.raises(ValueError):
@@ -395,7 +400,7 @@ def test_disparity_image_is_built_only_while_someone_subscribes(rclpy_context, m
         assert h.spin_until(lambda: h.node.pub_disparity.get_subscription_count() == 0)
         h.send_frame(4)
         h.send_detections(4, [])
-        assert h.spin_until(lambda: h.node.frames_processed == 2)
+        assert h.spin_until(lambda: h.node.pipeline.frames_processed == 2)
         assert built == [3]  # no one listens: nothing built for frame 4
     finally:
         h.close()
@@ -499,7 +504,7 @@ def test_floating_box_is_rejected_and_counted_with_the_default_action(rclpy_cont
     assert PlausibilityParams().plausibility_action == "reject"
     with _checked_frame(rclpy_context, "reject", [(150, 30, 250, 90)]) as (h, dets):
         assert dets == []
-        assert h.node.implausible_detections == 1
+        assert h.node.pipeline.implausible_detections == 1
 
 
 def test_flag_action_publishes_the_check_and_its_inputs(rclpy_context):
@@ -521,7 +526,7 @@ def test_flag_action_publishes_the_check_and_its_inputs(rclpy_context):
         assert standing.bottom_height == pytest.approx(1.65 - 53 * z / FX, abs=0.05)
         assert standing.plausible and standing.plausibility == 1.0
         assert floating.score == standing.score == pytest.approx(0.9)
-        assert h.node.implausible_detections == 0
+        assert h.node.pipeline.implausible_detections == 0
 
 
 def test_score_action_lowers_the_score_of_an_implausible_box(rclpy_context):
@@ -597,7 +602,7 @@ def test_a_match_band_outside_the_images_stops_the_node_and_one_partly_outside_i
         h.send_detections(1, [(150, 30, 250, 90)])
         assert h.spin_until(lambda: len(h.det3d) == 1)
         assert len(h.det3d[0].detections) == 1 and h.node.fatal_error is None
-        assert h.node._band_params[1].row_band == (20, H)
+        assert h.node.pipeline._band_params[1].row_band == (20, H)
         err = capfd.readouterr().err
         assert err.count("match_rows: [20, 400] reaches below the 120-row image") == 1
     finally:
@@ -701,7 +706,7 @@ def test_settings_are_derived_from_the_camera_info_and_follow_a_change(rclpy_con
         h.send_frame(1)
         h.send_detections(1, [(150, 30, 250, 90)])
         assert h.spin_until(lambda: len(h.det3d) == 1)
-        s = h.node.settings
+        s = h.node.pipeline.settings
         # 700 px x 0.5 m / 4.05 m = 86.4 -> 96; not KITTI's camera: every row; 1.65 m assumed
         assert s.num_disparities == 96 and s.match_rows == (0, 0)
         assert s.ground_height == 1.65 and s.ground_height_assumed
@@ -719,7 +724,7 @@ def test_settings_are_derived_from_the_camera_info_and_follow_a_change(rclpy_con
         h.send_frame(3)
         h.send_detections(3, [(150, 30, 250, 90)])
         assert h.spin_until(lambda: len(h.det3d) == 3)
-        assert h.node.settings.num_disparities == 32
+        assert h.node.pipeline.settings.num_disparities == 32
         third = h.det3d[2]
         assert len(third.detections) == 1  # ranged with the new camera
         # the surface 20 px away: 17.5 m with the first baseline, 3.5 m with the new one (plus

@@ -56,8 +56,8 @@ def _listen(h, odom, tf, order):
     )
     assert h.spin_until(
         lambda: (
-            h.node.pub_odometry.get_subscription_count() > 0
-            and h.node.pub_tf.get_subscription_count() > 0
+            h.node.odometry_pubs.odometry.get_subscription_count() > 0
+            and h.node.odometry_pubs.tf.get_subscription_count() > 0
         )
     )
 
@@ -112,7 +112,7 @@ def test_odometry_tf_and_rig_of_each_frame(rclpy_context):
         # the lost frames are extrapolated: their covariance grows by more than a measured step
         assert np.trace(cov[2]) - np.trace(cov[1]) > step
         assert np.trace(cov[3]) > np.trace(cov[2])
-        assert h.node.odometry_out.frames_extrapolated == 2
+        assert h.node.odometry_pubs.out.frames_extrapolated == 2
         rig = _latched_rig(h)
         assert set(rig) == {(CAMERA, RIGHT)}
         R, t = read_transform(rig[(CAMERA, RIGHT)].transform)
@@ -152,8 +152,8 @@ def test_a_base_frame_with_a_camera_mount(rclpy_context):
 def test_no_odometry_outputs_without_the_visual_odometry(rclpy_context):
     h = Harness(rclpy_context, visual_odometry=False)
     try:
-        assert h.node.pub_odometry is None and h.node.pub_tf is None
-        assert h.node.pub_tf_static is None
+        assert h.node.odometry_pubs.odometry is None and h.node.odometry_pubs.tf is None
+        assert h.node.odometry_pubs.tf_static is None
     finally:
         h.close()
 
