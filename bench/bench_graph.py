@@ -457,7 +457,7 @@ def offline_stage_times(
 
     def threads(node: str) -> int:
         ovs = graph.node_overrides(overrides, node)
-        return int(graph.parameter_value(PARAMS_FILE, ovs, node, "num_threads", 2))
+        return int(graph.parameter_value(PARAMS_FILE, ovs, node, "num_threads"))
 
     det_threads, cv_threads = threads(graph.DETECTOR.name), config.node.num_threads
     torch.set_num_threads(det_threads)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import sys
 import threading
-from dataclasses import dataclass
 
 import numpy as np
 from rclpy.node import Node
@@ -28,7 +27,6 @@ from vehicle_common.node_parameters import (
     ParameterError,
     check_overrides,
     declare_config,
-    param,
 )
 from vehicle_common.node_runtime import NodeHealth, apply_process_settings, run_node
 from vision_msgs.msg import Detection2DArray
@@ -36,47 +34,13 @@ from vision_msgs.msg import Detection2DArray
 from vehicle_common import topics
 
 from .conversions import detections_message, vision_detections_message
+from .parameters import DetectorParameters
 
 NODE_NAME = "vehicle_detector"
 IMAGE_TOPIC = topics.LEFT_IMAGE
 INFO_TOPIC = topics.LEFT_INFO
 GT_TOPIC = topics.GROUND_TRUTH
 DETECTIONS_TOPIC = topics.DETECTIONS_2D
-
-
-@dataclass
-class DetectorParameters:
-    """The node's parameters (ROS names and defaults) with their allowed values."""
-
-    backend: str = param("cnn", choices=("cnn", "oracle"))
-    checkpoint: str = ""  # "" = the shipped CenterNet checkpoint
-    device: str = "auto"  # auto | cpu | cuda | cuda:N
-    score_threshold: float = param(0.3, low=0.0, high=1.0)
-    nms_iou: float = param(0.45, low=0.0, high=1.0, low_open=True)
-    # [px] network input; 0 = derived from the left CameraInfo (the image at the training's
-    # pixels per metre; KITTI's camera: the checkpoint's); the network's stride is 32
-    input_width: int = param(0, low=0, multiple_of=32)
-    input_height: int = param(0, low=0, multiple_of=32)
-    num_threads: int = param(2, low=1)  # torch / ONNX Runtime CPU threads
-    # inference runtime: auto (ONNX Runtime for a CenterNet checkpoint on the CPU when the
-    # onnx / onnxruntime packages are installed, else PyTorch) | torch | onnxruntime
-    runtime: str = param("auto", choices=("auto", "torch", "onnxruntime"))
-    # fraction of the image height at the top not searched (above where vehicles are);
-    # < 0 = derived: the checkpoint's on KITTI's camera (0.25 for the shipped CenterNet, 0 for
-    # tiny_kitti), the whole image on another camera
-    roi_top: float = param(-1.0, low=-1.0, high=0.8)
-    # [s] an image that arrives before any CameraInfo waits this long for one (then: the
-    # checkpoint's framing) when the framing is derived from the camera
-    camera_info_wait: float = param(1.0, low=0.0)
-    # newest images kept waiting while one is detected (1: latest-frame policy; the launchers
-    # set it to the player's lockstep_window in lockstep so that nothing is skipped)
-    frame_queue: int = param(1, low=1)
-    vehicle_types: list = param(["Car", "Van"])  # oracle: label types republished
-    oracle_box_noise_px: float = param(0.0, low=0.0)
-    oracle_score: float = param(1.0, low=0.0, high=1.0)
-    oracle_drop_probability: float = param(0.0, low=0.0, high=1.0)
-    oracle_seed: int = param(0, low=0)
-    oracle_max_pending: int = param(10, low=1)
 
 
 class VehicleDetectorNode(Node):

@@ -15,7 +15,6 @@ import importlib
 import signal
 import sys
 import time
-from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
@@ -23,18 +22,17 @@ import rclpy
 import rclpy.executors
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from vehicle_common.image_transport import SUBSCRIBER_TRANSPORTS
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
     ParameterError,
     check_overrides,
     declare_config,
-    param,
     parameter_error_line,
 )
 from vehicle_common.node_runtime import apply_process_settings, init_rclpy
 
-from eval_node.bag_writer import COMPRESSION_MODES, BagWriter, BagWriterError
+from eval_node.bag_writer import BagWriter, BagWriterError
+from eval_node.parameters import RecorderParameters
 from eval_node.repeated_stamps import (
     FRAME_TOPICS,
     RepeatedStamps,
@@ -44,10 +42,6 @@ from eval_node.repeated_stamps import (
 from vehicle_common import topics as graph_topics
 
 NODE_NAME = "bag_recorder"
-
-#: The pipeline's topics (docs/ARCHITECTURE.md) recorded by default. Their types are given so
-#: that the recorder subscribes at start-up (before any publisher exists) and misses nothing.
-PIPELINE_TOPICS = [f"{t}:{graph_topics.TYPES[t]}" for t in graph_topics.RECORDED]
 
 
 def image_topics(transport: str = "raw") -> list[str]:
@@ -61,24 +55,6 @@ def image_topics(transport: str = "raw") -> list[str]:
             t = graph_topics.image_topic(t, transport)
         out.append(f"{t}:{graph_topics.TYPES[t]}")
     return out
-
-
-@dataclass
-class RecorderParameters:
-    """The node's parameters (ROS names and defaults) with their allowed values."""
-
-    output: str = ""  # "" = output/bags/run_<time>
-    topics: list = param(PIPELINE_TOPICS)  # "topic" or "topic:pkg/msg/Type"
-    include_images: bool = False
-    # where the images travel ("raw" | "compressed": <image topic>/compressed); the launchers
-    # set it from the player's image_transport, as on the other image subscribers
-    image_transport: str = param("raw", choices=SUBSCRIBER_TRANSPORTS)
-    compression: str = param("none", choices=("none", "zstd"))
-    compression_mode: str = param("storage", choices=tuple(COMPRESSION_MODES))
-    max_bag_size: int = param(0, low=0)  # bytes per .mcap file; 0 = no splitting
-    qos_depth: int = param(100, low=1)
-    discovery_period: float = param(0.5, low=0.0, low_open=True)  # [s]
-    flush_period: float = param(1.0, low=0.0, low_open=True)  # [s]
 
 
 def default_output() -> str:

@@ -11,7 +11,6 @@ import dataclasses
 import math
 import sys
 import time
-from dataclasses import dataclass
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -32,14 +31,12 @@ from vehicle_common.frame_messages import (
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.graph_readiness import NodeReport, unready_topics
 from vehicle_common.image_conversion import numpy_to_compressed, numpy_to_image
-from vehicle_common.image_transport import PLAYER_TRANSPORTS
 from vehicle_common.kitti import KittiFormatError, TrackingSequence, check_stereo_calibration
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
     ParameterError,
     check_overrides,
     declare_config,
-    param,
     parameter_error_line,
 )
 from vehicle_common.node_runtime import (
@@ -54,6 +51,7 @@ from vehicle_common.node_runtime import (
 
 from vehicle_common import graph_readiness, topics
 
+from .parameters import PlayerParameters
 from .playback import (
     FrameEvent,
     FramePrefetcher,
@@ -68,49 +66,6 @@ from .playback import (
 NODE_NAME = "kitti_player"
 #: s between the player's ticks in unpaced lockstep (start of playback, lockstep timeouts)
 LOCKSTEP_TICK_S = 0.02
-
-
-@dataclass
-class PlayerParameters:
-    """The node's parameters (ROS names and defaults) with their allowed values."""
-
-    dataset_root: str = ""  # KITTI tracking root (image_02, image_03, calib, label_02)
-    sequence: str = "0000"
-    first_frame: int = param(0, low=0)
-    last_frame: int = param(-1, low=-1)  # -1: to the end
-    rate: float = param(10.0, low=0.0)  # [Hz] of dataset time; 0: as fast as the graph allows
-    rate_multiplier: float = 1.0  # <= 0: as fast as the graph allows
-    loop: bool = False
-    lockstep: bool = False
-    lockstep_topic: str = topics.TRACKS
-    lockstep_timeout: float = param(10.0, low=0.0, low_open=True)  # [s]
-    # published frames that may be unacknowledged at a time (1: one frame in the graph at a time)
-    lockstep_window: int = param(1, low=1)
-    snr_db: float = 0.0  # additive Gaussian pixel noise; <= 0 disables
-    drop_probability: float = param(0.0, low=0.0, high=1.0)
-    seed: int = param(0, low=0)
-    start_time: float = param(1.0, low=0.0)  # [s] stamp of frame 0
-    wait_for_subscribers: int = param(0, low=0)  # subscriptions on the left image to wait for
-    # "topic:N,topic:N": before the first frame, wait until each topic of the graph has N
-    # matched subscriptions, the player's own topics and those of the other nodes (as they
-    # report them on /diagnostics); the launchers set it from the graph description; relative
-    # topic names are resolved in the node's namespace
-    wait_for_topics: str = ""
-    # s to wait after every expected subscription matched, before the first frame: across hosts
-    # a remote reader may match the player's writer later than the writer matched it, and a
-    # volatile reader drops what arrived before (README, "Across machines"); 0 on one host
-    match_settle_time: float = param(0.0, low=0.0)
-    exit_when_done: bool = True
-    # images on the wire: "raw" (sensor_msgs/Image, rgb8) or sensor_msgs/CompressedImage on
-    # <image topic>/compressed, "png" (lossless) or "jpeg" (jpeg_quality); the launchers set the
-    # detector's and stereo depth's image_transport to match (docs/bags_and_cameras.md)
-    image_transport: str = param("raw", choices=PLAYER_TRANSPORTS)
-    jpeg_quality: int = param(90, low=1, high=100)
-    # [MiB] decode the selected frames into memory before the first one is published, when
-    # they fit in this much (a camera hands over decoded frames: PNG decoding, ~20 ms per KITTI
-    # pair, then takes no CPU from the graph while it runs); larger sequences, or 0, read each
-    # frame ahead while the graph works on the one before
-    preload_mib: int = param(1024, low=0)
 
 
 def parse_topic_counts(spec: str) -> dict[str, int]:

@@ -16,9 +16,11 @@ from vehicle_common.node_parameters import (
     ParameterError,
     check_value,
     config_from_values,
+    defaults_of,
     param,
 )
 
+from .parameters import TrackerNodeParameters
 from .particle import PROPOSALS
 from .scene_motion import INIT_VELOCITIES
 
@@ -33,9 +35,10 @@ NODE_NAME = "vehicle_tracker"
 TrackerConfigError = ParameterError
 
 
-#: Parameters of the ``vehicle_tracker`` node beside TrackerConfig's (node.py): the camera matrix
-#: of coasting tracks' boxes and the frame the tracks are published in
-NODE_PARAMETERS = ("camera_matrix", "tracks_frame")
+#: Parameters of the ``vehicle_tracker`` node beside TrackerConfig's
+#: (:class:`.parameters.TrackerNodeParameters`): the camera matrix of coasting tracks' boxes and
+#: the frame the tracks are published in
+NODE_PARAMETERS = tuple(defaults_of(TrackerNodeParameters))
 
 
 @dataclass

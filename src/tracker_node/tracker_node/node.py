@@ -33,7 +33,6 @@ from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.node_parameters import (
     ParameterError,
     check_overrides,
-    check_value,
     declare_config,
 )
 from vehicle_common.node_runtime import NodeHealth, apply_process_settings, run_node
@@ -52,6 +51,7 @@ from .conversions import (
     tracks_to_msg,
     vision_tracks_message,
 )
+from .parameters import TrackerNodeParameters
 from .tracker import DetectionBatch, Tracker
 
 QOS_DEPTH = 10
@@ -65,14 +65,12 @@ class VehicleTrackerNode(Node):
         apply_process_settings(self)  # first: the threads started below inherit it
         self.trace = frame_tracer(NODE_NAME)  # per-frame trace points (VEHICLE_TRACE_DIR)
         self.config = declare_config(self, TrackerConfig)
-        cam = check_value(
-            "camera_matrix", self.declare_parameter("camera_matrix", [0.0] * 12).value, [0.0]
-        )
-        tracks_frame = self.declare_parameter("tracks_frame", "").value
+        node_params = declare_config(self, TrackerNodeParameters)
         check_overrides(self)  # every parameter is declared: refuse one the node has not
+        cam = node_params.camera_matrix
         if len(cam) != 12:
             raise ParameterError("camera_matrix", f"expected 12 numbers, got {len(cam)}")
-        self.tracks_frame = check_value("tracks_frame", tracks_frame, "")
+        self.tracks_frame = node_params.tracks_frame
         self.tracker = Tracker(self.config)
         if any(cam):
             self.tracker.set_projection(np.asarray(cam, float).reshape(3, 4))

@@ -40,9 +40,7 @@ def detector_checkpoint(params_file, user_params: list[str], synthetic: bool) ->
     (the same order as the overrides the demo passes)."""
     given = [*(SYNTHETIC_CAMERA_OVERRIDES if synthetic else ()), *user_params]
     node_params = graph.node_overrides(given, "vehicle_detector")
-    return str(
-        graph.parameter_value(params_file, node_params, "vehicle_detector", "checkpoint", "")
-    )
+    return str(graph.parameter_value(params_file, node_params, "vehicle_detector", "checkpoint"))
 
 
 def _error(msg: str) -> int:

@@ -225,14 +225,28 @@ def file_parameters(params, namespace: str = "") -> dict[str, dict]:
     return {n.name: {} for n in PIPELINE}
 
 
-def parameter_value(params, overrides: list[str], node: str, name: str, default):
+_NODE_DEFAULT = object()
+
+
+def node_default(node: str, name: str):
+    """A node parameter's own default, from the dataclass that defines it
+    (:mod:`tracking_bringup.parameters`; imported when first needed: the node packages)."""
+    from tracking_bringup.parameters import default
+
+    return default(node, name)
+
+
+def parameter_value(params, overrides: list[str], node: str, name: str, default=_NODE_DEFAULT):
     """A node parameter's value: the last ``name:=value`` in ``overrides`` (that node's
     ``-p`` overrides), else the parameter file's value (``params``: a file, or its
-    :func:`file_parameters`), else ``default``."""
+    :func:`file_parameters`), else ``default`` (omitted: the node's own default,
+    :func:`tracking_bringup.parameters.default`)."""
     for ov in reversed(overrides):
         key, _, value = ov.partition(":=")
         if key == name:
             return value.strip("'\"")
+    if default is _NODE_DEFAULT:
+        default = node_default(node, name)
     return file_parameters(params).get(node, {}).get(name, default)
 
 
@@ -271,19 +285,18 @@ def plan(
     overrides = overrides or {}
     params = file_parameters(params_file)
 
-    def value(node: NodeSpec, name: str, default):
-        return parameter_value(params, overrides.get(node.name, []), node.name, name, default)
+    def value(node: NodeSpec, name: str):
+        return parameter_value(params, overrides.get(node.name, []), node.name, name)
 
-    backend = str(value(DETECTOR, "backend", "cnn"))
-    lockstep = as_bool(value(PLAYER, "lockstep", False))
-    transport = str(value(PLAYER, "image_transport", "raw"))
-    images = as_bool(value(RECORDER, "include_images", False))
-    odometry = as_bool(value(STEREO, "visual_odometry", True))
+    backend = str(value(DETECTOR, "backend"))
+    lockstep = as_bool(value(PLAYER, "lockstep"))
+    transport = str(value(PLAYER, "image_transport"))
+    images = as_bool(value(RECORDER, "include_images"))
+    odometry = as_bool(value(STEREO, "visual_odometry"))
     outputs = [
-        odometry and as_bool(value(STEREO, f"publish_{k}", True))
-        for k in ("odometry", "tf", "static_tf")
+        odometry and as_bool(value(STEREO, f"publish_{k}")) for k in ("odometry", "tf", "static_tf")
     ]
-    tracks_frame = str(value(TRACKER, "tracks_frame", "") or "")
+    tracks_frame = str(value(TRACKER, "tracks_frame") or "")
 
     def shaped(specs: list[NodeSpec]) -> list[NodeSpec]:
         specs = with_lockstep(with_detector_backend(list(specs), backend), lockstep)
@@ -292,7 +305,7 @@ def plan(
 
     nodes = shaped(nodes)
     whole = nodes if graph_nodes is None else shaped(graph_nodes)
-    window = _lockstep_window(value(PLAYER, "lockstep_window", 1)) if lockstep else None
+    window = _lockstep_window(value(PLAYER, "lockstep_window")) if lockstep else None
     out = []
     for n in nodes:
         extra: dict[str, str | int] = {}
