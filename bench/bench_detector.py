@@ -44,6 +44,7 @@ import torch
 from detector_node.checkpoint import SHIPPED_CHECKPOINT, load_checkpoint
 from detector_node.dataset import frames_from_source, label_bin
 from detector_node.inference import CnnDetector
+from detector_node.loading import load_detector
 from detector_node.model import YoloV2Passthrough, preset
 from detector_node.real_split import report_sources
 from detector_node.validation import FrameResult, evaluate_frames
@@ -58,7 +59,7 @@ HELDOUT_SEED = 1000
 BASELINE = SHIPPED_CHECKPOINT.parent / "tiny_kitti.pt"
 
 
-def evaluate(detector: CnnDetector, specs: list[str], label: str) -> dict:
+def evaluate(detector, specs: list[str], label: str) -> dict:
     """Run the detector over every frame of some data sources and score it."""
     from eval_node.detection_metrics import detection_ap_2d, orientation_accuracy
 
@@ -172,7 +173,7 @@ def time_models(
     the runs interleaved (model A, model B, A, B, ...) so that they share the machine's load;
     run i uses frame i of ``frames`` (cycled; default a random-noise frame)."""
     dets = {
-        k: m if isinstance(m, CnnDetector) else CnnDetector(m, "cpu", score_threshold=0.3)
+        k: m if hasattr(m, "detect") else CnnDetector(m, "cpu", score_threshold=0.3)
         for k, m in models.items()
     }
     frames = frames or timing_frames("random")[0]
@@ -244,7 +245,7 @@ def main() -> None:
     if not args.glibc_malloc:
         keep_freed_memory()  # as the detector node runs (its keep_freed_memory parameter)
     torch.set_num_threads(args.threads)
-    det = CnnDetector.from_checkpoint(
+    det = load_detector(
         args.checkpoint,
         "cpu",
         score_threshold=args.score_threshold,
@@ -254,7 +255,7 @@ def main() -> None:
     )
     dets = {"": det}
     if args.also:
-        dets["also"] = CnnDetector.from_checkpoint(
+        dets["also"] = load_detector(
             args.also, "cpu", score_threshold=args.score_threshold, runtime=args.runtime
         )
     for key, d in dets.items():
@@ -304,7 +305,14 @@ def main() -> None:
         if args.also:
             models[f"also {args.also} ({dets['also'].runtime})"] = dets["also"]
         if det.runtime != "torch" and args.compare_torch:
-            models["checkpoint (torch)"] = CnnDetector(det.model, "cpu", 0.3, runtime="torch")
+            models["checkpoint (torch)"] = load_detector(
+                args.checkpoint,
+                "cpu",
+                0.3,
+                input_width=args.input_width,
+                input_height=args.input_height,
+                runtime="torch",
+            )
         base, _ = load_checkpoint(BASELINE, "cpu")
         models["baseline tiny_kitti"] = base
         if args.with_full:

@@ -438,7 +438,7 @@ def offline_stage_times(
     orientation bins and angles and checks them against the frame's road plane."""
     import cv2
     import torch
-    from detector_node.inference import CnnDetector
+    from detector_node.loading import load_detector
     from stereo_depth_node.disparity import block_matching_disparity, compute_disparity
     from stereo_depth_node.offline import FRAME_NS, parameter_values
     from stereo_depth_node.parameters import stereo_config_from_values
@@ -461,7 +461,7 @@ def offline_stage_times(
 
     det_threads, cv_threads = threads(graph.DETECTOR.name), config.node.num_threads
     torch.set_num_threads(det_threads)
-    detector = CnnDetector.from_checkpoint("", "cpu")
+    detector = load_detector("", "cpu")
     cv2.setNumThreads(cv_threads)
     # the stereo node's settings: its parameter file's section, plus its malloc policy (a node
     # keeps freed memory for reuse: keep_freed_memory)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from detector_node.inference import CnnDetector
+from detector_node.loading import load_detector
 from stereo_depth_node.disparity import DisparityParams, compute_disparity
 from stereo_depth_node.ranging import RangingSetup, range_boxes
 from stereo_depth_node.region_matching import to_gray
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     pairs = [seq.read_stereo(f) for f in seq.frame_ids]
     cars = [[o for o in seq.objects(f) if o.type == "Car"] for f in seq.frame_ids]
     dparams, ranging = DisparityParams(), RangingSetup.from_params()
-    detector = CnnDetector.from_checkpoint("", "cpu")
+    detector = load_detector("", "cpu")
     print(
         f"KITTI tracking {args.sequence}: {len(pairs)} stereo pairs {pairs[0][0].shape[1]}x"
         f"{pairs[0][0].shape[0]}, {sum(map(len, cars))} labelled Car boxes; "

@@ -1,9 +1,9 @@
 """The shipped CNN's detection statistics on real labelled frames it is not trained on.
 
 Used by ``bench/bench_tracker.py real --source camera`` (issue 23's camera benchmark). The
-detector core (``detector_node.inference.CnnDetector``: the ``vehicle_detector`` node's
-inference, the graph's score threshold and NMS) runs offline on the detector VALIDATION frames
-fixed by the lead (interfaces.md): every frame of tracking sequences 0005 and 0001 here, the
+detector as the node loads it (``detector_node.loading.load_detector``: the
+``vehicle_detector`` node's inference, the graph's score threshold and NMS) runs offline on the
+detector VALIDATION frames fixed by the lead (interfaces.md): every frame of tracking sequences 0005 and 0001 here, the
 ``tracking_keyframes`` of 0005, 0001, 0008 and 0010, and the object frames that are frames of
 these sequences (``detector_node.real_split.REPORT_OBJECT_IDS`` since issue 34, when these four
 sequences became the detector's reporting split; object frames 000060-000079 before); frames
@@ -218,12 +218,12 @@ def measure(checkpoint: str = "", verbose: bool = True) -> dict:
 
 def _measure(ck: Path, frames: list[LabelledFrame], settings: dict, verbose: bool) -> dict:
     import torch
-    from detector_node.inference import CnnDetector
+    from detector_node.loading import load_detector
     from vehicle_common.kitti import read_png
     from vehicle_common.orientation_bins import alpha_to_bin
 
     torch.set_num_threads(1)
-    det = CnnDetector.from_checkpoint(str(ck), device="cpu", **settings)
+    det = load_detector(str(ck), device="cpu", **settings)
     nb = len(HEIGHT_BINS) - 1
     found = np.zeros((nb, 4))  # [height bin, occlusion 0..3] detected
     total = np.zeros((nb, 4))

@@ -99,9 +99,9 @@ def run_fold(cmds: list[list[str]], log_path: Path) -> subprocess.Popen:
 
 def score(checkpoint: Path, specs: list[str], label: str) -> dict:
     from bench_detector import evaluate
-    from detector_node.inference import CnnDetector
+    from detector_node.loading import load_detector
 
-    det = CnnDetector.from_checkpoint(str(checkpoint), "cpu", score_threshold=0.05)
+    det = load_detector(str(checkpoint), "cpu", score_threshold=0.05)
     r = evaluate(det, specs, label)
     return {
         "ap70_moderate": r["kitti_ap_r40"]["moderate"]["0.7"],

@@ -7,8 +7,8 @@
   0011, 0017, 0020; reporting 0001, 0005, 0006, 0008, 0010, 0012, 0013.
 - tracking 0005 (16 stereo frames): the default SGBM + WLS disparity map (real matcher).
 
-The shipped CNN (detector_node, its pure core ``CnnDetector``) runs on the left images; its
-detections are matched to the labels (IoU >= 0.5).
+The shipped CNN (detector_node, loaded as the node does: ``load_detector``) runs on the left
+images; its detections are matched to the labels (IoU >= 0.5).
 """
 
 from __future__ import annotations
@@ -130,10 +130,10 @@ def sgbm_0005(dparams: DisparityParams | None = None) -> list[RealFrame]:
 def run_cnn(frames: list[RealFrame], score_threshold: float = 0.3) -> None:
     """The shipped CNN's detections (node defaults: score >= 0.3, NMS 0.45) into each frame."""
     import torch
-    from detector_node.inference import CnnDetector
+    from detector_node.loading import load_detector
 
     torch.set_num_threads(2)
-    det = CnnDetector.from_checkpoint("", "cpu", score_threshold)
+    det = load_detector("", "cpu", score_threshold)
     for fr in frames:
         fr.detections = det.detect(fr.rgb)
 

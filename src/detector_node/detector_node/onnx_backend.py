@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from . import tfjs_graph as tg
+from .onnx_session import ort_session
 
 HARD_SWISH = "HardSwish"
 #: names of the ONNX graph's input and outputs
@@ -384,8 +385,6 @@ class OnnxCenterNet:
         :func:`centernet_to_onnx`)."""
         key = (height, width, image_input)
         if key not in self._sessions:
-            from .onnx_detector import ort_session
-
             graph = centernet_to_onnx(self.model, height, width, image_input)
             self._sessions[key] = ort_session(graph, self.threads)
         return self._sessions[key]

@@ -22,6 +22,7 @@ from .config import DetectorConfig, check_roi_top, geo_frame
 from .dataset import resize_image
 from .detection import Detection
 from .onnx_cache import OnnxCache, array_json, json_array
+from .onnx_session import ort_session
 
 #: names of the ONNX graph's input and outputs (as detector_node.onnx_backend writes them)
 INPUT = "image"
@@ -127,20 +128,6 @@ class CheckpointSource:
         self.cache.write(name, {"onnx": np.frombuffer(graph, np.uint8)})
         self.built.append(f"ONNX graph {width}x{height}")
         return graph
-
-
-def ort_session(graph: bytes, threads: int):
-    """An ONNX Runtime CPU session of a serialized graph: ``threads`` intra-op threads, one
-    inter-op, sequential, every graph optimisation."""
-    import onnxruntime as ort
-
-    so = ort.SessionOptions()
-    so.intra_op_num_threads = threads
-    so.inter_op_num_threads = 1
-    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    so.log_severity_level = 3
-    return ort.InferenceSession(graph, so, providers=["CPUExecutionProvider"])
 
 
 class OnnxCenterNetDetector:
