@@ -4,6 +4,8 @@
    module); vehicle_common imports no node package.
 2. Core modules (everything but the node modules, the recorder node and the bringup package)
    do not import rclpy at import time; vehicle_common imports neither rclpy nor torch.
+3. bench/ and tracking_bringup import package APIs, never a node module.
+4. No import circle in src/ (module-level or function-level imports).
 """
 
 from __future__ import annotations
@@ -131,3 +133,89 @@ def test_node_modules_define_a_module_level_node_class(module):
     )
     funcs = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
     assert "_make_node_class" not in funcs
+
+
+BENCH = SRC.parent / "bench"
+BRINGUP = "tracking_bringup"
+
+
+def test_bench_and_bringup_use_package_apis_not_node_modules():
+    """bench/ and tracking_bringup run the packages' cores (pipelines, loaders, offline tools,
+    parameters), never a node module's internals (its Node class is started as a process)."""
+    files = [(p, "bench") for p in sorted(BENCH.glob("*.py"))]
+    files += [(p, BRINGUP) for _, p in _modules(BRINGUP)]
+    bad = [
+        f"{path.relative_to(SRC.parent)}:{line} imports {name}"
+        for path, package in files
+        for name, line, _ in _imports(path, package)
+        if any(name == m or name.startswith(m + ".") for m in NODE_MODULES)
+    ]
+    assert not bad, "imports of node modules:\n" + "\n".join(bad)
+
+
+def _module_graph(packages) -> dict[str, set[str]]:
+    """module -> the modules of ``packages`` it imports (at module level or inside functions;
+    ``from . import x`` and ``from pkg import x`` resolved to the submodule x when it is one)."""
+    modules = {m: p for package in packages for m, p in _modules(package)}
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for module, path in modules.items():
+        package = module.split(".")[0]
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = package if node.level else ""
+                target = ".".join(x for x in (base, node.module) if x)
+                names = [target] + [f"{target}.{a.name}" for a in node.names]
+            for name in names:
+                if name in modules and name != module and name != package:
+                    graph[module].add(name)
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_package_imports_itself_in_a_circle():
+    """No import circle in src/ (module-level or inside functions), e.g. the former
+    onnx_backend <-> onnx_detector."""
+    cycles = import_cycles(_module_graph((COMMON, *NODE_PACKAGES, BRINGUP)))
+    assert not cycles, "import circles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_circle_checker_sees_a_circle():
+    graph = {"p.a": {"p.b"}, "p.b": {"p.c"}, "p.c": {"p.a"}, "p.d": {"p.a"}}
+    assert import_cycles(graph) == [["p.a", "p.b", "p.c"]]
