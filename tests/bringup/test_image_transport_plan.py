@@ -142,3 +142,15 @@ def test_camera_reliability_is_reliable_only_behind_the_graphs_player():
         assert "camera_reliability" not in extra
     mine = _plan({"stereo_depth": ["camera_reliability:=best_effort"]})
     assert "camera_reliability" not in mine["stereo_depth"][1]
+
+
+def test_camera_reliability_across_hosts_follows_the_players_host():
+    plan = _launch_plan(PARAMS_FILE, "--graph", ",".join(n.name for n in graph.PIPELINE))
+    assert plan.overrides == []  # every node here (with the player): graph.plan sets it
+    args = ["--nodes", "vehicle_detector,stereo_depth", "--graph"]
+    args.append("kitti_player,vehicle_detector,stereo_depth,vehicle_tracker")
+    remote = _launch_plan(PARAMS_FILE, *args)
+    assert "stereo_depth.camera_reliability:=reliable" in remote.overrides
+    assert "vehicle_detector.camera_reliability:=reliable" in remote.overrides
+    own = _launch_plan(PARAMS_FILE, "--nodes", "vehicle_detector,stereo_depth")
+    assert not any("camera_reliability" in o for o in own.overrides)

@@ -70,3 +70,13 @@ def test_a_working_node_is_never_reported():
     for t in range(0, 20):
         summary.check({"stereo_depth": _report("stereo_depth", t, t)}, float(t))
     assert lines == []
+
+
+def test_frames_still_in_process_are_not_reported():
+    """A slow node holding its first frame (a loaded machine) has used none yet: not said."""
+    lines = []
+    summary = RunSummary(lines.append, silent_s=5.0)
+    for t in range(0, 20):
+        report = NodeReport("stereo_depth", FrameCounts(1, 0, 0), used=0)
+        summary.check({"stereo_depth": report}, float(t))
+    assert lines == []

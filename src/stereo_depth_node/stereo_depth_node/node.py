@@ -511,6 +511,7 @@ class StereoDepthNode(Node):
 
     def _work_failed(self, exc: Exception, item) -> None:
         self.get_logger().warning(f"stereo processing failed: {exc}")
+        self.usage.skipped(f"stereo processing failed: {exc}")
         self._publish_empty(item[2])
 
     # ------------------------------------------------------------------ processing

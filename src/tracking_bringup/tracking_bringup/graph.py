@@ -283,8 +283,9 @@ def plan(
       edges on the matching topics (a detector or stereo node given its own
       ``image_transport``: that one's topics);
     - on the detector and stereo nodes, ``camera_reliability: reliable`` when the graph's own
-      player is the camera (lockstep loses no frame; unless overridden). Without it they
-      keep their default, BEST_EFFORT, which takes any camera's images."""
+      player, started with them, is the camera (lockstep loses no frame; unless overridden;
+      across hosts :class:`tracking_bringup.hosts.LaunchPlan` sets it). Without it they keep
+      their default, BEST_EFFORT, which takes any camera's images."""
     overrides = overrides or {}
     params = file_parameters(params_file)
 
@@ -315,7 +316,7 @@ def plan(
     nodes = shaped(nodes)
     whole = nodes if graph_nodes is None else shaped(graph_nodes)
     window = _lockstep_window(value(PLAYER, "lockstep_window", 1)) if lockstep else None
-    player = any(n.name == PLAYER.name for n in whole)
+    player = any(n.name == PLAYER.name for n in nodes)  # started here (else: hosts.py)
     out = []
     for n in nodes:
         extra: dict[str, str | int] = {}

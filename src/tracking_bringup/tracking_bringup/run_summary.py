@@ -8,7 +8,7 @@ camera_info of zeros or of another size, an unsupported encoding, a right image 
 left one, a publisher whose QoS cannot match. While the graph runs, :meth:`RunSummary.check` says
 on the console, once per node and cause:
 
-- a node that received frames for ``silent_s`` and used none of them:
+- a node that finished frames (published or dropped them) for ``silent_s`` and used none:
   ``stereo_depth: 0 of 48 frames used: left image is 1242x375 but ...``;
 - a node that has received no frame for ``silent_s`` since the graph was ready.
 
@@ -44,10 +44,14 @@ def usage_line(node: str, report: NodeReport) -> str | None:
     return None
 
 
+def _done(report: NodeReport) -> int:
+    return report.counts.published + report.counts.dropped
+
+
 @dataclass
 class _Progress:
     since: float  # when ``used`` last changed (or the first report)
-    received: int  # frames received then
+    done: int  # frames finished (published or dropped) then
     used: int
 
 
@@ -67,7 +71,7 @@ class RunSummary:
                 continue
             p = self._progress.get(node)
             if p is None or r.used != p.used:
-                self._progress[node] = _Progress(now, r.counts.received, r.used)
+                self._progress[node] = _Progress(now, _done(r), r.used)
                 continue
             if now - p.since < self.silent_s:
                 continue
@@ -75,9 +79,8 @@ class RunSummary:
                 line = f"{node}: no input frame received in {now - p.since:.0f} s"
                 line += f": {r.problem}" if r.problem else " (nothing published on its topics?)"
                 self._say(node, r.problem or "no input", f"warning: {line}")
-            elif r.counts.received > p.received:
-                came = r.counts.received - p.received
-                line = f"{node}: 0 of the last {came} frames used"
+            elif _done(r) > p.done:  # frames finished (not in process) and none used
+                line = f"{node}: 0 of the last {_done(r) - p.done} frames used"
                 line += f": {r.problem}" if r.problem else ""
                 self._say(node, r.problem, f"warning: {line}")
 

@@ -80,6 +80,7 @@ def subscribe_camera(node, msg_type, topic: str, callback, depth: int, on_incomp
             return
         reported.append(True)
         policy = getattr(event.last_policy_kind, "name", str(event.last_policy_kind))
+        policy = policy.removeprefix("RMW_QOS_POLICY_")
         line = (
             f"{node.resolve_topic_name(topic)}: a publisher's QoS is incompatible with this "
             f"subscription ({policy}); no message of it arrives"
