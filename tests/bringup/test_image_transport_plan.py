@@ -131,8 +131,8 @@ def test_own_camera_compressed_path_expects_the_compressed_topics():
 
 def test_camera_reliability_is_reliable_only_behind_the_graphs_player():
     """Issue #42 item 1: with the graph's own player the image consumers subscribe RELIABLE
-    (lockstep loses nothing); with a user's camera they keep their BEST_EFFORT default, which
-    matches any publisher; a user's -p wins."""
+    (lockstep loses nothing); with a user's camera they keep their default, "auto", which
+    follows the camera's publishers; a user's -p wins."""
     with_player = _plan({})
     for name in ("vehicle_detector", "stereo_depth"):
         assert with_player[name][1]["camera_reliability"] == "reliable"

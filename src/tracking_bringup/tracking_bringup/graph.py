@@ -285,7 +285,7 @@ def plan(
     - on the detector and stereo nodes, ``camera_reliability: reliable`` when the graph's own
       player, started with them, is the camera (lockstep loses no frame; unless overridden;
       across hosts :class:`tracking_bringup.hosts.LaunchPlan` sets it). Without it they keep
-      their default, BEST_EFFORT, which takes any camera's images."""
+      their default, "auto": the reliability of the camera's publishers, any camera."""
     overrides = overrides or {}
     params = file_parameters(params_file)
 

@@ -9,11 +9,15 @@ the nodes' processing is the same for both. The launchers set the consumers' par
 player's (tracking_bringup.graph.plan).
 
 Reliability (parameter ``camera_reliability``, issue #42): a camera driver publishes RELIABLE or
-BEST_EFFORT (the sensor-data QoS of most drivers). The image and camera_info subscriptions are
-BEST_EFFORT by default, which matches both; the launchers set "reliable" when the graph's own
-player or bag player is the source, so that lockstep loses no fragment of an image (a lost
-BEST_EFFORT fragment would be a lost frame). A QoS incompatibility with a publisher (a
-TRANSIENT_LOCAL-only writer, say) is reported once per topic through ``on_incompatible``.
+BEST_EFFORT (the sensor-data QoS of most drivers). "auto", the default, does what rosbag2 does:
+the subscription follows the topic's publishers, RELIABLE while every one is RELIABLE (a lost
+fragment of a large image is then sent again: a BEST_EFFORT subscription to a RELIABLE camera
+would lose it, and with it the frame), BEST_EFFORT as soon as one is BEST_EFFORT (which a
+RELIABLE subscription cannot match); it starts BEST_EFFORT (matches any publisher) and is
+re-created when the publishers' reliability changes (checked every 0.5 s). The launchers set
+"reliable" when the graph's own player is the camera (lockstep loses no frame). A QoS
+incompatibility with a publisher (a TRANSIENT_LOCAL-only writer, say) is reported once per
+topic through ``on_incompatible``.
 """
 
 from __future__ import annotations
@@ -29,7 +33,9 @@ PLAYER_TRANSPORTS = ("raw", "png", "jpeg")
 #: what a subscriber can take ("compressed": PNG or JPEG, as the message's format says)
 SUBSCRIBER_TRANSPORTS = ("raw", "compressed")
 #: the image and camera_info subscriptions' reliability
-RELIABILITIES = ("best_effort", "reliable")
+RELIABILITIES = ("auto", "best_effort", "reliable")
+#: s between two looks at a topic's publishers (camera_reliability "auto")
+ADAPT_PERIOD_S = 0.5
 
 
 def subscriber_transport(player_transport: str) -> str:
@@ -44,10 +50,11 @@ class ImageTransportParameters:
     # "raw": sensor_msgs/Image on the image topics; "compressed": sensor_msgs/CompressedImage
     # on <image topic>/compressed (PNG or JPEG)
     image_transport: str = param("raw", choices=SUBSCRIBER_TRANSPORTS)
-    # reliability of the image and camera_info subscriptions: "best_effort" takes a RELIABLE
-    # and a BEST_EFFORT camera alike; "reliable" (set by the launchers for their own player)
-    # makes the publisher resend a lost fragment, so that lockstep loses nothing
-    camera_reliability: str = param("best_effort", choices=RELIABILITIES)
+    # reliability of the image and camera_info subscriptions: "auto" follows the publishers
+    # (RELIABLE while all are, else BEST_EFFORT: any camera); "best_effort" matches any;
+    # "reliable" (set by the launchers for their own player) makes the publisher resend a
+    # lost fragment, so that lockstep loses nothing
+    camera_reliability: str = param("auto", choices=RELIABILITIES)
 
 
 def _parameter(node, name: str):
@@ -56,19 +63,65 @@ def _parameter(node, name: str):
     return node.get_parameter(name).value
 
 
-def camera_qos(node, depth: int):
-    """KEEP_LAST ``depth``, VOLATILE, with the node's ``camera_reliability``."""
+def camera_qos(depth: int, reliability: str):
+    """KEEP_LAST ``depth``, VOLATILE, ``reliability`` ("reliable" or "best_effort")."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    reliability = _parameter(node, "camera_reliability")
     policy = ReliabilityPolicy.BEST_EFFORT
     if reliability == "reliable":
         policy = ReliabilityPolicy.RELIABLE
     return QoSProfile(depth=int(depth), reliability=policy)
 
 
+def publishers_reliability(policies) -> str | None:
+    """The reliability that receives the most from publishers of these reliability policies
+    (``rclpy.qos.ReliabilityPolicy``): "reliable" when every one is RELIABLE, "best_effort"
+    when one is BEST_EFFORT, None when there are none (keep what there is)."""
+    from rclpy.qos import ReliabilityPolicy
+
+    policies = list(policies)
+    if not policies:
+        return None
+    return "reliable" if all(p == ReliabilityPolicy.RELIABLE for p in policies) else "best_effort"
+
+
+class CameraSubscription:
+    """A subscription with the node's ``camera_reliability``; with "auto", re-created with the
+    publishers' reliability when it changes (module docstring)."""
+
+    def __init__(self, node, msg_type, topic, callback, depth, events):
+        self.node, self._args = node, (msg_type, topic, callback)
+        self._depth, self._events = depth, events
+        mode = _parameter(node, "camera_reliability")
+        self.reliability = "best_effort" if mode == "auto" else mode
+        self.subscription = self._create()
+        if mode == "auto":
+            self._topic = node.resolve_topic_name(topic)
+            node.create_timer(ADAPT_PERIOD_S, self.adapt)
+
+    def _create(self):
+        msg_type, topic, callback = self._args
+        qos = camera_qos(self._depth, self.reliability)
+        return self.node.create_subscription(
+            msg_type, topic, callback, qos, event_callbacks=self._events
+        )
+
+    def adapt(self) -> None:
+        infos = self.node.get_publishers_info_by_topic(self._topic)
+        want = publishers_reliability(i.qos_profile.reliability for i in infos)
+        if want is None or want == self.reliability:
+            return
+        self.node.destroy_subscription(self.subscription)
+        self.reliability = want
+        self.subscription = self._create()
+        self.node.get_logger().info(
+            f"{self._topic}: subscribed {want.upper()}, as its publishers (camera_reliability auto)"
+        )
+
+
 def subscribe_camera(node, msg_type, topic: str, callback, depth: int, on_incompatible=None):
-    """Subscribe ``node`` to a camera topic (image or camera_info) with :func:`camera_qos`;
+    """Subscribe ``node`` to a camera topic (image or camera_info) with the reliability of its
+    ``camera_reliability`` (:class:`CameraSubscription`), KEEP_LAST ``depth``;
     ``on_incompatible(line)`` is called with one line naming the topic and the QoS policy when
     a publisher's QoS cannot match (once per topic)."""
     from rclpy.event_handler import SubscriptionEventCallbacks
@@ -90,8 +143,7 @@ def subscribe_camera(node, msg_type, topic: str, callback, depth: int, on_incomp
             on_incompatible(line)
 
     events = SubscriptionEventCallbacks(incompatible_qos=incompatible)
-    qos = camera_qos(node, depth)
-    return node.create_subscription(msg_type, topic, callback, qos, event_callbacks=events)
+    return CameraSubscription(node, msg_type, topic, callback, depth, events)
 
 
 def subscribe_image(node, topic: str, callback, depth: int, on_incompatible=None):
