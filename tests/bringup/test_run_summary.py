@@ -80,3 +80,16 @@ def test_frames_still_in_process_are_not_reported():
         report = NodeReport("stereo_depth", FrameCounts(1, 0, 0), used=0)
         summary.check({"stereo_depth": report}, float(t))
     assert lines == []
+
+
+def test_one_superseded_frame_without_a_cause_is_not_a_fault():
+    lines = []
+    summary = RunSummary(lines.append, silent_s=5.0)
+    for t in range(0, 20):
+        report = NodeReport("vehicle_detector", FrameCounts(2, 1, 0), used=0)
+        summary.check({"vehicle_detector": report}, float(t))
+    assert lines == []
+    for t in range(20, 40):
+        report = NodeReport("vehicle_detector", FrameCounts(5, 4, 0), used=0)
+        summary.check({"vehicle_detector": report}, float(t))
+    assert lines == ["warning: vehicle_detector: 0 of the last 3 frames used"]

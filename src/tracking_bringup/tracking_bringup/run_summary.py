@@ -28,6 +28,9 @@ from vehicle_common.graph_readiness import NodeReport
 #: s with frames coming in and none used, or with no frame at all, before the console says so
 #: (a camera at 1 Hz still delivers several frames; the graph's start-up is over by then)
 SILENT_S = 10.0
+#: frames finished unused, with no cause reported, before the console says so (a slow node's
+#: first frames superseded while it starts are not a fault)
+UNEXPLAINED_FRAMES = 3
 #: exit code of a run that tracked nothing (no frame was used)
 EXIT_NOTHING_USED = 1
 
@@ -79,7 +82,7 @@ class RunSummary:
                 line = f"{node}: no input frame received in {now - p.since:.0f} s"
                 line += f": {r.problem}" if r.problem else " (nothing published on its topics?)"
                 self._say(node, r.problem or "no input", f"warning: {line}")
-            elif _done(r) > p.done:  # frames finished (not in process) and none used
+            elif _done(r) - p.done >= (1 if r.problem else UNEXPLAINED_FRAMES):
                 line = f"{node}: 0 of the last {_done(r) - p.done} frames used"
                 line += f": {r.problem}" if r.problem else ""
                 self._say(node, r.problem, f"warning: {line}")
