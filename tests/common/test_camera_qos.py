@@ -31,7 +31,7 @@ def test_auto_subscription_follows_and_receives_its_publisher(rclpy_context, pub
     source = Node("camera_qos_pub", context=rclpy_context)
     got, lines = [], []
     sub = subscribe_camera(node, CameraInfo, "/qos_test/camera_info", got.append, 5, lines.append)
-    assert sub.reliability == "best_effort"  # matches any publisher until one is seen
+    assert sub.reliability == "reliable"  # until a publisher is seen (the graph's player)
     pub = source.create_publisher(CameraInfo, "/qos_test/camera_info", camera_qos(5, publisher))
     ex = SingleThreadedExecutor(context=rclpy_context)
     ex.add_node(node)

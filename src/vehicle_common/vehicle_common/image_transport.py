@@ -13,9 +13,11 @@ BEST_EFFORT (the sensor-data QoS of most drivers). "auto", the default, does wha
 the subscription follows the topic's publishers, RELIABLE while every one is RELIABLE (a lost
 fragment of a large image is then sent again: a BEST_EFFORT subscription to a RELIABLE camera
 would lose it, and with it the frame), BEST_EFFORT as soon as one is BEST_EFFORT (which a
-RELIABLE subscription cannot match); it starts BEST_EFFORT (matches any publisher) and is
-re-created when the publishers' reliability changes (checked every 0.5 s). The launchers set
-"reliable" when the graph's own player is the camera (lockstep loses no frame). A QoS
+RELIABLE subscription cannot match). It starts with the publishers there are (RELIABLE when
+none: the graph's player is never raced by a re-creation) and is re-created when their
+reliability changes (checked every 0.5 s; a BEST_EFFORT camera's first half second is lost).
+The launchers set "reliable" when the graph's own player is the camera (lockstep loses no
+frame). A QoS
 incompatibility with a publisher (a TRANSIENT_LOCAL-only writer, say) is reported once per
 topic through ``on_incompatible``.
 """
@@ -93,11 +95,16 @@ class CameraSubscription:
         self.node, self._args = node, (msg_type, topic, callback)
         self._depth, self._events = depth, events
         mode = _parameter(node, "camera_reliability")
-        self.reliability = "best_effort" if mode == "auto" else mode
-        self.subscription = self._create()
+        self.reliability = mode
         if mode == "auto":
             self._topic = node.resolve_topic_name(topic)
+            self.reliability = self._publishers() or "reliable"
             node.create_timer(ADAPT_PERIOD_S, self.adapt)
+        self.subscription = self._create()
+
+    def _publishers(self) -> str | None:
+        infos = self.node.get_publishers_info_by_topic(self._topic)
+        return publishers_reliability(i.qos_profile.reliability for i in infos)
 
     def _create(self):
         msg_type, topic, callback = self._args
@@ -107,8 +114,7 @@ class CameraSubscription:
         )
 
     def adapt(self) -> None:
-        infos = self.node.get_publishers_info_by_topic(self._topic)
-        want = publishers_reliability(i.qos_profile.reliability for i in infos)
+        want = self._publishers()
         if want is None or want == self.reliability:
             return
         self.node.destroy_subscription(self.subscription)
@@ -127,13 +133,14 @@ def subscribe_camera(node, msg_type, topic: str, callback, depth: int, on_incomp
     from rclpy.event_handler import SubscriptionEventCallbacks
 
     reported = []
+    adapts = _parameter(node, "camera_reliability") == "auto"
 
     def incompatible(event) -> None:
-        if reported:
-            return
-        reported.append(True)
         policy = getattr(event.last_policy_kind, "name", str(event.last_policy_kind))
         policy = policy.removeprefix("RMW_QOS_POLICY_")
+        if reported or (adapts and policy == "RELIABILITY"):
+            return  # said once; "auto" follows a BEST_EFFORT publisher within 0.5 s
+        reported.append(True)
         line = (
             f"{node.resolve_topic_name(topic)}: a publisher's QoS is incompatible with this "
             f"subscription ({policy}); no message of it arrives"
