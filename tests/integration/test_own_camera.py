@@ -115,3 +115,18 @@ def test_unusable_camera_is_named_and_fails(synthetic_root, tmp_path, camera_arg
     assert code == 1, console
     lines = [ln for ln in console.splitlines() if "the run tracked nothing" in ln]
     assert any(f"{node}: 0 of " in ln and cause in ln for ln in lines), console
+
+
+def test_restarted_camera_resets_odometry_and_tracks(synthetic_root, tmp_path):
+    """Issue #42 item 8: stamps that go back 1.7 s mid-run (a restarted camera source): the
+    stereo node's odometry and the tracker's tracks start afresh, one warning line each."""
+    code, console, camera = _run(
+        synthetic_root, "0000", tmp_path / "run", "--restart-at", "4", frames=8
+    )
+    assert code == 0, console
+    assert "published 8 frames" in camera, camera
+    logs = tmp_path / "run" / "logs"
+    for node, what in (("stereo_depth", "odometry"), ("vehicle_tracker", "tracks ended")):
+        text = (logs / f"{node}.log").read_text()
+        lines = [ln for ln in text.splitlines() if "time went back" in ln]
+        assert len(lines) == 1 and what in lines[0], (node, lines)
