@@ -86,7 +86,9 @@ def test_best_effort_unsynced_bgra8_camera_on_kitti_0005(kitti_tracking_root, tm
     assert metrics["gt_source"] in ("ground_truth", "bag"), metrics.get("gt_source")
     mota = metrics["tracking"]["mota"]
     print(f"0005, own camera (BEST_EFFORT, bgra8, 1-5 ms): MOTA {mota}")
-    assert mota > 0.3, metrics["tracking"]
+    # the KITTI player's lockstep run of 0005 with the CNN: MOTA 74.5 (docs/RELIABILITY.md);
+    # measured here 74.5 (2026-11-28, load ~30): the same frames, paired and tracked alike
+    assert mota >= 0.70, metrics["tracking"]
 
 
 @pytest.fixture(scope="module")
