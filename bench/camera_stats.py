@@ -2,8 +2,9 @@
 
 Used by ``bench/bench_tracker.py real --source camera`` (issue 23's camera benchmark). The
 detector as the node loads it (``detector_node.loading.load_detector``: the
-``vehicle_detector`` node's inference, the graph's score threshold and NMS) runs offline on the
-detector VALIDATION frames fixed by the lead (interfaces.md): every frame of tracking sequences 0005 and 0001 here, the
+``vehicle_detector`` node's inference, the graph's score threshold and NMS) runs offline on
+the detector VALIDATION frames fixed by the lead (interfaces.md): every frame of tracking
+sequences 0005 and 0001 here, the
 ``tracking_keyframes`` of 0005, 0001, 0008 and 0010, and the object frames that are frames of
 these sequences (``detector_node.real_split.REPORT_OBJECT_IDS`` since issue 34, when these four
 sequences became the detector's reporting split; object frames 000060-000079 before); frames

@@ -114,3 +114,43 @@ def test_recorder_image_topics_follow_its_transport():
     assert parse_topics(["/a:std_msgs/msg/String"], False, "compressed") == {
         "/a": "std_msgs/msg/String"
     }
+
+
+def test_own_camera_compressed_path_expects_the_compressed_topics():
+    """Issue #42 failure 5: no player, the consumers told to take compressed images: the
+    readiness plan waits for their subscriptions on ``.../compressed``, not the raw topics."""
+    nodes = graph.by_name(["vehicle_detector", "stereo_depth", "vehicle_tracker"])
+    overrides = {n: ["image_transport:=compressed"] for n in ("vehicle_detector", "stereo_depth")}
+    planned = {n.name: (n, e) for n, e in graph.plan(nodes, PARAMS_FILE, overrides)}
+    for name in ("vehicle_detector", "stereo_depth"):
+        spec = planned[name][0]
+        assert "stereo/left/image_rect/compressed" in spec.subscribes
+        assert "stereo/left/image_rect" not in spec.subscribes
+    assert "stereo/right/image_rect/compressed" in planned["stereo_depth"][0].subscribes
+
+
+def test_camera_reliability_is_reliable_only_behind_the_graphs_player():
+    """Issue #42 item 1: with the graph's own player the image consumers subscribe RELIABLE
+    (lockstep loses nothing); with a user's camera they keep their default, "auto", which
+    follows the camera's publishers; a user's -p wins."""
+    with_player = _plan({})
+    for name in ("vehicle_detector", "stereo_depth"):
+        assert with_player[name][1]["camera_reliability"] == "reliable"
+    assert "camera_reliability" not in with_player["vehicle_tracker"][1]
+    own = graph.by_name(["vehicle_detector", "stereo_depth", "vehicle_tracker"])
+    for _spec, extra in graph.plan(own, PARAMS_FILE, {}):
+        assert "camera_reliability" not in extra
+    mine = _plan({"stereo_depth": ["camera_reliability:=best_effort"]})
+    assert "camera_reliability" not in mine["stereo_depth"][1]
+
+
+def test_camera_reliability_across_hosts_follows_the_players_host():
+    plan = _launch_plan(PARAMS_FILE, "--graph", ",".join(n.name for n in graph.PIPELINE))
+    assert plan.overrides == []  # every node here (with the player): graph.plan sets it
+    args = ["--nodes", "vehicle_detector,stereo_depth", "--graph"]
+    args.append("kitti_player,vehicle_detector,stereo_depth,vehicle_tracker")
+    remote = _launch_plan(PARAMS_FILE, *args)
+    assert "stereo_depth.camera_reliability:=reliable" in remote.overrides
+    assert "vehicle_detector.camera_reliability:=reliable" in remote.overrides
+    own = _launch_plan(PARAMS_FILE, "--nodes", "vehicle_detector,stereo_depth")
+    assert not any("camera_reliability" in o for o in own.overrides)

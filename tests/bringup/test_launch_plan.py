@@ -58,7 +58,9 @@ def test_host_profiles_of_the_shipped_parameter_file():
     assert plan.overrides == ["kitti_player.match_settle_time:=3.0", transport]
     compute = _plan("--host", "compute", "--peers", "10.0.0.1")
     assert compute.nodes == ["vehicle_detector", "stereo_depth"]
-    assert compute.overrides == [transport]
+    # the player runs on the other host: the image consumers subscribe RELIABLE (issue #42)
+    reliable = [f"{n}.camera_reliability:=reliable" for n in ("vehicle_detector", "stereo_depth")]
+    assert compute.overrides == [transport, *reliable]
 
 
 def test_one_host_default_is_unchanged():

@@ -312,3 +312,18 @@ def test_tentative_tracks_rank_below_confirmed_ones():
     assert list(out.state) == [CONFIRMED, TENTATIVE]
     np.testing.assert_allclose(out.score, [0.9, 0.45])
     assert out.score[0] > out.score[1]
+
+
+def test_reset_ends_every_track_and_ids_go_on():
+    """Time went back (a restarted camera, issue #42): the node resets the tracker; the old
+    tracks end, new ones get new ids and a fresh time step (no negative or default dt carried
+    over a stream's tracks)."""
+    trk = Tracker(TrackerConfig(measurement_noise=0.05))
+    for k in range(5):
+        trk.step(DetectionBatch.create([[0.0, 1.0, 10.0 + k]]), stamp=101.3 + 0.1 * k)
+    assert len(trk.tracks) == 1 and trk.last_stamp == pytest.approx(101.7)
+    assert trk.reset() == 1
+    assert len(trk.tracks) == 0 and len(trk.filter.position) == 0 and trk.last_stamp is None
+    out = trk.step(DetectionBatch.create([[5.0, 1.0, 20.0]]), stamp=100.0)
+    assert list(trk.tracks.ids) == [2] and len(trk.filter.position) == 1
+    assert out is not None

@@ -22,7 +22,12 @@ from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import kitti_objects_from_message, stamp_ns
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_size, image_to_rgb
-from vehicle_common.image_transport import ImageTransportParameters, subscribe_image
+from vehicle_common.image_transport import (
+    ImageTransportParameters,
+    subscribe_camera,
+    subscribe_image,
+)
+from vehicle_common.input_usage import InputUsage
 from vehicle_common.node_parameters import (
     ParameterError,
     check_overrides,
@@ -52,6 +57,7 @@ class VehicleDetectorNode(Node):
         self.trace = frame_tracer(NODE_NAME)  # per-frame trace points (VEHICLE_TRACE_DIR)
         self.params = p = declare_config(self, DetectorParameters)
         declare_config(self, ImageTransportParameters)  # read by subscribe_image below
+        self.usage = InputUsage()  # frames used, and why not the others (on /diagnostics)
         check_overrides(self)  # every parameter is declared: refuse one the node has not
         self.backend = p.backend
         types = tuple(p.vehicle_types)
@@ -122,7 +128,7 @@ class VehicleDetectorNode(Node):
             )
             if not self._derive:
                 self.worker.submit(None, frame=False)  # the framing of the parameters, logged
-            self.create_subscription(CameraInfo, INFO_TOPIC, self._on_camera_info, 5)
+            subscribe_camera(self, CameraInfo, INFO_TOPIC, self._on_camera_info, 5, self.usage.note)
         elif self.backend == "oracle":
             from .oracle import OracleDetector, StampPairing
 
@@ -138,11 +144,16 @@ class VehicleDetectorNode(Node):
             self.get_logger().warning(
                 "ORACLE backend: publishing ground-truth boxes as detections (ablation only)"
             )
-        # raw or compressed; RELIABLE, the newest INPUT_DEPTH images (docs/ARCHITECTURE.md,
-        # "Topics"): a burst taken late is seen and counted, only the newest is detected
-        subscribe_image(self, IMAGE_TOPIC, self._on_image, max(topics.INPUT_DEPTH, p.frame_queue))
+        # raw or compressed; BEST_EFFORT (any camera) or RELIABLE (camera_reliability), the
+        # newest INPUT_DEPTH images (docs/ARCHITECTURE.md, "Topics"): a burst taken late is
+        # seen and counted, only the newest is detected
+        depth = max(topics.INPUT_DEPTH, p.frame_queue)
+        subscribe_image(self, IMAGE_TOPIC, self._on_image, depth, self.usage.note)
         self.health = NodeHealth(
-            self, self.frames, busy=lambda: bool(self.worker and self.worker.busy)
+            self,
+            self.frames,
+            busy=lambda: bool(self.worker and self.worker.busy),
+            usage=self.usage,
         )
 
     def destroy_node(self):
@@ -252,9 +263,11 @@ class VehicleDetectorNode(Node):
         try:
             rgb = image_to_rgb(msg)
         except ImageConversionError as exc:
+            self.usage.skipped(f"{IMAGE_TOPIC}: {exc}")
             self.get_logger().warning(f"{IMAGE_TOPIC}: {exc}; publishing no detections")
             self._publish(detections_message(msg.header, []))
             return
+        self.usage.used()
         detections = self.cnn.detect(rgb)
         self.trace("detect_end", stamp)
         self._publish(detections_message(msg.header, detections))
@@ -271,8 +284,10 @@ class VehicleDetectorNode(Node):
                 "publishing an empty array"
             )
             dets = []
+            self.usage.skipped(f"{GT_TOPIC}: no ground truth for the image's stamp")
         else:
             dets = self.oracle.detect(kitti_objects_from_message(labels), image_size(image))
+            self.usage.used()
         self._publish(detections_message(image.header, dets))
 
 

@@ -33,7 +33,8 @@ from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
-from vehicle_common.image_transport import subscribe_image
+from vehicle_common.image_transport import subscribe_camera, subscribe_image
+from vehicle_common.input_usage import InputUsage
 from vehicle_common.node_parameters import ParameterError, check_overrides, declare_config
 from vehicle_common.node_runtime import NodeHealth, apply_process_settings, run_node
 from vehicle_common.stereo_camera import check_stereo_images
@@ -46,7 +47,7 @@ from .odometry_output import OdometryOutput
 from .parameters import read_stereo_config
 from .pipeline import FrameBoxes, NoGeometry, StereoPipeline
 from .reprojection import decimated_points
-from .stamp_sync import ExactStampSync
+from .stamp_sync import ExactStampSync, StereoPairing
 
 NODE_NAME = "stereo_depth"
 #: the inputs of one frame, paired by stamp
@@ -155,6 +156,13 @@ class StereoDepthNode(Node):
         )
         # a frame = its left image, right image and 2D detection array (one stamp; in order)
         self.frame_sync = ExactStampSync(FRAME_SLOTS, p.sync_cache_size, in_order=True)
+        # a right image goes into the set of the left one it pairs with (within a tolerance)
+        tolerance = -1 if p.stereo_sync_tolerance < 0 else round(p.stereo_sync_tolerance * 1e9)
+        self.pairing = StereoPairing(tolerance, max_pending=p.sync_cache_size)
+        #: frames used, and the cause of each one not used (on /diagnostics; issue #42)
+        self.usage = InputUsage()
+        self._last_left_stamp: int | None = None  # a jump back: a restarted camera
+        self._last_frame_stamp: int | None = None  # the worker's
         self.left_info = None
         self.right_info = None
         self.dropped_detection_arrays = 0  # whose images never arrived (lost or superseded)
@@ -171,10 +179,13 @@ class StereoDepthNode(Node):
             max_waiting=p.frame_queue,
         )
 
-        # QoS (docs/ARCHITECTURE.md, "Topics"): RELIABLE (lockstep loses nothing), the newest
-        # INPUT_DEPTH messages of each input: a burst the executor takes late is still seen,
-        # and dropped and counted here before any work; older ones are never taken
-        qos_in = QoSProfile(depth=max(topics.INPUT_DEPTH, p.frame_queue))
+        # QoS (docs/ARCHITECTURE.md, "Topics"): the newest INPUT_DEPTH messages of each input:
+        # a burst the executor takes late is still seen, and dropped and counted here before
+        # any work; older ones are never taken. The camera's topics BEST_EFFORT (any camera)
+        # or RELIABLE (parameter camera_reliability: the graph's own player, lockstep loses
+        # nothing); the detector's arrays RELIABLE.
+        depth_in = max(topics.INPUT_DEPTH, p.frame_queue)
+        qos_in = QoSProfile(depth=depth_in)
         self.pub_disparity = self.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)
         self.pub_points = None
         if p.publish_points:
@@ -183,18 +194,20 @@ class StereoDepthNode(Node):
         self.odometry_pubs = OdometryPublishers(self, config.odometry_output, p.visual_odometry)
         # camera infos first: the executor runs ready callbacks in creation order, so a frame's
         # CameraInfo that arrives with its images is read before the frame is processed
-        self.create_subscription(CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, 1)
-        self.create_subscription(CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, 1)
+        note = self.usage.note
+        subscribe_camera(self, CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, depth_in, note)
+        subscribe_camera(self, CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, depth_in, note)
         # raw or compressed (parameter image_transport)
-        subscribe_image(self, TOPIC_LEFT, lambda m: self._on_input("left", m), qos_in)
-        subscribe_image(self, TOPIC_RIGHT, lambda m: self._on_input("right", m), qos_in)
+        left_cb, right_cb = (lambda m: self._on_input("left", m)), self._on_right
+        subscribe_image(self, TOPIC_LEFT, left_cb, depth_in, note)
+        subscribe_image(self, TOPIC_RIGHT, right_cb, depth_in, note)
         self.create_subscription(
             VehicleDetection2DArray,
             TOPIC_DETECTIONS_2D,
             lambda m: self._on_input("detections", m),
             qos_in,
         )
-        self.health = NodeHealth(self, self.frames, busy=lambda: self.worker.busy)
+        self.health = NodeHealth(self, self.frames, busy=lambda: self.worker.busy, usage=self.usage)
 
     def destroy_node(self):
         self.worker.stop()  # the frames in hand and waiting are finished first
@@ -228,23 +241,92 @@ class StereoDepthNode(Node):
         self.trace(f"{slot}_received", stamp)
         if slot == "detections":
             self.frames.received()
+        pairs = []
+        if slot == "left":
+            self._check_time(stamp)
+            pairs = self.pairing.add_left(stamp)
+        self._add_to_set(stamp, slot, msg)
+        for left_stamp, right in pairs:
+            self._add_to_set(left_stamp, "right", right)
+
+    def _on_right(self, msg) -> None:
+        """A right image: into the set of the left image it pairs with (``pairing``)."""
+        stamp = stamp_ns(msg.header)
+        self.trace("right_received", stamp)
+        for left_stamp, right in self.pairing.add_right(stamp, msg):
+            self._add_to_set(left_stamp, "right", right)
+
+    def _check_time(self, stamp: int) -> None:
+        """A left stamp older than the previous one (a restarted camera or bag): the sets of
+        the previous stream still waiting can no longer complete (the worker resets the
+        odometry when it meets the new stream's first frame, :meth:`_time_went_back`)."""
+        last, self._last_left_stamp = self._last_left_stamp, stamp
+        if last is not None and stamp < last:
+            for ev in self.frame_sync.take_pending():
+                self._drop_incomplete(ev, "the camera's time went back")
+
+    def _time_went_back(self, stamp: int) -> None:
+        """The worker's frame is older than its previous one (a restarted camera or bag): the
+        visual odometry, its integration in odom and the road plane start afresh, with one
+        warning line."""
+        last, self._last_frame_stamp = self._last_frame_stamp, stamp
+        if last is None or stamp >= last:
+            return
+        self.get_logger().warning(
+            f"time went back from {_stamp_text(last)} s to {_stamp_text(stamp)} s (a restarted "
+            "camera?): the odometry starts afresh in odom"
+        )
+        self.pipeline.ground.reset()
+        if self.pipeline.odometry is not None:
+            self.pipeline.odometry.reset()
+        if self.odometry_pubs.out is not None:
+            self.odometry_pubs.out.integrator.reset()
+
+    def _add_to_set(self, stamp: int, slot: str, msg) -> None:
+        """Into the frame's set; a complete set goes to the worker, and the sets it leaves
+        behind (older, never to complete) are dropped with their cause."""
         group = self.frame_sync.add(stamp, slot, msg)
         for ev in self.frame_sync.take_evicted():
-            if "detections" not in ev.values:
-                continue  # images of a frame the detector skipped (it counted it)
-            self.frames.dropped()
-            self.dropped_detection_arrays += 1
-            self.get_logger().warning(
-                f"{TOPIC_DETECTIONS_2D}: detection array at stamp {_stamp_text(ev.stamp)} "
-                f"dropped: its {' and '.join(ev.missing(FRAME_SLOTS))} image never arrived "
-                f"(lost, or superseded by a newer one); {self.dropped_detection_arrays} so far",
-                throttle_duration_sec=5.0,
-            )
+            self._drop_incomplete(ev, "lost, or superseded by a newer one")
         if group is not None:
             self.worker.submit((group["left"], group["right"], group["detections"]))
 
+    def _drop_incomplete(self, ev, why: str) -> None:
+        """A frame whose set cannot complete: counted as dropped, its cause logged."""
+        if "detections" not in ev.values:
+            return  # images of a frame the detector skipped (it counted it)
+        self.frames.dropped()
+        self.dropped_detection_arrays += 1
+        cause = self._missing_cause(ev, why)
+        self.usage.skipped(cause)
+        self.get_logger().warning(
+            f"{TOPIC_DETECTIONS_2D}: detection array at stamp {_stamp_text(ev.stamp)} "
+            f"dropped: {cause}; {self.dropped_detection_arrays} so far",
+            throttle_duration_sec=5.0,
+        )
+
+    def _missing_cause(self, ev, why: str) -> str:
+        """Why a frame's set is incomplete: a right image too far from its left one, or an
+        image that never arrived (``why``)."""
+        missing = ev.missing(FRAME_SLOTS)
+        offset = self.pairing.nearest_right(ev.stamp) if "right" in missing else None
+        tolerance = self.pairing.tolerance()
+        if offset is not None and abs(offset) > tolerance:
+            return (
+                f"no right image within {tolerance / 1e6:.1f} ms of its left one (the nearest "
+                f"is {offset / 1e6:+.1f} ms away; parameter stereo_sync_tolerance)"
+            )
+        return f"its {' and '.join(missing)} image never arrived ({why})"
+
+    def drop_pending(self) -> None:
+        """At the end of the run: the sets still waiting are dropped, each with its cause
+        (every frame in is then out or dropped)."""
+        for ev in self.frame_sync.take_pending():
+            self._drop_incomplete(ev, "the run ended first")
+
     def _work_failed(self, exc: Exception, item) -> None:
         self.get_logger().warning(f"stereo processing failed: {exc}")
+        self.usage.skipped(f"stereo processing failed: {exc}")
         self._publish_empty(item[2])
 
     # ------------------------------------------------------------------ processing
@@ -255,6 +337,7 @@ class StereoDepthNode(Node):
         left_msg, right_msg, det_msg = item
         stamp = stamp_ns(det_msg.header)
         self.trace("pair_start", stamp)
+        self._time_went_back(stamp)
         dets = list(det_msg.detections)
         try:
             geometry, settings = self.pipeline.camera()
@@ -267,6 +350,7 @@ class StereoDepthNode(Node):
             if isinstance(exc, RowBandError):  # the node stops with that one line
                 self.fatal_error = ParameterError(str(exc))
             self.frames_failed += 1
+            self.usage.skipped(str(exc))
             # a bad calibration was reported when it arrived; a missing one is reported here
             log = self.get_logger().debug
             if not isinstance(exc, NoGeometry) or self.pipeline.calibration_key is None:
@@ -292,6 +376,7 @@ class StereoDepthNode(Node):
         self.pub_det3d.publish(out)
         self.trace("detections_3d_published", stamp)
         self.frames.published()
+        self.usage.used()
         self.pipeline.frame_done(boxes.boxes)
         if frame.full_map:
             self._publish_frame_outputs(frame, det_msg.header, left)
@@ -330,7 +415,9 @@ class StereoDepthNode(Node):
 
 def main(args=None) -> int:
     """Console script ``stereo_depth``; exit code 2 for a bad parameter."""
-    return run_node(StereoDepthNode, NODE_NAME, args, on_stop=lambda node: [node.worker.stop])
+    return run_node(
+        StereoDepthNode, NODE_NAME, args, on_stop=lambda node: [node.worker.stop, node.drop_pending]
+    )
 
 
 if __name__ == "__main__":

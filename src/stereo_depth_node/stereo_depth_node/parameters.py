@@ -77,6 +77,10 @@ class StereoNodeParameters:
     points_max_depth: float = param(80.0, low=0, low_open=True)
     points_rgb: bool = False
     sync_cache_size: int = param(10, low=1)
+    # [s] how far apart a left and a right image's stamps may be to pair (two drivers not
+    # hardware synced); -1: a quarter of the camera's frame period (measured on the left
+    # stamps; stamp_sync.StereoPairing); 0: equal stamps only. Equal stamps always pair.
+    stereo_sync_tolerance: float = param(-1.0, low=-1.0)
     num_threads: int = param(2, low=1)  # OpenCV threads of the matcher (cv2.setNumThreads)
     frame_queue: int = param(1, low=1)  # newest complete frames kept waiting (1: latest frame)
     # where the ranging's disparity map is computed: "boxes" (the 2D boxes with their matching

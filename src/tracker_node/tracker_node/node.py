@@ -99,8 +99,10 @@ class VehicleTrackerNode(Node):
         )
         self.info_sub = None
         if self.tracker.projection is None:
+            # BEST_EFFORT: any camera's camera_info matches (only the latest is used)
+            info_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
             self.info_sub = self.create_subscription(
-                CameraInfo, topics.LEFT_INFO, self.on_camera_info, 5
+                CameraInfo, topics.LEFT_INFO, self.on_camera_info, info_qos
             )
         self.shown_ids: set[int] = set()
         self.frames = FrameCounter()  # detection arrays in, track arrays out
@@ -149,6 +151,20 @@ class VehicleTrackerNode(Node):
         except ValueError:  # a stamp before the last one: no pose for it
             return None
 
+    def _check_time(self, stamp: float) -> None:
+        """An array older than the previous one (a restarted camera or bag): the tracks of
+        the previous stream end and tracking starts afresh, with one warning line."""
+        last = self.tracker.last_stamp
+        if last is None or stamp >= last:
+            return
+        ended = self.tracker.reset()
+        if self.transforms is not None:
+            self.pose_integrator.reset()
+        self.get_logger().warning(
+            f"{topics.DETECTIONS_3D}: time went back from {last:.3f} s to {stamp:.3f} s (a "
+            f"restarted camera?): {ended} tracks ended, tracking starts afresh"
+        )
+
     def on_detections(self, msg: VehicleDetection3DArray) -> None:
         self.frames.received()
         try:
@@ -160,6 +176,7 @@ class VehicleTrackerNode(Node):
         for p in problems + motion_problems:
             self.get_logger().warning(f"{topics.DETECTIONS_3D}: {p}")
         stamp = stamp_ns(msg.header) * 1e-9
+        self._check_time(stamp)
         tracks = self.tracker.step(dets, stamp, motion)
         header, pose = msg.header, None
         if self.transforms is not None:

@@ -188,6 +188,18 @@ class Tracker:
     def __len__(self) -> int:
         return len(self.tracks)
 
+    def reset(self) -> int:
+        """End every track and forget the stream's time and motion (time went back: a
+        restarted camera or bag); track ids go on from where they were, so that an id is never
+        given twice. Returns how many tracks ended."""
+        ended = len(self.tracks)
+        self.filter.keep(np.zeros(ended, bool))
+        self.tracks.keep(np.zeros(ended, bool))
+        self.last_stamp = None
+        self._camera_motion = self._last_motion = None
+        self.world_frame = False
+        return ended
+
     def set_projection(self, projection, image_size=None) -> None:
         """Set (or replace) the camera matrix used to project coasting tracks' boxes."""
         self.projection = np.asarray(projection, float).reshape(3, 4)

@@ -113,6 +113,10 @@ RECORDER = NodeSpec(
 #: The detector with its ablation backend "oracle", which also reads the ground truth.
 ORACLE_DETECTOR = replace(DETECTOR, subscribes=(LEFT_IMAGE, GROUND_TRUTH))
 
+#: the nodes that compute on the camera's images (parameters image_transport and
+#: camera_reliability, vehicle_common.image_transport)
+IMAGE_CONSUMERS = (DETECTOR.name, STEREO.name)
+
 #: The whole pipeline in data-flow order.
 PIPELINE: tuple[NodeSpec, ...] = (PLAYER, DETECTOR, STEREO, TRACKER, RECORDER)
 
@@ -181,6 +185,15 @@ def with_image_transport(nodes: list[NodeSpec], transport: str) -> list[NodeSpec
     return [
         replace(n, subscribes=swapped(n.subscribes), publishes=swapped(n.publishes)) for n in nodes
     ]
+
+
+def with_own_transport(node: NodeSpec, transport: str) -> NodeSpec:
+    """``node`` subscribed to the images on the topics of its own ``image_transport`` ("raw" or
+    "compressed"; a camera of the user's, no player: issue #42's compressed path)."""
+    swap = {}
+    for t in IMAGES:
+        swap[t] = swap[topics.image_topic(t, "compressed")] = topics.image_topic(t, transport)
+    return replace(node, subscribes=tuple(swap.get(t, t) for t in node.subscribes))
 
 
 def as_bool(value) -> bool:
@@ -281,12 +294,17 @@ def plan(
     - on the nodes that subscribe to the images (the recorder too when its
       ``include_images`` is on), ``image_transport`` "raw" or "compressed" as the player's
       ``image_transport`` ("raw" | "png" | "jpeg") says (unless overridden), and the image
-      edges on the matching topics."""
+      edges on the matching topics (a detector or stereo node given its own
+      ``image_transport``: that one's topics);
+    - on the detector and stereo nodes, ``camera_reliability: reliable`` when the graph's own
+      player, started with them, is the camera (lockstep loses no frame; unless overridden;
+      across hosts :class:`tracking_bringup.hosts.LaunchPlan` sets it). Without it they keep
+      their default, "auto": the reliability of the camera's publishers, any camera."""
     overrides = overrides or {}
     params = file_parameters(params_file)
 
-    def value(node: NodeSpec, name: str):
-        return parameter_value(params, overrides.get(node.name, []), node.name, name)
+    def value(node: NodeSpec, name: str, default=_NODE_DEFAULT):
+        return parameter_value(params, overrides.get(node.name, []), node.name, name, default)
 
     backend = str(value(DETECTOR, "backend"))
     lockstep = as_bool(value(PLAYER, "lockstep"))
@@ -298,14 +316,20 @@ def plan(
     ]
     tracks_frame = str(value(TRACKER, "tracks_frame") or "")
 
+    def own_transport(n: NodeSpec) -> NodeSpec:
+        own = value(n, "image_transport", None) if n.name in IMAGE_CONSUMERS else None
+        return n if own is None else with_own_transport(n, str(own))
+
     def shaped(specs: list[NodeSpec]) -> list[NodeSpec]:
         specs = with_lockstep(with_detector_backend(list(specs), backend), lockstep)
         specs = with_tracks_frame(with_odometry_outputs(specs, *outputs), tracks_frame)
-        return with_image_transport(with_recorded_images(specs, images), transport)
+        specs = with_image_transport(with_recorded_images(specs, images), transport)
+        return [own_transport(n) for n in specs]
 
     nodes = shaped(nodes)
     whole = nodes if graph_nodes is None else shaped(graph_nodes)
     window = _lockstep_window(value(PLAYER, "lockstep_window")) if lockstep else None
+    player = any(n.name == PLAYER.name for n in nodes)  # started here (else: hosts.py)
     out = []
     for n in nodes:
         extra: dict[str, str | int] = {}
@@ -315,6 +339,8 @@ def plan(
         images_in = any(topics.image_topic(t, transport) in n.subscribes for t in IMAGES)
         if images_in and "image_transport" not in overridden:
             extra["image_transport"] = subscriber_transport(transport)
+        if player and n.name in IMAGE_CONSUMERS and "camera_reliability" not in overridden:
+            extra["camera_reliability"] = "reliable"
         if n.source and n.wait_parameter:
             extra[n.wait_parameter] = wait_for_topics_value(whole, extra_subscriptions)
         out.append((n, extra))

@@ -130,13 +130,21 @@ class LaunchPlan:
         """Parameter overrides the plan implies (before the user's ``-p``, which win): across
         hosts the player lets discovery settle before its first frame; the host profiles'
         ``image_transport`` is the player's (also where it runs elsewhere: the consumers'
-        follows it)."""
+        follows it); the image consumers subscribe RELIABLE when the graph's player runs on
+        another host."""
         player = graph.PLAYER.name
         out = []
         if self.discovery.multihost and (self.nodes is None or player in self.nodes):
             out.append(f"{player}.match_settle_time:={MULTIHOST_SETTLE_TIME}")
         if self.image_transport is not None:
             out.append(f"{player}.image_transport:={self.image_transport}")
+        if self.graph_nodes and player in self.graph_nodes and self.nodes:
+            # the graph's player on another host: lockstep loses no frame (graph.plan)
+            out += [
+                f"{n}.camera_reliability:=reliable"
+                for n in graph.IMAGE_CONSUMERS
+                if n in self.nodes and player not in self.nodes
+            ]
         return out
 
 

@@ -37,7 +37,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,6 +46,7 @@ from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
 
 from tracking_bringup import graph, hosts, parameter_file
 from tracking_bringup.environment import PARAMS_FILE, graph_environment
+from tracking_bringup.run_summary import RunSummary
 from vehicle_common import topics
 
 _PR_SET_PDEATHSIG = 1
@@ -170,6 +171,8 @@ class GraphLauncher:
         self._report_names = {f"{s.namespace}/{s.name}".lstrip("/"): s.name for s in specs}
         #: the latest /diagnostics report of every node (frames in / out / dropped)
         self.reports: dict[str, NodeReport] = {}
+        #: called with the reports and the time at every poll while the graph runs
+        self.on_poll: Callable[[dict[str, NodeReport], float], None] | None = None
         #: whether the last shutdown let the frames in flight drain (None: nothing to drain)
         self.drained: bool | None = None
         #: nodes that stop making progress (silent on /diagnostics, or busy without progress,
@@ -237,6 +240,8 @@ class GraphLauncher:
                 raise _death(run, code, "died")
             self.spin_reports(poll)
             self._check_progress()
+            if self.on_poll is not None:
+                self.on_poll(self.reports, time.monotonic())
 
     def _check_progress(self) -> None:
         """Raise LaunchError naming a running node that stopped making progress (a frozen
@@ -698,6 +703,9 @@ def run_graph(
         sig: signal.signal(sig, launcher.request_stop) for sig in (signal.SIGINT, signal.SIGTERM)
     }
     failed = None  # the node the error names (its exit is not reported again)
+    summary = RunSummary(announce)  # input the nodes cannot use (run_summary.py)
+    launcher.on_poll = summary.check
+    codes = None
     try:
         launcher.start()
         announce(f"graph ready: {', '.join(p.name for p in processes)} (logs in {log_dir})")
@@ -709,7 +717,8 @@ def run_graph(
                 "ROS_DOMAIN_ID"
             )
         launcher.wait(until_finished=until_finished)
-        return 0
+        codes = launcher.shutdown()  # drained first: the reports' counts are the run's
+        return summary.final(launcher.reports)
     except LaunchInterrupted:
         announce("interrupted during start-up: every node stopped")
         return 130
@@ -718,7 +727,7 @@ def run_graph(
         announce(f"error: {exc}")
         return exc.exit_code
     finally:
-        codes = launcher.shutdown()
+        codes = launcher.shutdown() if codes is None else codes
         if launcher.drained is False:
             announce(
                 f"warning: frames still in flight after {launcher.drain_timeout:.0f} s at shutdown"

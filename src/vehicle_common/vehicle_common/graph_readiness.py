@@ -54,6 +54,10 @@ class NodeReport:
     matched: dict[str, int] = field(default_factory=dict)
     processing_ms: tuple[float, float] | None = None
     pid: int | None = None
+    #: frames the node could compute on (None: a node that does not say) and the latest cause
+    #: of a frame it could not use (vehicle_common.input_usage)
+    used: int | None = None
+    problem: str = ""
 
     @property
     def idle(self) -> bool:
@@ -76,6 +80,10 @@ class NodeReport:
             ]
         if self.pid is not None:
             out.append(("pid", str(self.pid)))
+        if self.used is not None:
+            out.append(("frames_used", str(self.used)))
+        if self.problem:
+            out.append(("problem", self.problem))
         return out + [(_MATCHED + t, str(n)) for t, n in sorted(self.matched.items())]
 
     @classmethod
@@ -93,9 +101,12 @@ class NodeReport:
             if "processing_ms_p50" in kv:
                 timing = (float(kv["processing_ms_p50"]), float(kv["processing_cpu_ms_p50"]))
             pid = int(kv["pid"]) if "pid" in kv else None
+            used = int(kv["frames_used"]) if "frames_used" in kv else None
         except (ValueError, KeyError) as exc:
             raise ValueError(f"report of {node}: {exc}") from None
-        return cls(node.lstrip("/"), counts, kv.get("busy") == "1", matched, timing, pid)
+        busy = kv.get("busy") == "1"
+        problem = kv.get("problem", "")
+        return cls(node.lstrip("/"), counts, busy, matched, timing, pid, used, problem)
 
 
 def unready_topics(

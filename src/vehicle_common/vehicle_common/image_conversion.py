@@ -2,9 +2,12 @@
 image_transport's compressed plugin would do).
 
 The player owns the image topics, so the conversion every node needs lives here once.
-Supported encodings: rgb8, bgr8, mono8, 8UC1, 8UC3, 32FC1, 16UC1, mono16. Compressed images
-(PNG, lossless, or JPEG) follow compressed_image_transport's ``format`` convention
-(``"rgb8; png compressed bgr8"``); :func:`image_to_rgb` takes either message type.
+Supported encodings: rgb8, bgr8, rgba8, bgra8, mono8, 8UC1, 8UC3, 8UC4, mono16, 16UC1, 32FC1
+and the 4:2:2 YUV ones (``yuv422`` = UYVY, as ROS's image_encodings; ``uyvy``; ``yuv422_yuy2``
+and ``yuyv`` = YUYV). Compressed images (PNG, lossless, or JPEG) follow
+compressed_image_transport's ``format`` convention (``"rgb8; png compressed bgr8"``).
+:func:`image_to_rgb` takes either message type and is where every camera's image becomes the
+RGB uint8 array the nodes compute on: converted once, at the edge.
 """
 
 from __future__ import annotations
@@ -17,11 +20,26 @@ _ENCODINGS = {
     "rgb8": (np.uint8, 3),
     "bgr8": (np.uint8, 3),
     "8UC3": (np.uint8, 3),
+    "rgba8": (np.uint8, 4),
+    "bgra8": (np.uint8, 4),
+    "8UC4": (np.uint8, 4),
     "mono8": (np.uint8, 1),
     "8UC1": (np.uint8, 1),
     "mono16": (np.uint16, 1),
     "16UC1": (np.uint16, 1),
     "32FC1": (np.float32, 1),
+    # 4:2:2 YUV, two bytes a pixel (an (H, W, 2) array)
+    "yuv422": (np.uint8, 2),
+    "uyvy": (np.uint8, 2),
+    "yuv422_yuy2": (np.uint8, 2),
+    "yuyv": (np.uint8, 2),
+}
+#: 4:2:2 YUV encodings -> OpenCV's conversion to RGB (ROS's "yuv422" is UYVY)
+_YUV422 = {
+    "yuv422": "COLOR_YUV2RGB_UYVY",
+    "uyvy": "COLOR_YUV2RGB_UYVY",
+    "yuv422_yuy2": "COLOR_YUV2RGB_YUYV",
+    "yuyv": "COLOR_YUV2RGB_YUYV",
 }
 
 
@@ -162,18 +180,37 @@ def image_size(msg) -> tuple[int, int] | None:
 
 
 def image_to_rgb(msg) -> np.ndarray:
-    """Any supported 8-bit colour/mono image, raw (sensor_msgs/Image) or compressed
-    (sensor_msgs/CompressedImage), as RGB uint8 (H, W, 3)."""
+    """Any supported colour or mono image, raw (sensor_msgs/Image) or compressed
+    (sensor_msgs/CompressedImage), as RGB uint8 (H, W, 3): alpha dropped, BGR and YUV 4:2:2
+    converted, mono repeated in the three channels (16-bit mono scaled to 8 bits by
+    :func:`mono16_to_mono8`). Raises ImageConversionError naming the encoding otherwise."""
     if is_compressed(msg):
         return compressed_to_rgb(msg)
     arr = image_to_numpy(msg)
-    if msg.encoding == "bgr8":
-        return arr[:, :, ::-1].copy()
+    enc = msg.encoding
+    if enc in _YUV422:
+        import cv2
+
+        return cv2.cvtColor(arr, getattr(cv2, _YUV422[enc]))
+    if enc in ("bgr8", "bgra8"):
+        return np.ascontiguousarray(arr[:, :, 2::-1])
+    if arr.ndim == 3 and arr.shape[2] == 4:  # rgba8, 8UC4
+        return np.ascontiguousarray(arr[:, :, :3])
     if arr.ndim == 2:
+        if arr.dtype == np.uint16:
+            arr = mono16_to_mono8(arr)
         if arr.dtype != np.uint8:
-            raise ImageConversionError(f"cannot show {msg.encoding} image as RGB")
+            raise ImageConversionError(f"cannot show {enc} image as RGB")
         return np.repeat(arr[:, :, None], 3, axis=2)
     return arr
+
+
+def mono16_to_mono8(arr: np.ndarray) -> np.ndarray:
+    """A 16-bit mono image as 8 bits: its significant bits (those of its maximum; a 12-bit
+    sensor's data in 16 bits keeps its contrast) shifted down to 8. A power-of-two scale, so
+    a stereo pair of one sensor type is scaled alike whatever each image holds."""
+    bits = int(arr.max()).bit_length() if arr.size else 0
+    return (arr >> max(bits - 8, 0)).astype(np.uint8)
 
 
 def camera_info_from_projection(P: np.ndarray, width: int, height: int, header=None):

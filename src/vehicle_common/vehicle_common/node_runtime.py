@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable
 
 from .frame_accounting import FrameCounter
 from .graph_readiness import REPORT_ID, NodeReport
+from .input_usage import InputUsage
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
 _IGNORED_TOPICS = {DIAGNOSTICS_TOPIC, "/parameter_events", "/rosout"}
@@ -30,7 +31,8 @@ _IGNORED_TOPICS = {DIAGNOSTICS_TOPIC, "/parameter_events", "/rosout"}
 class NodeHealth:
     """Publishes the node's :class:`NodeReport` on ``/diagnostics`` (see module docstring).
 
-    ``busy`` tells whether a frame is in process (e.g. a worker's ``busy``)."""
+    ``busy`` tells whether a frame is in process (e.g. a worker's ``busy``); ``usage``, of a
+    processing node, how many frames it could use and why not the others."""
 
     def __init__(
         self,
@@ -39,12 +41,14 @@ class NodeHealth:
         busy: Callable[[], bool] = lambda: False,
         period_s: float = 1.0,
         check_s: float = 0.1,
+        usage: InputUsage | None = None,
     ) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
 
         self.node = node
         self.counter = counter
         self._busy = busy
+        self._usage = usage
         self._period = period_s
         self._pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
         self._last: NodeReport | None = None
@@ -64,6 +68,7 @@ class NodeHealth:
             matched,
             self.counter.processing_ms(),
             os.getpid(),
+            *(self._usage.snapshot() if self._usage is not None else ()),
         )
 
     def _check(self) -> None:
