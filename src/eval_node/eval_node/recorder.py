@@ -34,7 +34,7 @@ from vehicle_common.node_parameters import (
 )
 from vehicle_common.node_runtime import apply_process_settings, init_rclpy
 
-from eval_node.bag_writer import COMPRESSION_MODES, BagWriter, BagWriterError
+from eval_node.bag_writer import COMPRESSION_MODES, FLUSH_MESSAGES, BagWriter, BagWriterError
 from eval_node.repeated_stamps import (
     FRAME_TOPICS,
     RepeatedStamps,
@@ -79,6 +79,8 @@ class RecorderParameters:
     qos_depth: int = param(100, low=1)
     discovery_period: float = param(0.5, low=0.0, low_open=True)  # [s]
     flush_period: float = param(1.0, low=0.0, low_open=True)  # [s]
+    # a chunk is written out once it holds this many messages (or is flush_period old)
+    flush_messages: int = param(FLUSH_MESSAGES, low=1)
 
 
 def default_output() -> str:
@@ -113,7 +115,8 @@ def _message_class(msgtype: str):
 class BagRecorderNode(Node):
     """Raw subscriptions to the wanted topics (resolved in the node's namespace), each message
     written with its receive time through :class:`BagWriter`; new topics' types are discovered
-    every ``discovery_period``; the writer's thread flushes the bag every ``flush_period``."""
+    every ``discovery_period``; a chunk is written out at ``flush_messages`` messages or
+    ``flush_period`` of age, and the writer's thread fsyncs the bag every ``flush_period``."""
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
@@ -128,6 +131,7 @@ class BagRecorderNode(Node):
             p.compression_mode,
             p.max_bag_size,
             flush_period=p.flush_period,
+            flush_messages=p.flush_messages,
         )
         if self.writer.replaced_empty:
             self.get_logger().info(
