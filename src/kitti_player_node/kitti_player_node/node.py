@@ -96,6 +96,12 @@ class PlayerParameters:
     # report them on /diagnostics); the launchers set it from the graph description; relative
     # topic names are resolved in the node's namespace
     wait_for_topics: str = ""
+    # "topic:N,...": subscribers outside the graph (a robot's own nodes, already running) the
+    # first frame waits for too, on top of wait_for_topics: N more matched subscriptions on each
+    # topic, the player's own or one another node publishes (vehicles/vision/tracks,
+    # stereo/odometry, tf: as those nodes report them), so that they get every output from the
+    # first frame (a running participant may be discovered only 3 s after the graph starts)
+    external_subscribers: str = ""
     # s to wait after every expected subscription matched, before the first frame: across hosts
     # a remote reader may match the player's writer later than the writer matched it, and a
     # volatile reader drops what arrived before (README, "Across machines"); 0 on one host
@@ -113,12 +119,13 @@ class PlayerParameters:
     preload_mib: int = param(1024, low=0)
 
 
-def parse_topic_counts(spec: str) -> dict[str, int]:
-    """``"/a:2,/b:1"`` -> ``{"/a": 2, "/b": 1}``; raises PlayerError for a malformed entry."""
+def parse_topic_counts(spec: str, name: str = "wait_for_topics") -> dict[str, int]:
+    """``"/a:2,/b:1"`` -> ``{"/a": 2, "/b": 1}``; raises PlayerError naming the parameter
+    ``name`` for a malformed entry."""
     try:
         return graph_readiness.parse_topic_counts(spec)
     except ValueError as exc:
-        raise PlayerError(f"wait_for_topics: {exc}") from None
+        raise PlayerError(f"{name}: {exc}") from None
 
 
 class PlayerError(RuntimeError):
@@ -188,6 +195,10 @@ class KittiPlayerNode(Node):
             self.resolve_topic_name(topic): n
             for topic, n in parse_topic_counts(p["wait_for_topics"]).items()
         }
+        external = parse_topic_counts(p["external_subscribers"], "external_subscribers")
+        for topic, n in external.items():
+            name = self.resolve_topic_name(topic)
+            self._expected[name] = self._expected.get(name, 0) + n
         self.reader = FramePrefetcher(self.sequence.read_stereo)
         self._preload_t0 = time.monotonic()
         self._preload_logged = p["preload_mib"] <= 0
