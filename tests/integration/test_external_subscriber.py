@@ -35,22 +35,24 @@ def _slow_announcing_environment(tmp_path: Path, period_s: int) -> dict[str, str
     slow = profile.replace(
         anchor,
         anchor + "<builtin><discovery_config><leaseAnnouncement><sec>"
-        f"{period_s}</sec></leaseAnnouncement></discovery_config></builtin>",
+        f"{period_s}</sec></leaseAnnouncement>"
+        f"<leaseDuration><sec>{3 * period_s}</sec></leaseDuration>"
+        "</discovery_config></builtin>",
     )
     (tmp_path / "slow.xml").write_text(slow)
     return dict(os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=str(tmp_path / "slow.xml"))
 
 
 def test_running_subscriber_gets_every_output_from_the_first_frame(kitti_tracking_root, tmp_path):
-    """The subscriber announces itself every 12 s, so the graph's nodes may learn of it only
-    long after their own edges matched (before: it got none of the 16 frames of a topic when
-    the graph was quick to start)."""
+    """The subscriber announces itself every 30 s, so the graph's nodes may learn of it only
+    long after their own edges matched (without the declaration it got 10 of 16 track arrays
+    at load 17; a 12 s period was not enough under load, the graph took that long to start)."""
     proc = subprocess.Popen(
         [sys.executable, str(EXAMPLE)],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
-        env=_slow_announcing_environment(tmp_path, 12),
+        env=_slow_announcing_environment(tmp_path, 30),
     )
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
