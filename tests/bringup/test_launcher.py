@@ -250,3 +250,41 @@ def test_a_silent_node_short_of_cpu_is_not_a_stall_a_frozen_or_spinning_one_is()
     assert not starved_not_frozen(samples("R", 0.98), now, window)  # a callback spinning
     assert not starved_not_frozen(samples("R", 0.05)[:3], now, window)  # too few samples
     assert not starved_not_frozen([], now, window)
+
+
+def test_a_frame_worker_short_of_cpu_is_seen_runnable_a_deadlocked_one_is_not():
+    """The excuse for a node with a frame in process and no progress uses its other threads:
+    a worker computing is runnable (R), one blocked on a lock sleeps; the whole process's CPU
+    is counted (stereo_depth, nice 10, took over 5 s for its first frame at load 30 and was
+    killed as frozen)."""
+    import subprocess
+    import sys
+    import time
+
+    from tracking_bringup.launcher import _worker_threads_sample
+
+    code = (
+        "import threading, time\n"
+        "def spin():\n    while True: pass\n"
+        "def block():\n    threading.Lock().acquire(); lock = threading.Lock(); lock.acquire();"
+        " lock.acquire()\n"
+        "threading.Thread(target={}, daemon=True).start(); time.sleep(60)\n"
+    )
+    spinning = subprocess.Popen([sys.executable, "-c", code.format("spin")])
+    blocked = subprocess.Popen([sys.executable, "-c", code.format("block")])
+    try:
+        for proc in (spinning, blocked):  # started (slow on a loaded machine)
+            deadline = time.monotonic() + 30
+            while len(os.listdir(f"/proc/{proc.pid}/task")) < 2 and time.monotonic() < deadline:
+                time.sleep(0.05)
+        time.sleep(0.2)
+        seen = [_worker_threads_sample(spinning.pid)[0] for _ in range(20)]
+        assert "R" in seen
+        states = {_worker_threads_sample(blocked.pid)[0] for _ in range(20)}
+        assert states == {"S"}
+        assert _worker_threads_sample(spinning.pid)[1] > 0.0
+    finally:
+        for proc in (spinning, blocked):
+            proc.kill()
+            proc.wait(10)
+    assert _worker_threads_sample(spinning.pid) is None  # gone

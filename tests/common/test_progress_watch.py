@@ -44,6 +44,8 @@ def test_busy_without_progress_is_a_stall_busy_with_progress_is_not():
         assert ("stereo_depth" in stalled) == (t >= 7), (t, stalled)
         assert "vehicle_tracker" not in stalled
     assert "a frame in process for 9.0 s without progress" in stalled["stereo_depth"]
+    assert watch.busy_s("stereo_depth", 11.0) == 9.0  # the same frame since t=2
+    assert watch.busy_s("nobody", 11.0) == 0.0
     # idle (nothing in process) for a long time is no stall: the graph waits for frames
     idle = ProgressWatch(timeout_s=5.0)
     for t in range(0, 12):

@@ -141,11 +141,14 @@ def _tracks_by_stamp(bag: Path) -> dict[int, list[tuple]]:
 
 def test_replayed_bag_reproduces_the_recorded_tracks(synthetic_run, tmp_path):
     """bag_player replays the recorded 3D detections into a fresh tracker; its tracks equal
-    the tracks recorded in the live run."""
+    the tracks recorded in the live run. The player starts once every edge is matched: its own
+    topics to the tracker, and the tracker's tracks to the recorder (the tracker's report on
+    /diagnostics); without the latter the recorder could miss the first tracks."""
     from tracking_bringup.environment import PARAMS_FILE
     from tracking_bringup.launcher import GraphLauncher, ProcessSpec, node_command
 
     replay_bag = tmp_path / "replay_bag"
+    replay_edges = (graph.DETECTIONS_3D, graph.LEFT_INFO, graph.TRACKS)
     tracker = ProcessSpec(
         name="vehicle_tracker",
         argv=node_command(graph.TRACKER, PARAMS_FILE),
@@ -173,10 +176,12 @@ def test_replayed_bag_reproduces_the_recorded_tracks(synthetic_run, tmp_path):
             f"{resolve(graph.DETECTIONS_3D)},{resolve(graph.LEFT_INFO)}",
             "--rate",
             "4",
-            "--wait-for-subscribers",
-            "1",
+            "--wait-for-topics",
+            ",".join(f"{resolve(t)}:1" for t in replay_edges),
+            "--wait-timeout",
+            "60",
         ],
-        publishes=(resolve(graph.DETECTIONS_3D),),
+        publishes=(resolve(graph.DETECTIONS_3D), resolve(graph.LEFT_INFO)),
         source=True,
         finishes=True,
     )
@@ -186,8 +191,10 @@ def test_replayed_bag_reproduces_the_recorded_tracks(synthetic_run, tmp_path):
         time.sleep(1.0)  # the last tracks reach the recorder
     recorded = _tracks_by_stamp(synthetic_run / "bag")
     replayed = _tracks_by_stamp(replay_bag)
+    player_log = (tmp_path / "logs" / "bag_player.log").read_text()
+    assert "playing anyway" not in player_log, player_log
     assert len(recorded) == FRAMES
-    assert replayed == recorded
+    assert replayed == recorded, player_log
 
 
 def test_killed_node_is_named_and_bag_stays_readable(tmp_path, synthetic_run):

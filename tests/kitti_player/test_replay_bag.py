@@ -313,6 +313,49 @@ def test_ready_to_play_policy():
     assert DISCOVERY_TIME > 2 * 3.0
 
 
+def test_required_counts_never_below_the_known_subscribers():
+    from kitti_player_node.bag_replay import required_counts
+
+    known = {"/a": 2, "/b": 0}
+    # --wait-for-subscribers 1: one on every replayed topic, and every known one
+    assert required_counts(known, 1) == {"/a": 2, "/b": 1}
+    # --wait-for-topics: the declared counts (other nodes' topics too), raised to the known
+    assert required_counts(known, 0, {"/a": 1, "/tracks": 1}) == {"/a": 2, "/b": 0, "/tracks": 1}
+
+
+def test_wait_for_topics_waits_for_another_nodes_edge(rclpy_context):
+    """--wait-for-topics on a topic the player does not publish: it waits until the node
+    publishing it reports on /diagnostics a matched subscription (a tracker's tracks reaching a
+    recorder), and names the edge when the wait times out."""
+    from kitti_player_node.bag_player import BagPlayerNode
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from std_msgs.msg import String
+    from vehicle_common.frame_accounting import FrameCounter
+    from vehicle_common.node_runtime import NodeHealth
+
+    reporter = Node("flaky_reporter", context=rclpy_context)
+    reporter.create_publisher(String, "/flaky_edge", 10)
+    NodeHealth(reporter, FrameCounter(), period_s=0.2)
+    player = BagPlayerNode({"/flaky_in": "std_msgs/msg/String"}, context=rclpy_context)
+    ex = SingleThreadedExecutor(context=rclpy_context)
+    ex.add_node(reporter)
+    thread = threading.Thread(target=ex.spin, daemon=True)
+    thread.start()
+    listener = None
+    try:
+        assert player.wait_for_subscribers(0, 1.5, {"/flaky_edge": 1}) == ["/flaky_edge (0/1)"]
+        listener = Node("flaky_listener", context=rclpy_context)
+        listener.create_subscription(String, "/flaky_edge", lambda m: None, 10)
+        assert player.wait_for_subscribers(0, 20.0, {"/flaky_edge": 1}) == []
+    finally:
+        ex.shutdown()
+        thread.join(5)
+        for node in (listener, player, reporter):
+            if node is not None:
+                node.destroy_node()
+
+
 def _timed_bag(
     tmp_path, n: int = 20, period_ns: int = 100_000_000, unheard: bool = True
 ) -> tuple[Path, list[bytes]]:

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from vehicle_common.image_transport import SUBSCRIBER_TRANSPORTS
 from vehicle_common.node_parameters import param
 
-from eval_node.bag_writer import COMPRESSION_MODES
+from eval_node.bag_writer import COMPRESSION_MODES, FLUSH_MESSAGES
 from vehicle_common import topics as graph_topics
 
 #: The pipeline's topics (docs/ARCHITECTURE.md) recorded by default. Their types are given so
@@ -33,3 +33,5 @@ class RecorderParameters:
     qos_depth: int = param(100, low=1)
     discovery_period: float = param(0.5, low=0.0, low_open=True)  # [s]
     flush_period: float = param(1.0, low=0.0, low_open=True)  # [s]
+    # a chunk is written out once it holds this many messages (or is flush_period old)
+    flush_messages: int = param(FLUSH_MESSAGES, low=1)

@@ -89,7 +89,8 @@ def _message_class(msgtype: str):
 class BagRecorderNode(Node):
     """Raw subscriptions to the wanted topics (resolved in the node's namespace), each message
     written with its receive time through :class:`BagWriter`; new topics' types are discovered
-    every ``discovery_period``; the writer's thread flushes the bag every ``flush_period``."""
+    every ``discovery_period``; a chunk is written out at ``flush_messages`` messages or
+    ``flush_period`` of age, and the writer's thread fsyncs the bag every ``flush_period``."""
 
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
@@ -104,6 +105,7 @@ class BagRecorderNode(Node):
             p.compression_mode,
             p.max_bag_size,
             flush_period=p.flush_period,
+            flush_messages=p.flush_messages,
         )
         if self.writer.replaced_empty:
             self.get_logger().info(

@@ -11,8 +11,13 @@ By default the replay starts once every topic's subscribers are matched, so that
 already running gets every message: at once when every topic has a matched subscriber, else
 after ``--discovery-time`` seconds (7: a running participant may announce itself only that late,
 see :data:`DISCOVERY_TIME`), and never before every subscriber the graph knows is matched.
-``--immediate`` starts at once, as ``ros2 bag play`` does (it loses what is published before its
-publishers are matched; its ``--delay`` is the fixed wait).
+``--wait-for-subscribers N`` waits instead for N subscriptions on every topic, and
+``--wait-for-topics TOPIC:N,...`` for N on each TOPIC, a replayed one or one that another node
+publishes (from that node's report on /diagnostics, as the KITTI player waits for the graph's
+edges): a tracker's tracks reaching a recorder, a subscriber outside the graph; in both every
+subscriber the graph knows on a replayed topic is matched as well (``--wait-timeout`` bounds
+the wait). ``--immediate`` starts at once, as ``ros2 bag play`` does (it loses what is
+published before its publishers are matched; its ``--delay`` is the fixed wait).
 """
 
 from __future__ import annotations
@@ -22,10 +27,14 @@ import sys
 import time
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from vehicle_common.bag_files import BagError
+from vehicle_common.graph_readiness import NodeReport, parse_topic_counts, unready_topics
+from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
 
 from vehicle_common import topics
 
@@ -40,6 +49,7 @@ from .bag_replay import (
     parse_remaps,
     parse_topics,
     ready_to_play,
+    required_counts,
     stamp_sync,
 )
 
@@ -83,19 +93,55 @@ class BagPlayerNode(Node):
             for topic, t in types.items()
         }
         self.published = 0
+        #: the other nodes' reports on /diagnostics (matched subscriptions of what they
+        #: publish), read while waiting for ``--wait-for-topics``
+        self.reports: dict[str, NodeReport] = {}
+        self._report_sub = None
 
     def publish(self, msg: BagMessage) -> None:
         self.pubs[msg.topic].publish(msg.data)
         self.published += 1
 
-    def wait_for_subscribers(self, count: int, timeout_s: float) -> bool:
-        """Wait until every publisher has ``count`` subscriptions (True) or the timeout."""
+    def unready(self, each: int, declared: dict[str, int]) -> list[str]:
+        """Topics not yet matched as :func:`required_counts` says, ``"topic (have/want)"``:
+        the replayed ones from their publishers, the others from the reports of the nodes
+        that publish them (``--wait-for-topics``)."""
+        matched = {t: p.get_subscription_count() for t, p in self.pubs.items()}
+        known = {t: self.count_subscribers(t) for t in self.pubs}
+        want = required_counts(known, each, declared)
+        return unready_topics(want, matched, self.reports.values())
+
+    def wait_for_subscribers(
+        self, count: int, timeout_s: float, declared: dict[str, int] | None = None
+    ) -> list[str]:
+        """Wait until every replayed topic has ``count`` matched subscriptions, every topic of
+        ``declared`` its count (other nodes' topics: from their reports on /diagnostics) and
+        every subscription the ROS graph knows of on a replayed topic is matched, or the
+        timeout; returns what is still unmatched (empty: ready)."""
+        declared = {self.resolve_topic_name(t): n for t, n in (declared or {}).items()}
+        if set(declared) - set(self.pubs) and self._report_sub is None:
+            self._report_sub = self.create_subscription(
+                DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_reports, 50
+            )
+        executor = SingleThreadedExecutor(context=self.context)
+        executor.add_node(self)
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if all(p.get_subscription_count() >= count for p in self.pubs.values()):
-                return True
-            time.sleep(0.02)
-        return False
+        try:
+            while True:
+                unready = self.unready(count, declared)
+                if not unready or time.monotonic() >= deadline:
+                    return unready
+                executor.spin_once(timeout_sec=0.02)
+        finally:
+            executor.remove_node(self)
+            executor.shutdown(timeout_sec=0)
+            if self._report_sub is not None:
+                self.destroy_subscription(self._report_sub)
+                self._report_sub = None
+
+    def _on_reports(self, msg) -> None:
+        for report in reports_from_message(msg):
+            self.reports[report.node] = report
 
     def wait_for_matching(self, discovery_s: float, timeout_s: float) -> dict[str, int]:
         """Wait until :func:`ready_to_play` (or ``timeout_s``); returns the matched
@@ -127,7 +173,16 @@ def _parser() -> argparse.ArgumentParser:
         "--wait-for-subscribers",
         type=int,
         default=0,
-        help="wait until every topic has this many subscriptions before playing",
+        help="wait until every topic has this many subscriptions before playing (and every "
+        "subscription the ROS graph knows of is matched)",
+    )
+    ap.add_argument(
+        "--wait-for-topics",
+        default="",
+        metavar="TOPIC:N,...",
+        help="wait until each TOPIC has N matched subscriptions before playing: a replayed topic "
+        "(its publisher here) or one another node of the graph publishes (as that node reports "
+        "on /diagnostics), e.g. a subscriber outside the graph on the tracks",
     )
     ap.add_argument("--wait-timeout", type=float, default=10.0, help="limit of that wait [s]")
     ap.add_argument(
@@ -178,6 +233,10 @@ def main(argv: list[str] | None = None) -> int:
     own, ros_args = split_ros_args(argv)
     args = _parser().parse_args(own)
     try:
+        try:
+            declared = parse_topic_counts(args.wait_for_topics)
+        except ValueError as exc:
+            raise BagError(f"--wait-for-topics: {exc}") from None
         remap = parse_remaps(args.remap)
         topics = parse_topics(args.topics)
         types = output_types(args.bag, topics, remap)
@@ -196,11 +255,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         node = BagPlayerNode(types)
         log = node.get_logger()
-        if args.wait_for_subscribers > 0:
-            if not node.wait_for_subscribers(args.wait_for_subscribers, args.wait_timeout):
+        if args.wait_for_subscribers > 0 or declared:
+            unready = node.wait_for_subscribers(
+                args.wait_for_subscribers, args.wait_timeout, declared
+            )
+            if unready:
                 log.warning(
-                    f"not every topic has {args.wait_for_subscribers} subscriptions after "
-                    f"{args.wait_timeout} s; playing anyway"
+                    f"not matched after {args.wait_timeout} s: {', '.join(unready)}; playing anyway"
                 )
         elif not args.immediate:
             log.info(

@@ -225,6 +225,21 @@ def ready_to_play(
     return all(n > 0 for n in matched.values()) or elapsed_s >= discovery_s
 
 
+def required_counts(
+    known: dict[str, int], each: int = 0, declared: dict[str, int] | None = None
+) -> dict[str, int]:
+    """The subscriptions to wait for per topic with ``--wait-for-subscribers`` (``each``: on
+    every replayed topic of ``known``) or ``--wait-for-topics`` (``declared``: any topic of the
+    graph, the replayed ones and those other nodes publish): never fewer, on a replayed topic,
+    than the subscriptions the ROS graph already knows of (``known``), so that a replay starts
+    only once every subscriber of every topic it replays is matched (a count reached with one
+    subscriber while another one is still unmatched lost that one the first messages)."""
+    out = dict(declared or {})
+    for topic, n in known.items():
+        out[topic] = max(out.get(topic, 0), each, n)
+    return out
+
+
 def message_class(type_name: str):
     """The Python message class of ``pkg/msg/Name`` (or ``pkg/Name``)."""
     parts = type_name.split("/")

@@ -68,12 +68,13 @@ NODE_NAME = "kitti_player"
 LOCKSTEP_TICK_S = 0.02
 
 
-def parse_topic_counts(spec: str) -> dict[str, int]:
-    """``"/a:2,/b:1"`` -> ``{"/a": 2, "/b": 1}``; raises PlayerError for a malformed entry."""
+def parse_topic_counts(spec: str, name: str = "wait_for_topics") -> dict[str, int]:
+    """``"/a:2,/b:1"`` -> ``{"/a": 2, "/b": 1}``; raises PlayerError naming the parameter
+    ``name`` for a malformed entry."""
     try:
         return graph_readiness.parse_topic_counts(spec)
     except ValueError as exc:
-        raise PlayerError(f"wait_for_topics: {exc}") from None
+        raise PlayerError(f"{name}: {exc}") from None
 
 
 class PlayerError(RuntimeError):
@@ -143,6 +144,10 @@ class KittiPlayerNode(Node):
             self.resolve_topic_name(topic): n
             for topic, n in parse_topic_counts(p["wait_for_topics"]).items()
         }
+        external = parse_topic_counts(p["external_subscribers"], "external_subscribers")
+        for topic, n in external.items():
+            name = self.resolve_topic_name(topic)
+            self._expected[name] = self._expected.get(name, 0) + n
         self.reader = FramePrefetcher(self.sequence.read_stereo)
         self._preload_t0 = time.monotonic()
         self._preload_logged = p["preload_mib"] <= 0

@@ -38,6 +38,12 @@ class PlayerParameters:
     # report them on /diagnostics); the launchers set it from the graph description; relative
     # topic names are resolved in the node's namespace
     wait_for_topics: str = ""
+    # "topic:N,...": subscribers outside the graph (a robot's own nodes, already running) the
+    # first frame waits for too, on top of wait_for_topics: N more matched subscriptions on each
+    # topic, the player's own or one another node publishes (vehicles/vision/tracks,
+    # stereo/odometry, tf: as those nodes report them), so that they get every output from the
+    # first frame (a running participant may be discovered only 3 s after the graph starts)
+    external_subscribers: str = ""
     # s to wait after every expected subscription matched, before the first frame: across hosts
     # a remote reader may match the player's writer later than the writer matched it, and a
     # volatile reader drops what arrived before (README, "Across machines"); 0 on one host

@@ -182,6 +182,9 @@ class GraphLauncher:
         self._stopped_since: dict[str, float] = {}  # node -> when its process was seen stopped
         #: node -> recent (time, main thread state, main thread CPU s) samples of its process
         self._samples: dict[str, collections.deque] = {}
+        #: node -> recent (time, "R" when one of its other threads was runnable else "S", CPU s
+        #: of the whole process) samples, taken while it reports a frame in process
+        self._worker_samples: dict[str, collections.deque] = {}
         #: topics of this graph that another publisher outside it also publishes on (once ready)
         self.foreign: list[str] = []
         self._ready = False
@@ -256,6 +259,12 @@ class GraphLauncher:
                 states[name] = sample[0]
                 samples = self._samples.setdefault(name, collections.deque(maxlen=200))
                 samples.append((now, *sample))
+            report = self.reports.get(name)
+            if report is not None and report.busy:  # its frame worker's threads, too
+                sample = _worker_threads_sample(self.running[name].proc.pid)
+                if sample is not None:
+                    workers = self._worker_samples.setdefault(name, collections.deque(maxlen=200))
+                    workers.append((now, *sample))
         stalled = self.progress.stalled(now, alive)
         for name, why in list(stalled.items()):
             silent = self.progress.silent_s(name, now)
@@ -265,6 +274,14 @@ class GraphLauncher:
                 and starved_not_frozen(self._samples.get(name, ()), now, window)
             ):
                 del stalled[name]  # waiting for a CPU (a loaded machine, nice 10), not frozen
+            elif (
+                why.startswith("a frame in process")
+                and self.progress.busy_s(name, now) < STARVED_LIMIT * window
+                and starved_not_frozen(self._worker_samples.get(name, ()), now, window)
+            ):
+                # its frame's worker waits for a CPU: stereo_depth (nice 10) took over 5 s for
+                # its first frame of real 0005 on a 2-core machine at load 30, and was killed
+                del stalled[name]
         for name in alive:
             if states.get(name) in ("T", "t"):
                 since = self._stopped_since.setdefault(name, now)
@@ -293,6 +310,13 @@ class GraphLauncher:
         ready). Idempotent."""
         self._stopping = True
         codes: dict[str, int] = {}
+        # a frozen node goes first, before the sources stop and the frames drain: a stopped
+        # process keeps its DDS endpoints matched and its shared-memory ports full, and every
+        # other node's stop then waits on it (each node took seconds to stop while it lived;
+        # once a run exited 73 s after the SIGSTOP)
+        for name in self.stalled:
+            if name in self.running:
+                codes[name] = self._stop(self.running[name])
         if not self._ready:
             codes = self._stop_all(list(self.running.values()))
         else:
@@ -534,6 +558,23 @@ def _main_thread_sample(pid: int) -> tuple[str, float] | None:
         return fields[0], (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
     except (OSError, IndexError, ValueError):
         return None
+
+
+def _worker_threads_sample(pid: int) -> tuple[str, float] | None:
+    """("R" when a thread other than the main one is runnable, else "S"; CPU seconds of the
+    whole process), from /proc (Linux); None when unreadable. A frame worker that computes is
+    R (waiting for a CPU or on one), a deadlocked one sleeps."""
+    try:
+        runnable = False
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            if task.name != str(pid):
+                state = (task / "stat").read_text().rsplit(")", 1)[1].split()[0]
+                runnable = runnable or state == "R"
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+    return ("R" if runnable else "S"), cpu
 
 
 def starved_not_frozen(samples, now: float, window: float) -> bool:

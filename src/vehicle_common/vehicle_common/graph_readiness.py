@@ -160,6 +160,13 @@ class ProgressWatch:
         for table in (self._last_report, self._last_change, self._last):
             table.pop(name, None)
 
+    def busy_s(self, name: str, now: float) -> float:
+        """Seconds ``name`` has reported the same frame in process (0 when not busy)."""
+        last = self._last.get(name)
+        if last is None or not last.busy:
+            return 0.0
+        return now - self._last_change[name]
+
     def silent_s(self, name: str, now: float) -> float:
         """Seconds since the last report of ``name`` (0 when it is not watched)."""
         last = self._last_report.get(name)
