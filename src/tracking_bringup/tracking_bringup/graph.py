@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 from vehicle_common.graph_readiness import format_topic_counts
 from vehicle_common.image_transport import subscriber_transport
@@ -216,12 +215,13 @@ def node_overrides(overrides, node: str) -> list[str]:
 def file_parameters(params, namespace: str = "") -> dict[str, dict]:
     """``{node: {parameter: value}}`` of the graph's nodes: ``params`` itself when it is such
     a mapping already, else the parameter file ``params`` as the nodes read it in
-    ``namespace`` (:func:`parameter_file.node_parameters`; {} per node for None or a missing
-    file)."""
+    ``namespace`` (:func:`parameter_file.node_parameters`; a list of files: layered; {} per
+    node for None or a missing file)."""
     if isinstance(params, Mapping):
         return {n.name: dict(params.get(n.name, {})) for n in PIPELINE}
-    if params and Path(params).is_file():
-        return parameter_file.node_parameters(params, [n.name for n in PIPELINE], namespace)
+    files = [f for f in parameter_file.as_files(params or []) if f.is_file()]
+    if files:  # several: the layers of a run (parameter_file.layers), key by key
+        return parameter_file.node_parameters(files, [n.name for n in PIPELINE], namespace)
     return {n.name: {} for n in PIPELINE}
 
 

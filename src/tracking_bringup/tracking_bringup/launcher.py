@@ -585,7 +585,7 @@ def _tail(path: Path, lines: int = 15) -> str:
 
 def graph_processes(
     nodes: Sequence[graph.NodeSpec],
-    params_file: str | os.PathLike | None = PARAMS_FILE,
+    params_file: parameter_file.Files | None = PARAMS_FILE,
     overrides: Sequence[str] = (),
     namespace: str = "",
     graph_nodes: Sequence[graph.NodeSpec] | None = None,
@@ -595,7 +595,8 @@ def graph_processes(
     """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings.
 
     The parameter file is read here (:mod:`.parameter_file`: its sections checked, those that
-    address each node in ``namespace`` merged) and written to ``params_out`` (default: a file
+    address each node in ``namespace`` merged; a list of files, :func:`parameter_file.layers`,
+    is merged key by key in order) and written to ``params_out`` (default: a file
     removed when this process exits) with the nodes' fully qualified names as sections, which
     every node is given: a graph in a namespace runs with the file's values too. A bad file,
     section or namespace raises ValueError (one line).
@@ -738,12 +739,44 @@ def run_log_dir(root: str | os.PathLike = "output/logs") -> Path:
     return Path(root) / f"{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}"
 
 
+def add_params_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--params FILE`` (on top of the pipeline file, key by key) and ``--params-replace``."""
+    parser.add_argument(
+        "--params",
+        default=None,
+        help="ROS parameter YAML file read on top of the pipeline file "
+        f"({PARAMS_FILE.name}), key by key as -p does (default: the pipeline file alone)",
+    )
+    parser.add_argument(
+        "--params-replace",
+        action="store_true",
+        help="use the --params file instead of the pipeline file (parameters it does not set "
+        "are the nodes' defaults)",
+    )
+
+
+def parameter_layers(args) -> str | None:
+    """Replace ``args.params`` by the run's parameter files in the order they apply
+    (:func:`parameter_file.layers`); one line (no file, a missing one) or None."""
+    try:
+        args.params = parameter_file.layers(args.params, args.params_replace)
+    except ValueError as exc:
+        return str(exc)
+    return parameter_file.missing_file(args.params)
+
+
+def check_arguments(args) -> str | None:
+    """One line for the first option that cannot be used, else None (``args.params`` becomes
+    the run's parameter files)."""
+    return parameter_layers(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="stereo_tracking_launch",
         description="Start the stereo tracking graph as separate processes (one per node).",
     )
-    parser.add_argument("--params", default=str(PARAMS_FILE), help="ROS parameter YAML file")
+    add_params_arguments(parser)
     parser.add_argument(
         "--nodes",
         default=None,
@@ -784,9 +817,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--echo", action="store_true", help="print node output to the console")
     hosts.add_arguments(parser)
     args = parser.parse_args(argv)
-    if not Path(args.params).is_file():
-        print(f"error: {args.params}: parameter file not found", file=sys.stderr)
-        return 2
+    problem = check_arguments(args)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     log_dir = Path(args.log_dir) if args.log_dir else run_log_dir()
     try:
         plan = hosts.launch_plan(args)
