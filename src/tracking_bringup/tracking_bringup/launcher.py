@@ -43,6 +43,7 @@ from pathlib import Path
 
 from vehicle_common.graph_readiness import NodeReport, ProgressWatch, graph_quiescent
 from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
+from vehicle_common.option_checks import first_problem, number_problem
 
 from tracking_bringup import graph, hosts, parameter_file
 from tracking_bringup.environment import PARAMS_FILE, graph_environment
@@ -765,10 +766,44 @@ def parameter_layers(args) -> str | None:
     return parameter_file.missing_file(args.params)
 
 
+#: the shortest ``--stall-timeout`` [s]: every node reports on /diagnostics once a second, so a
+#: shorter limit names healthy nodes (0 killed a node after its first frame)
+MIN_STALL_TIMEOUT = 1.0
+
+
 def check_arguments(args) -> str | None:
     """One line for the first option that cannot be used, else None (``args.params`` becomes
-    the run's parameter files)."""
-    return parameter_layers(args)
+    the run's parameter files): --ready-timeout and --stall-timeout finite and positive,
+    --nodes / --graph naming at least one node, the parameter files."""
+    for option, text in (("--nodes", args.nodes), ("--graph", args.graph)):
+        if text is not None and not [n for n in text.split(",") if n.strip()]:
+            return (
+                f"{option} {text!r}: no node named (comma-separated names of "
+                + ", ".join(n.name for n in graph.PIPELINE)
+                + ")"
+            )
+    return first_problem(
+        number_problem("--ready-timeout", args.ready_timeout, above=0.0, why="seconds"),
+        number_problem(
+            "--stall-timeout",
+            args.stall_timeout,
+            minimum=MIN_STALL_TIMEOUT,
+            why="seconds; every node reports once a second",
+        ),
+        parameter_layers(args),
+    )
+
+
+def make_log_dir(log_dir: Path) -> str | None:
+    """Create the run's log folder; one line when it cannot be (a file in the way, no
+    permission, a read-only disk), else None."""
+    try:
+        log_dir.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        return f"--log-dir {log_dir}: cannot create the log folder (a file is in the way)"
+    except OSError as exc:
+        return f"--log-dir {log_dir}: cannot create the log folder ({exc.strerror})"
+    return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -801,13 +836,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="folder of this run's per-node logs and parameter file (default: a new folder "
         "output/logs/<date>-<time>_<pid> per run; the logs of a given folder are replaced)",
     )
-    parser.add_argument("--ready-timeout", type=float, default=60.0)
+    parser.add_argument(
+        "--ready-timeout",
+        type=float,
+        default=60.0,
+        help="s the graph has to come up (every node's topics visible) before the run fails",
+    )
     parser.add_argument(
         "--stall-timeout",
         type=float,
         default=5.0,
         help="s without a node's report (or with a frame in process and no progress) after "
-        "which the run fails naming the node (every node reports at least once a second)",
+        "which the run fails naming the node (every node reports at least once a second, so "
+        f"at least {MIN_STALL_TIMEOUT:g})",
     )
     parser.add_argument(
         "--keep-running",
@@ -822,6 +863,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {problem}", file=sys.stderr)
         return EXIT_BAD_INPUT
     log_dir = Path(args.log_dir) if args.log_dir else run_log_dir()
+    problem = make_log_dir(log_dir)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     try:
         plan = hosts.launch_plan(args)
         nodes = graph.by_name(plan.nodes)
