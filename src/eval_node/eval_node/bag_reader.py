@@ -51,6 +51,33 @@ class BagReadError(BagError):
     """A bag is missing, unreadable or lacks what the evaluation needs (message names it)."""
 
 
+@dataclass(frozen=True)
+class FrameGrid:
+    """Where a run without ``/kitti/ground_truth`` puts each stamp: frame
+    ``round((stamp - start_s) / period_s)``, the KITTI player's stamps (its ``start_time``,
+    default 1.0 s, and 10 Hz dataset time: kitti_player_node.playback.stamp_ns). Scoring such a
+    run against label files by stamp order shifted every frame after a missing one (issue #42:
+    13 of 16 frames, MOTA 0.0)."""
+
+    start_s: float = 1.0
+    period_s: float = 0.1
+    #: largest distance of a stamp from its grid point [s] (the player's stamps are exact)
+    tolerance_s: float = 0.001
+
+    def frame(self, stamp: int, path) -> int:
+        """The frame of ``stamp`` [ns]; BagReadError (one line) when it is off the grid."""
+        offset = stamp * 1e-9 - self.start_s
+        k = round(offset / self.period_s)
+        if k < 0 or abs(offset - k * self.period_s) > self.tolerance_s:
+            raise BagReadError(
+                f"{path}: stamp {stamp * 1e-9:.6f} s is not on the KITTI player's frame grid "
+                f"(frame 0 at {self.start_s:g} s, {self.period_s:g} s a frame), and the bag has "
+                f"no {GT_TOPIC} to number the frames: give the player's start_time with "
+                "--start-time, or record the ground truth"
+            )
+        return int(k)
+
+
 @dataclass
 class RecordedFrame:
     """Everything recorded for one frame (one stamp)."""
@@ -173,9 +200,12 @@ def read_run(
     track_states: tuple[int, ...] = OUTPUT_STATES,
     progress: bool = False,
     namespace: str | None = None,
+    frame_grid: FrameGrid | None = None,
 ) -> RecordedRun:
     """Read a recorded run. Frames come from ``/kitti/ground_truth``; without it, every stamp
-    of the pipeline's topics becomes a frame (index in stamp order, no ground truth).
+    of the pipeline's topics becomes a frame (no ground truth): numbered by its stamp on
+    ``frame_grid`` when given (frames between the first and the last with no output at all
+    are kept, empty: scored as missed), else in stamp order.
     Tracks whose state is not in ``track_states`` are dropped (tentative ones go to
     ``RecordedFrame.tentative``, for the tracks' AP). ``namespace``: the namespace
     the graph ran in (``/rig2``); None: detected from the bag's topics (:func:`bag_namespace`)."""
@@ -256,7 +286,14 @@ def read_run(
     else:
         stamps = sorted({s for t in (DET2D_TOPIC, DET3D_TOPIC, TRACKS_TOPIC) for s in msgs[t]})
         for i, s in enumerate(stamps):
-            frames[s] = RecordedFrame(frame=i, stamp_ns=s, offset=np.zeros(3))
+            k = i if frame_grid is None else frame_grid.frame(s, path)
+            frames[s] = RecordedFrame(frame=k, stamp_ns=s, offset=np.zeros(3))
+        if frame_grid is not None and stamps:  # a frame with no output at all: nothing tracked
+            seen = {f.frame for f in frames.values()}
+            for k in range(min(seen), max(seen) + 1):
+                if k not in seen:
+                    s = int(round((frame_grid.start_s + k * frame_grid.period_s) * 1e9))
+                    frames[s] = RecordedFrame(frame=k, stamp_ns=s, offset=np.zeros(3))
 
     if info_seen is not None:
         K = np.array(info_seen.k, dtype=float).reshape(3, 3)
