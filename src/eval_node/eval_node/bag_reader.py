@@ -19,7 +19,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from vehicle_common.bag_files import BagError, open_reader
+from vehicle_common.bag_files import BagError, bag_messages, open_reader
 from vehicle_common.camera_frames import kitti_row_from_centre
 from vehicle_common.frame_messages import bbox_to_xyxy, kitti_objects_from_message, stamp_ns
 from vehicle_common.kitti import KittiObject
@@ -237,7 +237,7 @@ def read_run(
         reader.close()
         raise BagReadError(f"{path}: none of the pipeline's topics ({', '.join(sorted(wanted))})")
     try:
-        it = reader.messages(connections=conns)
+        it = bag_messages(reader, path, conns)  # a damaged chunk: one line naming it
         if progress:
             from tqdm import tqdm
 
@@ -381,7 +381,7 @@ def read_left_images(
         conns = [c for c in reader.connections if c.topic == left]
         if not conns:  # (rosbags reads every connection when given none)
             return out
-        for conn, _t, raw in reader.messages(connections=conns):
+        for conn, _t, raw in bag_messages(reader, path, conns):
             msg = reader.deserialize(raw, conn.msgtype)
             s = stamp_ns(msg.header)
             if stamps is None or s in stamps:
