@@ -85,3 +85,28 @@ def test_bad_bag_player_option_is_one_line_and_exit_2(tmp_path, capsys, args, me
     assert main([str(tmp_path / "no_bag"), *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {message}"), err
+
+
+@pytest.mark.parametrize(
+    "player",
+    [
+        ["-p", "kitti_player.rate:=0.0", "-p", "kitti_player.lockstep:=false"],
+        ["-p", "kitti_player.rate_multiplier:=0", "-p", "kitti_player.lockstep:=false"],
+    ],
+)
+def test_unpaced_player_without_lockstep_is_refused(monkeypatch, tmp_path, capsys, player):
+    """``kitti_player.rate:=0.0 lockstep:=false`` published 16 frames of 0005 as fast as it
+    could and the detector took 8: the others were overwritten in its KEEP_LAST input queue,
+    counted by no node (issue #42). The launcher refuses it in one line, exit 2; unpaced in
+    lockstep (as fast as the graph allows) and paced without lockstep still start."""
+    code, calls = _launch(monkeypatch, tmp_path, *player)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and not calls
+    assert len(err) == 1 and "(unpaced) without lockstep" in err[0], err
+    assert "set kitti_player.lockstep:=true" in err[0]
+    for ok in (
+        ["-p", "kitti_player.rate:=0.0", "-p", "kitti_player.lockstep:=true"],
+        ["-p", "kitti_player.rate:=20.0", "-p", "kitti_player.lockstep:=false"],
+    ):
+        code, calls = _launch(monkeypatch, tmp_path / ok[1], *ok)
+        assert code == 0 and len(calls) == 1

@@ -246,6 +246,25 @@ def _lockstep_window(value) -> int | None:
     return window if window >= 1 else None
 
 
+def _check_unpaced(rate, multiplier, whole: list[NodeSpec]) -> None:
+    """ValueError (one line) for an unpaced player (``rate`` or ``rate_multiplier`` <= 0)
+    without lockstep in a graph with a latest-frame node: the player then publishes far
+    faster than that node takes frames and its input queues (KEEP_LAST) overwrite frames that
+    no node ever sees or counts (issue #42: 0005, the player 16 out, the detector 8 in)."""
+    try:
+        hz = float(str(rate).strip("'\"")) * float(str(multiplier).strip("'\""))
+    except ValueError:
+        return  # the player refuses the value itself, with its own line
+    consumers = [n.name for n in whole if n.latest_frame]
+    if hz <= 0 and consumers:
+        raise ValueError(
+            f"{PLAYER.name}: rate {rate} x rate_multiplier {multiplier} (unpaced) without "
+            f"lockstep: the player would publish faster than {', '.join(consumers)} take "
+            "frames, and their input queues would lose frames that no node counts; set "
+            f"{PLAYER.name}.lockstep:=true (as fast as the graph allows), or a rate > 0"
+        )
+
+
 def plan(
     nodes: list[NodeSpec],
     params_file=None,
@@ -292,6 +311,8 @@ def plan(
 
     nodes = shaped(nodes)
     whole = nodes if graph_nodes is None else shaped(graph_nodes)
+    if not lockstep and any(n is PLAYER or n.name == PLAYER.name for n in nodes):
+        _check_unpaced(value(PLAYER, "rate", 10.0), value(PLAYER, "rate_multiplier", 1.0), whole)
     window = _lockstep_window(value(PLAYER, "lockstep_window", 1)) if lockstep else None
     out = []
     for n in nodes:
