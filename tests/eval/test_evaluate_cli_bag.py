@@ -284,3 +284,51 @@ def test_repeated_stamps_of_serialized_headers():
     assert seen.repeats == {"/t": 1}
     assert not seen.add("/t", 1)  # forgotten: only the last 3 stamps are kept
     assert not seen.add("/other", 2)
+
+
+def test_run_without_ground_truth_is_scored_by_stamp(tmp_path, capsys):
+    """A bag without /kitti/ground_truth whose first frame left no output at all, scored with
+    ``--labels --sequence``: each stamp is its frame on the player's grid (``--start-time``),
+    frame 0 counts as missed, every other frame matches its labels (before: stamps in order
+    numbered frame 1 as 0, and every frame was shifted against its labels)."""
+    from eval_node.bag_writer import write_bag
+    from eval_node.cli import main
+    from vehicle_common.kitti import write_tracking_labels
+
+    labels = tmp_path / "label_02"
+    write_tracking_labels(labels / "0003.txt", [o for k in range(N_FRAMES) for o in gt_objects(k)])
+    kept = [
+        (topic, msg, t)
+        for topic, msg, t in make_messages()
+        if topic != "/kitti/ground_truth"
+        and msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec != T0
+    ]
+    bag = tmp_path / "bag"
+    write_bag(bag, kept)
+    json_path = tmp_path / "res.json"
+    argv = ["bag", str(bag), "--labels", str(labels), "--sequence", "0003", "--no-filters"]
+    argv += ["--no-progress", "--json", str(json_path), "--start-time", str(T0 * 1e-9)]
+    assert main(argv) == 0, capsys.readouterr().err
+    res = json.loads(json_path.read_text())
+    assert res["frames"] == N_FRAMES - 1 and res["gt_source"] == "labels"
+    tracking = res["tracking"]
+    assert tracking["fp"] == 0 and tracking["idsw"] == 0
+    assert tracking["fn"] == 0  # frame 0 had no output: not a frame of the run (before its first)
+
+    # a frame in the middle with no output at all is scored as missed (its labels are FN)
+    middle = T0 + 5 * 100_000_000
+    gap = [m for m in kept if m[1].header.stamp.sec * 10**9 + m[1].header.stamp.nanosec != middle]
+    write_bag(tmp_path / "gap", gap)
+    argv[1] = str(tmp_path / "gap")
+    assert main(argv) == 0
+    res = json.loads(json_path.read_text())
+    assert res["frames"] == N_FRAMES - 1 and res["tracking"]["fn"] == len(gt_objects(5))
+    assert res["tracking"]["fp"] == 0
+
+    # stamps off the player's grid: one line naming --start-time
+    argv[-1] = str(T0 * 1e-9 + 0.05)
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not on the KITTI player's frame grid" in err[0]
+    assert "--start-time" in err[0]

@@ -58,6 +58,14 @@ def _nan_box(lines):
     return [*lines[:i], " ".join(t), *lines[i + 1 :]]
 
 
+def _swapped(lines, a: int, b: int):
+    """The first car's row with columns ``a`` and ``b`` exchanged (an inverted box)."""
+    i = _first_car(lines)
+    t = lines[i].split()
+    t[a], t[b] = t[b], t[a]
+    return [*lines[:i], " ".join(t), *lines[i + 1 :]]
+
+
 def _frame_minus_one(lines):
     i = _first_car(lines)
     return [*lines, " ".join(["-1", *lines[i].split()[1:]])]
@@ -74,13 +82,15 @@ def _duplicate_id(lines):
         (_nan_box, "bbox x1: non-finite value nan"),
         (_frame_minus_one, "frame: -1 is negative"),
         (_duplicate_id, "appears twice in frame"),
+        (lambda lines: _swapped(lines, 6, 8), "bbox: inverted box (x2 "),  # x1 <-> x2
+        (lambda lines: _swapped(lines, 7, 9), "bbox: inverted box (y2 "),  # y1 <-> y2
     ],
 )
 def test_results_that_cannot_be_scored_exit_2_naming_file_and_line(
     kitti_tracking_root, tmp_path, capsys, change, where
 ):
     """These results were scored with exit code 0 (NaN boxes, frame -1, one track id twice in
-    a frame); now one line names the file and line."""
+    a frame, an inverted box: issue #42); now one line names the file and line."""
     from eval_node.cli import main
 
     labels = kitti_tracking_root / "label_02"

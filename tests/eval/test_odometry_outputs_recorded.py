@@ -115,3 +115,49 @@ def test_odometry_check_on_a_known_drive():
     frames[3].tracks_frame = "left_camera_optical_frame"
     with pytest.raises(ValueError, match="not 'odom'"):
         parked_car_spreads(frames)
+
+
+def test_recorder_records_the_vision_msgs_outputs_by_default(tmp_path, rclpy_context):
+    """The default recorder (no ``topics`` given) records /vehicles/vision/detections_2d and
+    /vehicles/vision/tracks (vision_msgs) beside the project's messages (issue #42: the README
+    says every output is recorded, and these were not)."""
+    import rclpy
+    from eval_node.recorder import BagRecorderNode
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from rosbags.highlevel import AnyReader
+    from vision_msgs.msg import Detection2DArray, Detection3DArray
+
+    pub_node = rclpy.create_node("vision_pub", context=rclpy_context)
+    pubs = {
+        "/vehicles/vision/detections_2d": pub_node.create_publisher(
+            Detection2DArray, "/vehicles/vision/detections_2d", 10
+        ),
+        "/vehicles/vision/tracks": pub_node.create_publisher(
+            Detection3DArray, "/vehicles/vision/tracks", 10
+        ),
+    }
+    bag = tmp_path / "bag"
+    recorder = BagRecorderNode(
+        context=rclpy_context, parameter_overrides=[Parameter("output", value=str(bag))]
+    )
+    ex = SingleThreadedExecutor(context=rclpy_context)
+    ex.add_node(recorder)
+    ex.add_node(pub_node)
+    try:
+        assert spin_until(
+            ex, lambda: all(p.get_subscription_count() for p in pubs.values()), timeout=15.0
+        )
+        for topic, pub in pubs.items():
+            msg = pub.msg_type()
+            msg.header.frame_id = topic
+            pub.publish(msg)
+        assert spin_until(ex, lambda: recorder.message_count() == 2, timeout=15.0)
+    finally:
+        recorder.close()
+        ex.shutdown()
+        recorder.destroy_node()
+        pub_node.destroy_node()
+    with AnyReader([bag]) as reader:
+        got = {c.topic: reader.deserialize(r, c.msgtype) for c, _, r in reader.messages()}
+    assert {t: m.header.frame_id for t, m in got.items()} == {t: t for t in pubs}

@@ -19,7 +19,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from vehicle_common.bag_files import BagError, open_reader
+from vehicle_common.bag_files import BagError, bag_messages, open_reader
 from vehicle_common.camera_frames import kitti_row_from_centre
 from vehicle_common.frame_messages import bbox_to_xyxy, kitti_objects_from_message, stamp_ns
 from vehicle_common.kitti import KittiObject
@@ -49,6 +49,33 @@ RANKED_STATES = (0, 1, 2)
 
 class BagReadError(BagError):
     """A bag is missing, unreadable or lacks what the evaluation needs (message names it)."""
+
+
+@dataclass(frozen=True)
+class FrameGrid:
+    """Where a run without ``/kitti/ground_truth`` puts each stamp: frame
+    ``round((stamp - start_s) / period_s)``, the KITTI player's stamps (its ``start_time``,
+    default 1.0 s, and 10 Hz dataset time: kitti_player_node.playback.stamp_ns). Scoring such a
+    run against label files by stamp order shifted every frame after a missing one (issue #42:
+    13 of 16 frames, MOTA 0.0)."""
+
+    start_s: float = 1.0
+    period_s: float = 0.1
+    #: largest distance of a stamp from its grid point [s] (the player's stamps are exact)
+    tolerance_s: float = 0.001
+
+    def frame(self, stamp: int, path) -> int:
+        """The frame of ``stamp`` [ns]; BagReadError (one line) when it is off the grid."""
+        offset = stamp * 1e-9 - self.start_s
+        k = round(offset / self.period_s)
+        if k < 0 or abs(offset - k * self.period_s) > self.tolerance_s:
+            raise BagReadError(
+                f"{path}: stamp {stamp * 1e-9:.6f} s is not on the KITTI player's frame grid "
+                f"(frame 0 at {self.start_s:g} s, {self.period_s:g} s a frame), and the bag has "
+                f"no {GT_TOPIC} to number the frames: give the player's start_time with "
+                "--start-time, or record the ground truth"
+            )
+        return int(k)
 
 
 @dataclass
@@ -173,9 +200,12 @@ def read_run(
     track_states: tuple[int, ...] = OUTPUT_STATES,
     progress: bool = False,
     namespace: str | None = None,
+    frame_grid: FrameGrid | None = None,
 ) -> RecordedRun:
     """Read a recorded run. Frames come from ``/kitti/ground_truth``; without it, every stamp
-    of the pipeline's topics becomes a frame (index in stamp order, no ground truth).
+    of the pipeline's topics becomes a frame (no ground truth): numbered by its stamp on
+    ``frame_grid`` when given (frames between the first and the last with no output at all
+    are kept, empty: scored as missed), else in stamp order.
     Tracks whose state is not in ``track_states`` are dropped (tentative ones go to
     ``RecordedFrame.tentative``, for the tracks' AP). ``namespace``: the namespace
     the graph ran in (``/rig2``); None: detected from the bag's topics (:func:`bag_namespace`)."""
@@ -207,7 +237,7 @@ def read_run(
         reader.close()
         raise BagReadError(f"{path}: none of the pipeline's topics ({', '.join(sorted(wanted))})")
     try:
-        it = reader.messages(connections=conns)
+        it = bag_messages(reader, path, conns)  # a damaged chunk: one line naming it
         if progress:
             from tqdm import tqdm
 
@@ -256,7 +286,14 @@ def read_run(
     else:
         stamps = sorted({s for t in (DET2D_TOPIC, DET3D_TOPIC, TRACKS_TOPIC) for s in msgs[t]})
         for i, s in enumerate(stamps):
-            frames[s] = RecordedFrame(frame=i, stamp_ns=s, offset=np.zeros(3))
+            k = i if frame_grid is None else frame_grid.frame(s, path)
+            frames[s] = RecordedFrame(frame=k, stamp_ns=s, offset=np.zeros(3))
+        if frame_grid is not None and stamps:  # a frame with no output at all: nothing tracked
+            seen = {f.frame for f in frames.values()}
+            for k in range(min(seen), max(seen) + 1):
+                if k not in seen:
+                    s = int(round((frame_grid.start_s + k * frame_grid.period_s) * 1e9))
+                    frames[s] = RecordedFrame(frame=k, stamp_ns=s, offset=np.zeros(3))
 
     if info_seen is not None:
         K = np.array(info_seen.k, dtype=float).reshape(3, 3)
@@ -344,7 +381,7 @@ def read_left_images(
         conns = [c for c in reader.connections if c.topic == left]
         if not conns:  # (rosbags reads every connection when given none)
             return out
-        for conn, _t, raw in reader.messages(connections=conns):
+        for conn, _t, raw in bag_messages(reader, path, conns):
             msg = reader.deserialize(raw, conn.msgtype)
             s = stamp_ns(msg.header)
             if stamps is None or s in stamps:

@@ -161,6 +161,8 @@ class BagWriter:
         self.flush_period = float(flush_period)
         self.flush_messages = int(flush_messages)
         self._stop_flush = threading.Event()
+        #: the OSError that stopped the flush thread (a full disk), for the owner to report
+        self.error: OSError | None = None
         self._flush_thread: threading.Thread | None = None
         self._last_ts = 0
         self._closed = False
@@ -323,7 +325,11 @@ class BagWriter:
 
         def run() -> None:
             while not self._stop_flush.wait(period_s):
-                self.flush()
+                try:
+                    self.flush()
+                except OSError as exc:  # a full disk: kept for the recorder to report
+                    self.error = exc
+                    return
 
         self._flush_thread = threading.Thread(target=run, name="bag_flush", daemon=True)
         self._flush_thread.start()

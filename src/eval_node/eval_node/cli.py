@@ -108,6 +108,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("bag", help="bag directory (metadata.yaml + .mcap) or .mcap file")
     b.add_argument("--labels", help="label_02 folder (default: ground truth recorded in the bag)")
     b.add_argument("--sequence", help="sequence name (default: the one recorded)")
+    b.add_argument(
+        "--start-time",
+        type=float,
+        default=1.0,
+        help="with --labels and no recorded ground truth: stamp [s] of frame 0, the KITTI "
+        "player's start_time (default 1.0, its own); frames are numbered by stamp, 0.1 s each",
+    )
     b.add_argument("--calib", help="KITTI calib folder (projection for the overlay without "
                    "camera_info)")  # fmt: skip
     b.add_argument("--images", help="KITTI tracking root with image_02 (overlay GIF)")
@@ -168,7 +175,7 @@ def _run_detection(args) -> int:
 
 def _run_bag(args) -> int:
     from eval_node.bag_evaluation import evaluate_bag
-    from eval_node.bag_reader import read_run
+    from eval_node.bag_reader import FrameGrid, read_run
     from eval_node.report import results_table, write_report
 
     config = None
@@ -181,7 +188,15 @@ def _run_bag(args) -> int:
             raise KittiFormatError(str(exc)) from None
     if args.calib and not Path(args.calib).is_dir():
         raise KittiFormatError(f"{args.calib}: calib folder not found")
-    run = read_run(args.bag, progress=not args.no_progress, namespace=args.namespace)
+    if not math.isfinite(args.start_time) or args.start_time < 0:
+        raise KittiFormatError(f"--start-time {args.start_time}: expected a stamp [s] >= 0")
+    run = read_run(
+        args.bag,
+        progress=not args.no_progress,
+        namespace=args.namespace,
+        # labels are numbered by frame: a run without recorded ground truth by its stamps
+        frame_grid=FrameGrid(start_s=args.start_time) if args.labels else None,
+    )
     res = evaluate_bag(
         args.bag,
         run=run,

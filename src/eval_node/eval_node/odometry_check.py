@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from vehicle_common.bag_files import open_reader
+from vehicle_common.bag_files import bag_messages, open_reader
 from vehicle_common.camera_frames import centre_from_kitti
 from vehicle_common.camera_motion import CameraMotion
 from vehicle_common.frame_messages import kitti_objects_from_message, read_transform, stamp_ns
@@ -83,7 +83,7 @@ def read_odometry_run(bag: str | Path, odom_frame: str = "odom", namespace: str 
     try:
         wanted = {*name.values(), *tf_topics}
         conns = [c for c in reader.connections if c.topic in wanted]
-        for conn, _, raw in reader.messages(connections=conns):
+        for conn, _, raw in bag_messages(reader, bag, conns):
             msg = reader.deserialize(raw, conn.msgtype)
             if conn.topic in tf_topics:
                 tree.add_message(msg, static=tf_topics[conn.topic])

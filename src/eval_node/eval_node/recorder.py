@@ -132,6 +132,8 @@ class BagRecorderNode(Node):
         )
         self.subs = {}
         self._last_ns = 0
+        #: the OSError that stopped the recording (ENOSPC: a full disk); main() exits 1 on it
+        self.failed: OSError | None = None
         #: the per-frame topics (resolved) whose stamps must not repeat
         self.frame_topics = {self.resolve_topic_name(t) for t in FRAME_TOPICS}
         self.stamps = RepeatedStamps()
@@ -151,9 +153,15 @@ class BagRecorderNode(Node):
         frame_topic = topic in self.frame_topics
 
         def callback(data: bytes, topic: str = topic) -> None:
+            if self.failed is not None:
+                return  # the bag cannot be written (a full disk): the node is stopping
             now = max(time.time_ns(), self._last_ns)
             self._last_ns = now
-            self.writer.write(topic, data, now)
+            try:
+                self.writer.write(topic, data, now)
+            except OSError as exc:
+                self.failed = exc
+                return
             if frame_topic:
                 self._check_stamp(topic, data)
 
@@ -186,10 +194,29 @@ class BagRecorderNode(Node):
     def message_count(self) -> int:
         return sum(self.writer.counts.values())
 
+    def write_error(self) -> OSError | None:
+        """The error that stopped the recording (a message's write or the flush thread's)."""
+        return self.failed or self.writer.error
+
+    def failure_line(self, exc: OSError) -> str:
+        """One line naming the node, the bag and the cause (a full disk: ENOSPC)."""
+        why = exc.strerror or str(exc)
+        return (
+            f"error: {NODE_NAME}: cannot write the bag {self.output}: {why} (errno "
+            f"{exc.errno}); recording stopped; the bag holds what was flushed before "
+            f"(evaluate and bag_player read it; `bag_recover {self.output}` repairs it)"
+        )
+
     def close(self) -> None:
-        """Close the bag and log the message count of each topic."""
+        """Close the bag and log the message count of each topic. A bag that cannot be closed
+        (the disk is full) is left as a crashed recorder leaves it: readable up to its last
+        complete chunk."""
         log = self.get_logger()
-        counts = self.writer.close()
+        try:
+            counts = self.writer.close()
+        except OSError as exc:
+            self.failed = self.failed or exc
+            return
         for topic in self.writer.types:
             log.info(f"{topic}: {counts.get(topic, 0)} messages")
         log.info(
@@ -223,12 +250,12 @@ def main(args: list[str] | None = None) -> int:
     executor = rclpy.executors.SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        while not stop:
+        while not stop and node.write_error() is None:
             executor.spin_once(timeout_sec=0.1)
         # Drain: take what is still queued in the subscriptions before closing.
         idle_since = time.monotonic()
         before = node.message_count()
-        while time.monotonic() - idle_since < 0.3:
+        while time.monotonic() - idle_since < 0.3 and node.write_error() is None:
             executor.spin_once(timeout_sec=0.05)
             now = node.message_count()
             if now != before:
@@ -238,6 +265,10 @@ def main(args: list[str] | None = None) -> int:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+    error = node.write_error()
+    if error is not None:  # one line, no traceback (before: chained OSError tracebacks)
+        print(node.failure_line(error), file=sys.stderr)
+        return 1
     return 0
 
 

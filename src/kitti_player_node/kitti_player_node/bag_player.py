@@ -35,6 +35,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from vehicle_common.bag_files import BagError
 from vehicle_common.graph_readiness import NodeReport, parse_topic_counts, unready_topics
 from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
+from vehicle_common.option_checks import first_problem, number_problem
 
 from vehicle_common import topics
 
@@ -212,6 +213,20 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def check_options(args) -> str | None:
+    """One line for the first numeric option that cannot be used (a negative, NaN or infinite
+    --rate was accepted), else None."""
+    seconds = ("--wait-timeout", "--discovery-time", "--ack-timeout", "--sync-tolerance")
+    return first_problem(
+        number_problem("--rate", args.rate, minimum=0.0, why="speed factor, 0 = fast as possible"),
+        number_problem("--wait-for-subscribers", args.wait_for_subscribers, minimum=0),
+        *(
+            number_problem(option, getattr(args, option[2:].replace("-", "_")), minimum=0.0)
+            for option in seconds
+        ),
+    )
+
+
 def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
     """(own arguments, ROS arguments): the ROS ones are those between ``--ros-args`` and ``--``
     (or the end). rclpy's ``remove_ros_args`` is not used for this, as it also takes
@@ -232,6 +247,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     own, ros_args = split_ros_args(argv)
     args = _parser().parse_args(own)
+    problem = check_options(args)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     try:
         try:
             declared = parse_topic_counts(args.wait_for_topics)

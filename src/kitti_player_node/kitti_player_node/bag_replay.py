@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from vehicle_common.bag_files import BagError, open_reader
+from vehicle_common.bag_files import BagError, bag_messages, open_reader
 from vehicle_common.message_definitions import (
     MessageDefinitions,
     UnknownMessageType,
@@ -102,19 +102,19 @@ def iter_bag(
         if not conns:
             return
         convert = _cdr_converters(reader, conns, path)
-        try:
-            for conn, timestamp, data in reader.messages(connections=conns):
+        for conn, timestamp, data in bag_messages(reader, path, conns):
+            try:
                 raw = convert[conn.id](data) if convert else bytes(data)
-                yield BagMessage(
-                    remap.get(conn.topic, conn.topic),
-                    ros2_type_name(conn.msgtype),
-                    int(timestamp),
-                    raw,
-                )
-        except BagError:
-            raise
-        except Exception as exc:
-            raise BagError(f"{path}: cannot read bag ({exc})") from None
+            except BagError:
+                raise
+            except Exception as exc:
+                raise BagError(f"{path}: cannot read bag ({exc})") from None
+            yield BagMessage(
+                remap.get(conn.topic, conn.topic),
+                ros2_type_name(conn.msgtype),
+                int(timestamp),
+                raw,
+            )
     finally:
         reader.close()
 

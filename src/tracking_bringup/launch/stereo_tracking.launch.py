@@ -1,6 +1,6 @@
 """Standard ROS 2 launch file of the stereo tracking graph (for a full ROS 2 install:
-``ros2 launch tracking_bringup stereo_tracking.launch.py [params_file:=FILE] [record:=false]
-[namespace:=/rig2]``).
+``ros2 launch tracking_bringup stereo_tracking.launch.py [params_file:=FILE]
+[params_replace:=true] [record:=false] [namespace:=/rig2]``).
 
 It is built with the same plan (``tracking_bringup.graph.plan``: node list, the detector's
 subscriptions following its ``backend``, the player's following its ``lockstep``, the player's
@@ -22,6 +22,8 @@ from tracking_bringup.environment import graph_environment
 
 from tracking_bringup import graph, parameter_file
 
+PIPELINE = "pipeline.params.yaml"
+
 
 def _environment(share: str) -> dict:
     env = {k: v for k, v in graph_environment({}).items() if k != "PYTHONUNBUFFERED"}
@@ -35,19 +37,20 @@ def _graph_nodes(context, share: str):
     its fully qualified name, so a graph in a namespace runs with the file's values too (a
     ``kitti_player:`` section is otherwise read by ``/kitti_player`` only)."""
     params_file = LaunchConfiguration("params_file").perform(context)
+    replace = LaunchConfiguration("params_replace").perform(context).lower() in ("true", "1")
+    # on top of the pipeline file key by key, unless params_replace:=true (as the launcher)
+    files = parameter_file.layers(params_file, replace, os.path.join(share, "config", PIPELINE))
     namespace = parameter_file.check_namespace(LaunchConfiguration("namespace").perform(context))
     record = LaunchConfiguration("record").perform(context).lower() in ("true", "1")
     env = _environment(share)
     nodes = [n for n in graph.PIPELINE if record or not n.optional]
-    params = parameter_file.node_parameters(
-        params_file, [n.name for n in graph.PIPELINE], namespace
-    )
+    params = parameter_file.node_parameters(files, [n.name for n in graph.PIPELINE], namespace)
     resolved = str(
         parameter_file.write_node_parameters(
             {n.name: params[n.name] for n in nodes},
             namespace,
             parameter_file.temporary_path("parameters_"),
-            source=params_file,
+            source=files,
         )
     )
     actions = []
@@ -72,8 +75,13 @@ def generate_launch_description():
         [
             DeclareLaunchArgument(
                 "params_file",
-                default_value=os.path.join(share, "config", "pipeline.params.yaml"),
-                description="ROS parameter file of all nodes",
+                default_value=os.path.join(share, "config", PIPELINE),
+                description="ROS parameter file, read on top of the pipeline file key by key",
+            ),
+            DeclareLaunchArgument(
+                "params_replace",
+                default_value="false",
+                description="true: params_file instead of the pipeline file",
             ),
             DeclareLaunchArgument("record", default_value="true", description="run bag_recorder"),
             DeclareLaunchArgument(

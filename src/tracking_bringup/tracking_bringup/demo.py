@@ -21,8 +21,15 @@ from pathlib import Path
 from detector_node.loading import checkpoint_path
 
 from tracking_bringup import graph
-from tracking_bringup.environment import PARAMS_FILE, apply_graph_environment
-from tracking_bringup.launcher import GraphLauncher, LaunchError, graph_processes
+from tracking_bringup.environment import apply_graph_environment
+from tracking_bringup.launcher import (
+    GraphLauncher,
+    LaunchError,
+    add_params_arguments,
+    graph_processes,
+    parameter_layers,
+)
+from tracking_bringup.parameter_file import describe
 
 #: parameters that describe the real KITTI cameras, reset for the synthetic renderer's exact ones
 SYNTHETIC_CAMERA_OVERRIDES = (
@@ -152,14 +159,15 @@ def main(argv: list[str] | None = None) -> int:
         "num_disparities, match_rows) instead of those the nodes derive from the CameraInfo",
     )
     parser.add_argument("--output", help="output folder (default output/demo_<time>)")
-    parser.add_argument("--params", default=str(PARAMS_FILE), help="ROS parameter YAML")
+    add_params_arguments(parser)
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NODE.PARAM:=VALUE")
     parser.add_argument("--no-eval", action="store_true", help="skip the offline evaluation")
     args = parser.parse_args(argv)
     if args.frames < 0:
         return _error("--frames: must be >= 0")
-    if not Path(args.params).is_file():
-        return _error(f"{args.params}: parameter file not found")
+    problem = parameter_layers(args)  # args.params: the pipeline file, then --params
+    if problem:
+        return _error(problem)
     try:
         graph.file_parameters(args.params)  # one line for a file the launcher cannot use
     except ValueError as exc:
@@ -273,7 +281,7 @@ def _evaluate(
     out: Path,
     processed: int,
     elapsed: float,
-    params: str,
+    params: list[Path],
     nodes: dict[str, dict[str, int]],
 ):
     from eval_node.bag_evaluation import evaluate_bag
@@ -289,7 +297,10 @@ def _evaluate(
         run=run,
         labels_dir=labels if labels.is_dir() else None,
         sequence=sequence,
-        tracker_config=TrackerConfig.from_yaml(params),  # the filter comparison = the live graph
+        # the filter comparison = the live graph (its parameters: the layered files)
+        tracker_config=TrackerConfig.from_dict(
+            graph.file_parameters(params)[graph.TRACKER.name], source=describe(params)
+        ),
         progress=True,
     )
     results["demo"] = {

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 from vehicle_common.graph_readiness import format_topic_counts
 from vehicle_common.image_transport import subscriber_transport
@@ -229,12 +228,13 @@ def node_overrides(overrides, node: str) -> list[str]:
 def file_parameters(params, namespace: str = "") -> dict[str, dict]:
     """``{node: {parameter: value}}`` of the graph's nodes: ``params`` itself when it is such
     a mapping already, else the parameter file ``params`` as the nodes read it in
-    ``namespace`` (:func:`parameter_file.node_parameters`; {} per node for None or a missing
-    file)."""
+    ``namespace`` (:func:`parameter_file.node_parameters`; a list of files: layered; {} per
+    node for None or a missing file)."""
     if isinstance(params, Mapping):
         return {n.name: dict(params.get(n.name, {})) for n in PIPELINE}
-    if params and Path(params).is_file():
-        return parameter_file.node_parameters(params, [n.name for n in PIPELINE], namespace)
+    files = [f for f in parameter_file.as_files(params or []) if f.is_file()]
+    if files:  # several: the layers of a run (parameter_file.layers), key by key
+        return parameter_file.node_parameters(files, [n.name for n in PIPELINE], namespace)
     return {n.name: {} for n in PIPELINE}
 
 
@@ -271,6 +271,25 @@ def _lockstep_window(value) -> int | None:
     except ValueError:
         return None
     return window if window >= 1 else None
+
+
+def _check_unpaced(rate, multiplier, whole: list[NodeSpec]) -> None:
+    """ValueError (one line) for an unpaced player (``rate`` or ``rate_multiplier`` <= 0)
+    without lockstep in a graph with a latest-frame node: the player then publishes far
+    faster than that node takes frames and its input queues (KEEP_LAST) overwrite frames that
+    no node ever sees or counts (issue #42: 0005, the player 16 out, the detector 8 in)."""
+    try:
+        hz = float(str(rate).strip("'\"")) * float(str(multiplier).strip("'\""))
+    except ValueError:
+        return  # the player refuses the value itself, with its own line
+    consumers = [n.name for n in whole if n.latest_frame]
+    if hz <= 0 and consumers:
+        raise ValueError(
+            f"{PLAYER.name}: rate {rate} x rate_multiplier {multiplier} (unpaced) without "
+            f"lockstep: the player would publish faster than {', '.join(consumers)} take "
+            "frames, and their input queues would lose frames that no node counts; set "
+            f"{PLAYER.name}.lockstep:=true (as fast as the graph allows), or a rate > 0"
+        )
 
 
 def plan(
@@ -328,6 +347,8 @@ def plan(
 
     nodes = shaped(nodes)
     whole = nodes if graph_nodes is None else shaped(graph_nodes)
+    if not lockstep and any(n is PLAYER or n.name == PLAYER.name for n in nodes):
+        _check_unpaced(value(PLAYER, "rate"), value(PLAYER, "rate_multiplier"), whole)
     window = _lockstep_window(value(PLAYER, "lockstep_window")) if lockstep else None
     player = any(n.name == PLAYER.name for n in nodes)  # started here (else: hosts.py)
     out = []

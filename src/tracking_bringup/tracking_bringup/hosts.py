@@ -27,13 +27,19 @@ graph.plan).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 from vehicle_common.image_transport import PLAYER_TRANSPORTS
 
 from tracking_bringup import graph
 from tracking_bringup.dds import DISCOVERY_MODES, MULTIHOST_SETTLE_TIME, DiscoverySettings
-from tracking_bringup.parameter_file import LAUNCH_SECTION, ParameterFileError, read_file
+from tracking_bringup.parameter_file import (
+    LAUNCH_SECTION,
+    Files,
+    ParameterFileError,
+    as_files,
+    describe,
+    read_file,
+)
 
 
 class HostProfileError(ValueError):
@@ -50,31 +56,35 @@ class HostProfile:
     peers: tuple[str, ...] = ()
 
 
-def _launch_section(params_file: str | Path) -> dict:
-    """The launcher's section (``stereo_tracking_launch.ros__parameters``) of the file."""
-    try:
-        data = read_file(params_file)
-    except ParameterFileError as exc:
-        raise HostProfileError(str(exc)) from None
-    return (data.get(LAUNCH_SECTION) or {}).get("ros__parameters") or {}
+def _launch_section(params_file: Files) -> dict:
+    """The launcher's section (``stereo_tracking_launch.ros__parameters``) of the file; of
+    several files (``parameter_file.layers``) the first's updated key by key by the later."""
+    out = {}
+    for path in as_files(params_file):
+        try:
+            data = read_file(path)
+        except ParameterFileError as exc:
+            raise HostProfileError(str(exc)) from None
+        out.update((data.get(LAUNCH_SECTION) or {}).get("ros__parameters") or {})
+    return out
 
 
-def read_image_transport(params_file: str | Path) -> str | None:
+def read_image_transport(params_file: Files) -> str | None:
     """The host profiles' ``image_transport`` (None when not given)."""
     value = _launch_section(params_file).get("image_transport")
     if value is not None and value not in PLAYER_TRANSPORTS:
         raise HostProfileError(
-            f"{params_file}: {LAUNCH_SECTION}.ros__parameters.image_transport: {value!r} is not "
-            f"one of {', '.join(PLAYER_TRANSPORTS)}"
+            f"{describe(params_file)}: {LAUNCH_SECTION}.ros__parameters.image_transport: "
+            f"{value!r} is not one of {', '.join(PLAYER_TRANSPORTS)}"
         )
     return value
 
 
-def read_host_profiles(params_file: str | Path) -> dict[str, HostProfile]:
+def read_host_profiles(params_file: Files) -> dict[str, HostProfile]:
     """Every host profile of ``params_file`` (empty when it defines none)."""
     section = _launch_section(params_file)
     hosts = section.get("hosts") or {}
-    where = f"{params_file}: {LAUNCH_SECTION}.ros__parameters.hosts"
+    where = f"{describe(params_file)}: {LAUNCH_SECTION}.ros__parameters.hosts"
     if not isinstance(hosts, dict):
         raise HostProfileError(f"{where}: expected a mapping of host names")
     known = {n.name for n in graph.PIPELINE}
@@ -101,15 +111,15 @@ def read_host_profiles(params_file: str | Path) -> dict[str, HostProfile]:
     return profiles
 
 
-def host_profile(params_file: str | Path, name: str) -> tuple[HostProfile, list[str]]:
+def host_profile(params_file: Files, name: str) -> tuple[HostProfile, list[str]]:
     """The profile ``name`` and the whole graph's node names (the union of all profiles, in
     data-flow order)."""
     profiles = read_host_profiles(params_file)
     if name not in profiles:
         have = ", ".join(profiles) or "none"
         raise HostProfileError(
-            f"{params_file}: no host profile {name!r} in {LAUNCH_SECTION}.ros__parameters.hosts "
-            f"(defined: {have})"
+            f"{describe(params_file)}: no host profile {name!r} in "
+            f"{LAUNCH_SECTION}.ros__parameters.hosts (defined: {have})"
         )
     union = {n for p in profiles.values() for n in p.nodes}
     return profiles[name], [n.name for n in graph.PIPELINE if n.name in union]

@@ -43,6 +43,7 @@ from pathlib import Path
 
 from vehicle_common.graph_readiness import NodeReport, ProgressWatch, graph_quiescent
 from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
+from vehicle_common.option_checks import first_problem, number_problem
 
 from tracking_bringup import graph, hosts, parameter_file
 from tracking_bringup.environment import PARAMS_FILE, graph_environment
@@ -631,7 +632,7 @@ def _tail(path: Path, lines: int = 15) -> str:
 
 def graph_processes(
     nodes: Sequence[graph.NodeSpec],
-    params_file: str | os.PathLike | None = PARAMS_FILE,
+    params_file: parameter_file.Files | None = PARAMS_FILE,
     overrides: Sequence[str] = (),
     namespace: str = "",
     graph_nodes: Sequence[graph.NodeSpec] | None = None,
@@ -641,7 +642,8 @@ def graph_processes(
     """ProcessSpecs of graph nodes. ``overrides`` are ``node.param:=value`` strings.
 
     The parameter file is read here (:mod:`.parameter_file`: its sections checked, those that
-    address each node in ``namespace`` merged) and written to ``params_out`` (default: a file
+    address each node in ``namespace`` merged; a list of files, :func:`parameter_file.layers`,
+    is merged key by key in order) and written to ``params_out`` (default: a file
     removed when this process exits) with the nodes' fully qualified names as sections, which
     every node is given: a graph in a namespace runs with the file's values too. A bad file,
     section or namespace raises ValueError (one line).
@@ -788,12 +790,78 @@ def run_log_dir(root: str | os.PathLike = "output/logs") -> Path:
     return Path(root) / f"{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}"
 
 
+def add_params_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--params FILE`` (on top of the pipeline file, key by key) and ``--params-replace``."""
+    parser.add_argument(
+        "--params",
+        default=None,
+        help="ROS parameter YAML file read on top of the pipeline file "
+        f"({PARAMS_FILE.name}), key by key as -p does (default: the pipeline file alone)",
+    )
+    parser.add_argument(
+        "--params-replace",
+        action="store_true",
+        help="use the --params file instead of the pipeline file (parameters it does not set "
+        "are the nodes' defaults)",
+    )
+
+
+def parameter_layers(args) -> str | None:
+    """Replace ``args.params`` by the run's parameter files in the order they apply
+    (:func:`parameter_file.layers`); one line (no file, a missing one) or None."""
+    try:
+        args.params = parameter_file.layers(args.params, args.params_replace)
+    except ValueError as exc:
+        return str(exc)
+    return parameter_file.missing_file(args.params)
+
+
+#: the shortest ``--stall-timeout`` [s]: every node reports on /diagnostics once a second, so a
+#: shorter limit names healthy nodes (0 killed a node after its first frame)
+MIN_STALL_TIMEOUT = 1.0
+
+
+def check_arguments(args) -> str | None:
+    """One line for the first option that cannot be used, else None (``args.params`` becomes
+    the run's parameter files): --ready-timeout and --stall-timeout finite and positive,
+    --nodes / --graph naming at least one node, the parameter files."""
+    for option, text in (("--nodes", args.nodes), ("--graph", args.graph)):
+        if text is not None and not [n for n in text.split(",") if n.strip()]:
+            return (
+                f"{option} {text!r}: no node named (comma-separated names of "
+                + ", ".join(n.name for n in graph.PIPELINE)
+                + ")"
+            )
+    return first_problem(
+        number_problem("--ready-timeout", args.ready_timeout, above=0.0, why="seconds"),
+        number_problem(
+            "--stall-timeout",
+            args.stall_timeout,
+            minimum=MIN_STALL_TIMEOUT,
+            why="seconds; every node reports once a second",
+        ),
+        parameter_layers(args),
+    )
+
+
+def make_log_dir(log_dir: Path) -> str | None:
+    """Create the run's log folder; one line when it cannot be (a file in the way, no
+    permission, a read-only disk), else None."""
+    try:
+        log_dir.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        return f"--log-dir {log_dir}: cannot create the log folder (a file is in the way)"
+    except OSError as exc:
+        return f"--log-dir {log_dir}: cannot create the log folder ({exc.strerror})"
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="stereo_tracking_launch",
         description="Start the stereo tracking graph as separate processes (one per node).",
     )
-    parser.add_argument("--params", default=str(PARAMS_FILE), help="ROS parameter YAML file")
+    add_params_arguments(parser)
     parser.add_argument(
         "--nodes",
         default=None,
@@ -818,13 +886,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="folder of this run's per-node logs and parameter file (default: a new folder "
         "output/logs/<date>-<time>_<pid> per run; the logs of a given folder are replaced)",
     )
-    parser.add_argument("--ready-timeout", type=float, default=60.0)
+    parser.add_argument(
+        "--ready-timeout",
+        type=float,
+        default=60.0,
+        help="s the graph has to come up (every node's topics visible) before the run fails",
+    )
     parser.add_argument(
         "--stall-timeout",
         type=float,
         default=5.0,
         help="s without a node's report (or with a frame in process and no progress) after "
-        "which the run fails naming the node (every node reports at least once a second)",
+        "which the run fails naming the node (every node reports at least once a second, so "
+        f"at least {MIN_STALL_TIMEOUT:g})",
     )
     parser.add_argument(
         "--keep-running",
@@ -834,10 +908,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--echo", action="store_true", help="print node output to the console")
     hosts.add_arguments(parser)
     args = parser.parse_args(argv)
-    if not Path(args.params).is_file():
-        print(f"error: {args.params}: parameter file not found", file=sys.stderr)
-        return 2
+    problem = check_arguments(args)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     log_dir = Path(args.log_dir) if args.log_dir else run_log_dir()
+    problem = make_log_dir(log_dir)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     try:
         plan = hosts.launch_plan(args)
         nodes = graph.by_name(plan.nodes)

@@ -15,9 +15,18 @@ Sections the file may have (a later section that sets the same parameter wins, a
   ``/NS``; sections of other namespaces are left out (another graph's);
 - ``stereo_tracking_launch``: the launcher's own (host profiles, ``hosts.py``).
 
+Files layer (issue #42): a user's ``--params`` file is read on top of the pipeline file
+(``config/pipeline.params.yaml``), key by key as ``-p`` does (:func:`layers`): each node gets
+the pipeline file's parameters with those the user's file sets replaced. ``--params-replace``
+uses the user's file alone (every parameter it does not set is the node's default). A file with
+only ``vehicle_tracker: min_hits: 4`` used to replace the whole pipeline file silently: the
+player lost lockstep and every other node its settings. The run's ``parameters.yaml`` is the
+merged result.
+
 A section whose node name is no node of the graph is refused with one line naming it and the
 closest valid name (``vehicle_trackr`` -> ``vehicle_tracker``), as is a file that is not valid
-YAML (with its line), not a mapping, or a section without a ``ros__parameters`` mapping. Each
+YAML (with its line), not a mapping, a section without a ``ros__parameters`` mapping, or a key
+given twice in one mapping (YAML keeps the last one silently; named with both lines). Each
 node refuses a parameter it does not declare itself (``vehicle_common.node_parameters.
 check_overrides``). No rclpy here.
 """
@@ -29,7 +38,7 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 from vehicle_common.node_parameters import closest
@@ -44,6 +53,49 @@ _TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 class ParameterFileError(ValueError):
     """The parameter file cannot be used; the message is one line naming the file and where."""
+
+
+#: one parameter file, or the files of a run in the order they apply (:func:`layers`)
+Files = str | os.PathLike | Sequence[str | os.PathLike]
+
+
+def layers(
+    params: str | os.PathLike | None, replace: bool = False, base: str | os.PathLike | None = None
+) -> list[Path]:
+    """The parameter files of a run, in the order they apply: the pipeline file ``base``
+    (default ``config/pipeline.params.yaml``), then ``params`` on top of it key by key;
+    ``replace``: ``params`` alone. ValueError (one line) for ``replace`` without ``params``."""
+    if base is None:
+        from tracking_bringup.environment import PARAMS_FILE as base
+    base = Path(base)
+    if params is None:
+        if replace:
+            raise ValueError("--params-replace: give the file with --params FILE")
+        return [base]
+    params = Path(params)
+    if replace or (params.is_file() and base.is_file() and params.samefile(base)):
+        return [params]
+    return [base, params]
+
+
+def as_files(files: Files) -> list[Path]:
+    """``files`` as a list of paths (one path: a list of one)."""
+    if isinstance(files, (str, os.PathLike)):
+        return [Path(files)]
+    return [Path(f) for f in files]
+
+
+def describe(files: Files) -> str:
+    """``a.yaml`` or ``a.yaml + b.yaml`` (the files in the order they apply)."""
+    return " + ".join(str(f) for f in as_files(files))
+
+
+def missing_file(files: Files) -> str | None:
+    """One line naming the first of ``files`` that is no file, else None."""
+    for path in as_files(files):
+        if not path.is_file():
+            return f"{path}: parameter file not found"
+    return None
 
 
 def check_namespace(namespace: str | None) -> str:
@@ -77,7 +129,9 @@ def read_file(path: str | Path) -> dict:
             f"{path}: not a text file (byte {exc.start} is not UTF-8)"
         ) from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_unique_key_loader())  # noqa: S506 (a SafeLoader)
+    except _DuplicateKey as exc:
+        raise ParameterFileError(f"{path}: {exc}") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}: " if mark is not None else ""
@@ -91,6 +145,38 @@ def read_file(path: str | Path) -> dict:
             f"{type(data).__name__}"
         )
     return data
+
+
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _unique_key_loader():
+    """A SafeLoader that refuses a key given twice in one mapping (YAML itself keeps the last:
+    a second ``min_hits:`` in a section silently won)."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):
+            seen: dict = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                line = key_node.start_mark.line + 1
+                try:
+                    first = seen.get(key)
+                    seen.setdefault(key, line)
+                except TypeError:  # an unhashable key: the constructor names it
+                    continue
+                if first is not None:
+                    raise _DuplicateKey(
+                        f"line {line}: key {key!r} given twice in one mapping (first on line "
+                        f"{first}; YAML would keep the last silently)"
+                    )
+            return super().construct_mapping(node, deep=deep)
+
+    return Loader
 
 
 def _key_pattern(key: str, namespace: str) -> re.Pattern | None:
@@ -110,13 +196,20 @@ def _key_pattern(key: str, namespace: str) -> re.Pattern | None:
 
 
 def node_parameters(
-    path: str | Path, node_names: Iterable[str], namespace: str | None = ""
+    path: Files, node_names: Iterable[str], namespace: str | None = ""
 ) -> dict[str, dict]:
     """``{node name: {parameter: value}}`` for each of ``node_names`` (the graph's nodes) as
     the file gives them in ``namespace`` (see the module docstring; nodes the file does not
     address get ``{}``). ParameterFileError (one line) for an unknown section, a section without
-    a ``ros__parameters`` mapping, or a file that cannot be read."""
+    a ``ros__parameters`` mapping, or a file that cannot be read. Several files (:func:`layers`):
+    each node's parameters of the first, updated key by key by each later one."""
     names = list(node_names)
+    if not isinstance(path, (str, os.PathLike)):
+        out: dict[str, dict] = {n: {} for n in names}
+        for layer in as_files(path):
+            for name, values in node_parameters(layer, names, namespace).items():
+                out[name].update(values)
+        return out
     ns = check_namespace(namespace)
     data = read_file(path)
     out: dict[str, dict] = {n: {} for n in names}
@@ -158,7 +251,7 @@ def write_node_parameters(
     params: Mapping[str, Mapping],
     namespace: str | None,
     path: str | Path,
-    source: str | Path | None = None,
+    source: Files | None = None,
 ) -> Path:
     """Write ``{node: {parameter: value}}`` as a ROS parameter file whose sections are the
     nodes' fully qualified names in ``namespace`` (nodes without parameters are left out)."""
@@ -172,9 +265,14 @@ def write_node_parameters(
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     ns = topics.normalise_namespace(namespace) or "/"
-    head = (
-        f"# The graph's parameters{f' from {source}' if source else ''}, for the namespace {ns}:\n"
-    )
+    origin = ""
+    if source:
+        files = as_files(source)
+        origin = f" from {files[0]}"
+        if len(files) > 1:
+            later = ", then ".join(str(f) for f in files[1:])
+            origin += f"\n# overridden key by key by {later}"
+    head = f"# The graph's parameters{origin}, for the namespace {ns}:\n"
     head += "# each section is a node's fully qualified name (written by the graph's launcher).\n"
     path.write_text(head + yaml.dump(body, Dumper=_dumper(), sort_keys=False))
     return path

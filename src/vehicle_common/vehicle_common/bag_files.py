@@ -123,3 +123,33 @@ def _cut_files(bag_dir: Path) -> list[Path]:
     from .mcap_recovery import has_footer
 
     return [p for p in bag_dir.glob("*.mcap") if not has_footer(p)]
+
+
+def bag_messages(reader, path: str | Path, connections=None):
+    """``reader.messages(connections=...)`` of an opened AnyReader; a failure while reading
+    (a damaged chunk: rosbags' ``ReaderError: Chunk checksum mismatch``, a zstd error) is one
+    BagError naming the bag, the damaged chunks and ``bag_recover`` (issue #42: a traceback)."""
+    try:
+        yield from reader.messages(connections=connections)
+    except BagError:
+        raise
+    except Exception as exc:  # rosbags raises several unrelated types for a damaged chunk
+        raise damaged_bag_error(Path(path), exc) from None
+
+
+def damaged_bag_error(path: Path, exc: Exception) -> BagError:
+    """One line for a bag whose messages could not be read: its damaged chunks (scanned) and
+    how to keep the rest, else the reader's own words."""
+    from .bag_recovery import describe_damage
+
+    try:
+        damage = describe_damage(path)
+    except Exception:  # noqa: BLE001 (the scan of a damaged bag may fail too: say what we know)
+        damage = ""
+    if not damage:
+        words = " ".join(str(exc).split()) or type(exc).__name__
+        return BagError(f"{path}: cannot read bag ({words})")
+    return BagError(
+        f"{path}: cannot read bag: {damage}; `bag_recover {path}` drops the damaged chunk(s) "
+        "and keeps every other message"
+    )

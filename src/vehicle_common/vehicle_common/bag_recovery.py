@@ -24,7 +24,15 @@ from datetime import UTC, datetime
 from io import StringIO
 from pathlib import Path
 
-from .mcap_recovery import McapRecoveryError, McapScan, has_footer, repair_mcap, scan_mcap
+from .mcap_recovery import (
+    McapRecoveryError,
+    McapScan,
+    check_summary,
+    has_footer,
+    repair_mcap,
+    scan_mcap,
+    summary_chunk_offsets,
+)
 
 ROS_DISTRO = "jazzy"
 
@@ -157,14 +165,30 @@ def _decompressed(path: Path, tmp_dir: Path) -> Path:
 
     out = tmp_dir / path.name[: -len(".zstd")]
     with open(path, "rb") as fin, open(out, "wb") as fout:
-        zstandard.ZstdDecompressor().copy_stream(fin, fout)
+        try:
+            zstandard.ZstdDecompressor().copy_stream(fin, fout)
+        except zstandard.ZstdError as exc:
+            raise BagRecoveryError(
+                f"{path}: damaged: its zstd stream does not decompress ({exc})"
+            ) from None
     return out
 
 
-def file_info(path: Path, name: str | None = None) -> FileInfo:
-    """Summarise one ``.mcap`` file: from its summary when complete, by scanning when cut."""
+def file_info(path: Path, name: str | None = None, verify: bool = False) -> FileInfo:
+    """Summarise one ``.mcap`` file: from its summary when complete, by scanning when cut (a
+    damaged chunk is noted and passed: ``info.scan.damaged``). ``verify``: a complete file is
+    scanned too (every chunk decompressed and its CRC checked, the summary compared with the
+    data); one that fails gets ``info.scan`` (to repair) as a cut file does."""
     info = FileInfo(name=name or path.name)
-    if has_footer(path):
+    scan = None
+    if verify and has_footer(path):
+        scan = scan_mcap(path, past_damage=True)
+        if _stopped_early(scan):  # a record's framing is damaged: go on at the next chunk
+            scan = scan_mcap(path, past_damage=True, resume=summary_chunk_offsets(path))
+        check_summary(scan)
+        if not scan.needs_rewrite and not _stopped_early(scan):
+            scan = None
+    if has_footer(path) and scan is None:
         from mcap.reader import make_reader
 
         with open(path, "rb") as f:
@@ -183,7 +207,9 @@ def file_info(path: Path, name: str | None = None) -> FileInfo:
                 info.messages_compressed = message.data[:4] == b"\x28\xb5\x2f\xfd"
                 break
     else:
-        scan = scan_mcap(path)
+        scan = scan or scan_mcap(path, past_damage=True)
+        if scan.complete and _stopped_early(scan):
+            scan.summary_bad = scan.summary_bad or scan.stop_reason
         info.scan = scan
         schemas, channels, counts = scan.schemas, scan.channels, scan.message_counts
         info.start, info.end = scan.start_time, scan.end_time
@@ -199,6 +225,53 @@ def file_info(path: Path, name: str | None = None) -> FileInfo:
     return info
 
 
+def _stopped_early(scan: McapScan) -> bool:
+    """A complete file whose walk stopped at a damaged record before its data section ended."""
+    return scan.complete and scan.stop_reason.startswith("damaged record")
+
+
+def damage_summary(name: str, scan: McapScan) -> str:
+    """What a file's damaged chunks held and where (one line); '' when none."""
+    parts = []
+    for bad in scan.damaged:
+        n = bad.lost_count
+        held = f"{n} messages" if n is not None else "its messages"
+        when = ""
+        if bad.message_start_time is not None:
+            t0, t1 = _stamp(bad.message_start_time), _stamp(bad.message_end_time)
+            when = f" (logged {t0} to {t1} UTC)"
+        parts.append(
+            f"{name}: chunk at byte {bad.start} is damaged ({bad.reason}): {held}{when} "
+            "cannot be read"
+        )
+    parts += [f"{name}: damaged {what} left out" for what in scan.skipped]
+    if scan.summary_bad and not scan.damaged:
+        parts.append(f"{name}: {scan.summary_bad}: summary written anew")
+    if _stopped_early(scan):
+        parts.append(
+            f"{name}: {scan.stop_reason}: the {scan.size - scan.valid_end} bytes after it "
+            "cannot be read"
+        )
+    return "; ".join(parts)
+
+
+def describe_damage(path: str | Path) -> str:
+    """The damaged chunks of a bag (directory or ``.mcap``), in one line ('' when none is
+    found): for a reader whose messages failed to decompress (rosbags' ``Chunk checksum
+    mismatch``)."""
+    path = Path(path)
+    if path.is_file():
+        files = [path]
+    else:
+        files = _load_metadata_files(path) or bag_files(path)
+    parts = []
+    for f in files:
+        if f.suffix == ".mcap" and f.is_file():
+            scan = scan_mcap(f, past_damage=True)
+            parts.append(damage_summary(f.name, scan))
+    return "; ".join(p for p in parts if p)
+
+
 def _stamp(ns: int) -> str:
     return datetime.fromtimestamp(ns * 1e-9, tz=UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3]
 
@@ -206,9 +279,10 @@ def _stamp(ns: int) -> str:
 def loss_summary(infos: list[FileInfo]) -> str:
     """What a cut file kept and lost, in words (one line); '' when no file was cut."""
     cut = [i for i in infos if i.scan is not None and not i.scan.complete]
+    parts = [damage_summary(i.name, i.scan) for i in infos if i.scan is not None]
+    parts = [p for p in parts if p]
     if not cut:
-        return ""
-    parts = []
+        return "; ".join(parts)
     for info in cut:
         s = info.scan
         upto = f" up to {_stamp(s.end_time)} UTC" if s.message_count else ""
@@ -264,7 +338,7 @@ def recover_bag(path: str | Path) -> RecoveryReport:
     if not path.exists():
         raise BagRecoveryError(f"{path}: bag not found")
     if path.is_file():
-        info = file_info(path)
+        info = file_info(path, verify=True)
         repaired = []
         if info.scan is not None:
             repair_mcap(info.scan)
@@ -279,9 +353,10 @@ def recover_bag(path: str | Path) -> RecoveryReport:
             if not p.is_file():
                 raise BagRecoveryError(f"{p}: listed in metadata.yaml but missing")
             plain = _decompressed(p, Path(tmp)) if p.name.endswith(".zstd") else p
-            info = file_info(plain, p.name)
+            info = file_info(plain, p.name, verify=True)
             if info.scan is not None and plain is not p:  # compressed only once complete
-                raise BagRecoveryError(f"{p}: damaged (no MCAP footer inside the .zstd)")
+                why = damage_summary(p.name, info.scan) or "no MCAP footer inside the .zstd"
+                raise BagRecoveryError(f"{p}: damaged ({why})")
             if info.scan is not None:
                 repair_mcap(info.scan)
                 repaired.append(p.name)

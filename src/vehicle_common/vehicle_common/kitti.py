@@ -298,6 +298,13 @@ def _parse_row(tokens: list[str], path: Path, lineno: int, tracking: bool) -> Ki
             raise KittiFormatError(f"{path}:{lineno}: {name}: non-finite value {value!r}")
     if tracking and frame < 0:
         raise KittiFormatError(f"{path}:{lineno}: frame: {frame} is negative (frames count from 0)")
+    left, top, right, bottom = nums[3:7]
+    if right < left or bottom < top:  # an inverted box was scored (its IoU as if upright)
+        axis = ("x2", right, "x1", left) if right < left else ("y2", bottom, "y1", top)
+        raise KittiFormatError(
+            f"{path}:{lineno}: bbox: inverted box ({axis[0]} {axis[1]:g} < {axis[2]} {axis[3]:g}; "
+            "a box is left, top, right, bottom in pixels)"
+        )
     if tracking and track_id < -1:
         raise KittiFormatError(
             f"{path}:{lineno}: track id: {track_id} (ids are >= 0; -1 only for DontCare rows)"

@@ -9,6 +9,14 @@ the file up to the end of the last complete chunk (in place or as a copy), regen
 chunk's message indexes when they were cut (and the header when even that was cut: an empty
 file), and appends a summary and footer, so that every
 MCAP reader (mcap's ``make_reader``, rosbags) opens it. Nothing before the cut is rewritten.
+
+A damaged chunk inside the file (bytes flipped on a disk or in a copy: its CRC or its
+compression fails, issue #42) is found by ``scan_mcap(past_damage=True)``, which notes it
+(:class:`DamagedChunk`: where, why, its messages' times and, from the message indexes after it,
+how many messages of which channel it held) and goes on with the next record; a repair then
+writes the file again without it (:func:`repair_mcap`: every other chunk kept byte for byte,
+message indexes and summary written anew). A file whose summary cannot be read, or does not
+match its data, is written again the same way.
 """
 
 from __future__ import annotations
@@ -65,6 +73,24 @@ class ChunkInfo:
 
 
 @dataclass
+class DamagedChunk:
+    """A chunk record whose framing is intact but whose content is not (CRC mismatch, a
+    compressed stream that does not decompress): its messages cannot be read."""
+
+    start: int  # offset of the chunk record
+    length: int  # record length including opcode and length prefix
+    reason: str
+    message_start_time: int | None = None  # from the chunk's header, when it could be read
+    message_end_time: int | None = None
+    lost: dict[int, int] = field(default_factory=dict)  # channel id -> messages (its indexes)
+
+    @property
+    def lost_count(self) -> int | None:
+        """Messages the chunk held (None when its message indexes were not found)."""
+        return sum(self.lost.values()) if self.lost else None
+
+
+@dataclass
 class McapScan:
     """What :func:`scan_mcap` found in one file."""
 
@@ -83,6 +109,17 @@ class McapScan:
     has_header: bool = False  # the header record after the magic is complete
     reindex_last: bool = False  # the last chunk's message indexes were cut: write them again
     stop_reason: str = ""  # why the scan stopped before the end of the file
+    damaged: list[DamagedChunk] = field(default_factory=list)  # skipped (past_damage)
+    #: damaged schema, channel or message index records, left out (past_damage)
+    skipped: list[str] = field(default_factory=list)
+    #: (offset, length, opcode) of every record kept (not a damaged chunk or its indexes)
+    records: list[tuple[int, int, int]] = field(default_factory=list)
+    summary_bad: str = ""  # a complete file whose summary cannot be used: why
+
+    @property
+    def needs_rewrite(self) -> bool:
+        """Damaged chunks or records to leave out, or a summary to write anew."""
+        return bool(self.damaged or self.skipped or self.summary_bad)
 
     @property
     def message_count(self) -> int:
@@ -143,8 +180,14 @@ def _chunk_index(chunk: Chunk, validate_crc: bool = True):
     return index, data
 
 
-def scan_mcap(path: str | Path) -> McapScan:
-    """Walk the file's top-level records up to the first incomplete or damaged one."""
+def scan_mcap(
+    path: str | Path, past_damage: bool = False, resume: list[int] | None = None
+) -> McapScan:
+    """Walk the file's top-level records up to the first incomplete or damaged one;
+    ``past_damage``: a damaged chunk whose record is complete is noted (``scan.damaged``) and
+    the walk goes on after it. ``resume``: offsets of records (the summary's chunk indexes)
+    where the walk goes on when a record's framing itself is damaged (noted in
+    ``scan.skipped``)."""
     path = Path(path)
     size = path.stat().st_size
     scan = McapScan(path=path, size=size, complete=has_footer(path))
@@ -158,6 +201,7 @@ def scan_mcap(path: str | Path) -> McapScan:
         pos = 8
         scan.valid_end = pos
         t_min, t_max = None, None
+        bad: DamagedChunk | None = None  # the damaged chunk just passed (its indexes follow)
         while True:
             head = f.read(9)
             if len(head) < 9:
@@ -165,16 +209,31 @@ def scan_mcap(path: str | Path) -> McapScan:
                 break
             opcode, length = _RECORD_HEAD.unpack(head)
             if pos + 9 + length > size:
+                if scan.complete and past_damage:  # a complete file: its framing is damaged
+                    exc = ValueError(f"record length {length} runs past the end of the file")
+                    if _go_on(scan, f, pos, exc, resume):
+                        pos, bad = scan.valid_end, None
+                        continue
+                    break
                 scan.stop_reason = "incomplete record"
                 break
             content = f.read(length)
             stream = ReadDataStream(BytesIO(content))
             rec_len = 9 + length
+            if opcode != Opcode.MESSAGE_INDEX:
+                bad = None
             try:
+                if bad is not None:  # an index of the damaged chunk: what it held
+                    mi = MessageIndex.read(stream)
+                    bad.lost[mi.channel_id] = bad.lost.get(mi.channel_id, 0) + len(mi.records)
+                    pos += rec_len
+                    scan.valid_end = pos
+                    continue
                 if opcode == Opcode.HEADER and pos == 8:
+                    Header.read(stream)
                     scan.has_header = True
                 elif opcode == Opcode.SCHEMA:
-                    s = Schema.read(stream)
+                    s = _checked_schema(Schema.read(stream))
                     scan.schemas[s.id] = s
                 elif opcode == Opcode.CHANNEL:
                     c = Channel.read(stream)
@@ -221,8 +280,22 @@ def scan_mcap(path: str | Path) -> McapScan:
                     raise ValueError(f"unexpected record 0x{opcode:02x}")
                 # attachments, top-level messages and unknown records are kept as they are
             except Exception as exc:  # damaged record: the data ends before it
-                scan.stop_reason = f"damaged record at byte {pos} ({exc})"
+                if past_damage and opcode == Opcode.CHUNK:
+                    bad = _damaged_chunk(content, pos, rec_len, exc)
+                    scan.damaged.append(bad)
+                    pos += rec_len
+                    scan.valid_end = pos
+                    continue
+                if past_damage and opcode in _REBUILT:  # the summary's copy stands in
+                    scan.skipped.append(f"record at byte {pos} ({exc or type(exc).__name__})")
+                    pos += rec_len
+                    scan.valid_end = pos
+                    continue
+                if _go_on(scan, f, pos, exc, resume):
+                    pos, bad = scan.valid_end, None
+                    continue
                 break
+            scan.records.append((pos, rec_len, opcode))
             pos += rec_len
             scan.valid_end = pos
     if t_min is not None:
@@ -233,6 +306,105 @@ def scan_mcap(path: str | Path) -> McapScan:
     return scan
 
 
+#: top-level records a rewrite can do without: a schema or channel (also in the summary), a
+#: message index (rebuilt from its chunk)
+_REBUILT = (Opcode.HEADER, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE_INDEX)
+#: schema encodings whose data is text
+_TEXT_SCHEMAS = ("ros2msg", "ros2idl", "ros1msg", "jsonschema", "omgidl")
+
+
+def _checked_schema(schema: Schema) -> Schema:
+    """``schema``; ValueError when its text is not UTF-8 (bytes flipped in it: rosbags then
+    fails to open the file with a UnicodeDecodeError)."""
+    if schema.encoding in _TEXT_SCHEMAS:
+        try:
+            schema.data.decode()
+        except UnicodeDecodeError:
+            raise ValueError(f"schema {schema.id} text is not UTF-8") from None
+    return schema
+
+
+def _go_on(scan: McapScan, f, pos: int, exc: Exception, resume: list[int] | None) -> bool:
+    """After a record at ``pos`` whose framing is damaged: True (``f`` and ``scan.valid_end``
+    at the next offset of ``resume``, the bytes between noted in ``scan.skipped``) when there
+    is one, else False with ``scan.stop_reason`` set."""
+    why = str(exc) or type(exc).__name__
+    later = [o for o in resume or () if o > pos]
+    if not later:
+        scan.stop_reason = f"damaged record at byte {pos} ({why})"
+        return False
+    scan.skipped.append(f"bytes {pos}-{later[0]} ({why})")
+    f.seek(later[0])
+    scan.valid_end = later[0]
+    return True
+
+
+def _damaged_chunk(content: bytes, pos: int, rec_len: int, exc: Exception) -> DamagedChunk:
+    """A :class:`DamagedChunk` for the chunk record at ``pos`` (its header's times when the
+    header itself can be read)."""
+    reason = str(exc) or type(exc).__name__
+    bad = DamagedChunk(start=pos, length=rec_len, reason=reason)
+    if len(content) >= 16:
+        start, end = struct.unpack_from("<QQ", content, 0)
+        if start <= end:
+            bad.message_start_time, bad.message_end_time = start, end
+    return bad
+
+
+def summary_chunk_offsets(path: str | Path) -> list[int]:
+    """Offsets of the chunks the file's summary indexes ([] when it cannot be read)."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+        return sorted(c.chunk_start_offset for c in summary.chunk_indexes) if summary else []
+    except Exception:  # noqa: BLE001 (a damaged summary: no offsets to go on at)
+        return []
+
+
+def check_summary(scan: McapScan) -> None:
+    """Set ``scan.summary_bad`` when the complete file's summary cannot be read or does not
+    match what its data section holds (message and chunk counts)."""
+    if not scan.complete:
+        return
+    from mcap.reader import make_reader
+
+    try:
+        with open(scan.path, "rb") as f:
+            summary = make_reader(f).get_summary()
+    except Exception as exc:  # noqa: BLE001 (mcap raises several types for a damaged summary)
+        scan.summary_bad = f"summary unreadable ({exc or type(exc).__name__})"
+        return
+    if summary is None:
+        scan.summary_bad = "no summary"
+        return
+    for sid, schema in summary.schemas.items():  # definitions only a damaged part held
+        try:
+            scan.schemas.setdefault(sid, _checked_schema(schema))
+        except ValueError as exc:
+            scan.summary_bad = f"summary {exc}"
+    for cid, channel in summary.channels.items():
+        scan.channels.setdefault(cid, channel)
+    if scan.damaged or scan.summary_bad:
+        return
+    stats = summary.statistics
+    indexed = sorted((c.chunk_start_offset, c.chunk_length) for c in summary.chunk_indexes)
+    if stats is None:
+        scan.summary_bad = "no summary statistics"
+    elif (stats.message_count, dict(stats.channel_message_counts)) != (
+        scan.message_count,
+        scan.message_counts,
+    ):
+        scan.summary_bad = (
+            f"summary counts {stats.message_count} messages, the data {scan.message_count}"
+        )
+    elif indexed != sorted((c.start, c.length) for c in scan.chunks):
+        scan.summary_bad = "summary chunk indexes do not match the chunks"
+    elif any(summary.schemas[i].data != scan.schemas[i].data for i in summary.schemas):
+        scan.summary_bad = "summary schemas differ from the data's"
+
+
 def _inner_schemas_channels(data: bytes, scan: McapScan) -> None:
     """Schemas and channels written inside a chunk (mcap's writer puts them there)."""
     pos = 0
@@ -241,7 +413,7 @@ def _inner_schemas_channels(data: bytes, scan: McapScan) -> None:
         if opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
             stream = ReadDataStream(BytesIO(data[pos + 9 : pos + 9 + length]))
             if opcode == Opcode.SCHEMA:
-                s = Schema.read(stream)
+                s = _checked_schema(Schema.read(stream))
                 scan.schemas[s.id] = s
             else:
                 c = Channel.read(stream)
@@ -252,7 +424,10 @@ def _inner_schemas_channels(data: bytes, scan: McapScan) -> None:
 def repair_mcap(scan: McapScan, dst: str | Path | None = None) -> Path:
     """Write the scanned file with a summary and footer: in place (``dst`` None: the file is cut
     after its last complete record and the summary appended) or as a copy at ``dst``. Returns
-    the repaired file's path. A complete file is copied unchanged (or left as it is)."""
+    the repaired file's path. A complete file is copied unchanged (or left as it is). A file
+    with damaged chunks or a summary that cannot be used is written anew (:func:`_rewrite`)."""
+    if scan.needs_rewrite:
+        return _rewrite(scan, dst)
     src = scan.path
     if scan.complete:
         if dst is None:
@@ -279,6 +454,58 @@ def repair_mcap(scan: McapScan, dst: str | Path | None = None) -> Path:
         f.write(_tail(scan, end))
         f.flush()
         os.fsync(f.fileno())
+    return target
+
+
+def _rewrite(scan: McapScan, dst: str | Path | None = None) -> Path:
+    """Write the scanned file without its damaged chunks: every record kept as it is (each
+    chunk followed by message indexes rebuilt from its data), then a new summary and footer.
+    In place through a temporary file beside it (renamed over the original once on disk) or
+    as a copy at ``dst``."""
+    src = scan.path
+    unknown = sorted({c for chunk in scan.chunks for c in chunk.index} - set(scan.channels))
+    if unknown:
+        raise McapRecoveryError(
+            f"{src}: cannot repair: the definitions of channel(s) {unknown} were lost with the "
+            "damaged part and the summary does not hold them"
+        )
+    target = Path(dst) if dst is not None else src
+    tmp = target.with_name(target.name + ".rewrite")
+    chunks = {c.start: c for c in scan.chunks}
+    kept_metadata = {o: (n, m) for o, n, m in scan.metadata}
+    scan.metadata = []
+    with open(src, "rb") as fin, open(tmp, "wb") as fout:
+        out = RecordBuilder()  # a header and every definition at the start of the data
+        Header(profile="ros2", library="bag_recover").write(out)
+        for record in (*scan.schemas.values(), *scan.channels.values()):
+            record.write(out)
+        fout.write(MAGIC + out.end())
+        for start, length, opcode in scan.records:
+            if opcode in (Opcode.HEADER, Opcode.MESSAGE_INDEX):
+                continue  # written above; rebuilt after each chunk
+            fin.seek(start)
+            new_start = fout.tell()
+            fout.write(fin.read(length))
+            chunk = chunks.get(start)
+            if chunk is not None:
+                chunk.start = new_start
+                out = RecordBuilder()
+                chunk.index_records = {}
+                for channel, entries in chunk.index.items():
+                    chunk.index_records[channel] = new_start + length + out.count
+                    MessageIndex(channel_id=channel, records=entries).write(out)
+                fout.write(out.end())
+                chunk.index_end = fout.tell()
+            elif opcode == Opcode.METADATA and start in kept_metadata:
+                n, meta = kept_metadata[start]
+                scan.metadata.append((new_start, n, meta))
+        end = fout.tell()
+        scan.reindex_last = False
+        scan.has_header = True
+        fout.write(_tail(scan, end))
+        fout.flush()
+        os.fsync(fout.fileno())
+    tmp.replace(target)
     return target
 
 

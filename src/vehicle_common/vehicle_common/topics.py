@@ -100,6 +100,8 @@ RECORDED = (
     ODOMETRY,
     TF,
     TF_STATIC,
+    VISION_DETECTIONS_2D,  # the vision_msgs copies too (issue #42: the README said every
+    VISION_TRACKS,  # output is recorded; the detector builds them only for a subscriber)
 )
 #: large image-like topics, recorded only on request (the recorder's ``include_images``)
 RECORDED_IMAGES = (LEFT_IMAGE, RIGHT_IMAGE, DISPARITY, POINTS)
