@@ -362,15 +362,18 @@ def _judged(boxes: list[CheckedBox], params) -> list[tuple[CheckedBox, object]]:
     return [(b, judge(b.measures, params) if b.measures is not None else None) for b in boxes]
 
 
-def _kept(check, score: float, mode: str, threshold: float = 0.3) -> bool:
-    """Whether a ranged detection survives: before (every ranged one), reject (plausible
-    only), score (score x plausibility >= the detector's threshold)."""
+def _kept(check, score: float, mode: str, threshold: float = 0.3, params=None) -> bool:
+    """Whether a ranged detection survives: before (every ranged one), reject (the node's
+    ``published_score`` under ``params``, default: the shipped ones), score (score x
+    plausibility >= the detector's threshold)."""
     if check is None:
         return False
     if mode == "before":
         return True
-    if mode == "reject":
-        return check.plausible
+    if mode == "reject":  # the default action: published_score (reject_below) decides
+        from stereo_depth_node.plausibility import PlausibilityParams, published_score
+
+        return published_score(check, score, params or PlausibilityParams()) is not None
     return score * check.plausibility >= threshold
 
 
@@ -457,6 +460,66 @@ def _first_failure(check, p) -> str:
     if np.isfinite(m.bottom_height) and m.bottom_height < p.min_bottom_height:
         return "sunk"
     return "on the road"
+
+
+REJECT_BELOW = (1.0, 0.5, 0.3, 0.2, 0.1, 0.05, 0.02, 0.01, 0.0)
+
+
+def reject_below_table(boxes: list[CheckedBox], frames: list[RealFrame], params, title) -> None:
+    """Issue #41 item 3: the ``reject`` action drops a box only below ``reject_below``
+    (1.0: every implausible box, as before) and publishes the others the check is unsure of at
+    score x plausibility; the stereo graph's tracker starts tracks only from published scores
+    >= ``birth_score`` (0.35, pipeline.params.yaml), lower ones only keep tracks alive. Per
+    threshold: the ranged labelled boxes kept, per depth band; the CNN's true and false
+    detections kept / able to start a track, per frame for the false ones."""
+    from dataclasses import replace
+
+    from stereo_depth_node.plausibility import published_score
+
+    names = {f.name for f in frames}
+    sel = [b for b in boxes if b.frame in names and b.measures is not None]
+    print(f"\n### reject_below, {title}: {len(frames)} frames")
+    bands = ((0.0, 30.0), (30.0, 45.0), (45.0, 1e9))
+    head = " | ".join(f"labelled kept {dist_bin_name(lo, hi)}" for lo, hi in bands)
+    print(
+        f"| reject_below | labelled kept all | {head} | true det. kept / can start a track |"
+        " FP per frame kept / can start | background FP per frame kept / can start |"
+    )
+    print("|---" * (6 + len(bands)) + "|")
+    n = len(frames)
+    for t in REJECT_BELOW:
+        p = replace(params, plausibility_action="reject", reject_below=t)
+        pub = [(b, published_score(judge_box(b, p), b.score, p)) for b in sel]
+
+        def share(pred, pub=pub):
+            sub = [s is not None for b, s in pub if pred(b)]
+            return f"{sum(sub) / len(sub):.3f} ({len(sub) - sum(sub)} out)" if sub else "-"
+
+        def kept_start(pred, pub=pub):
+            sub = [s for b, s in pub if pred(b)]
+            return sum(s is not None for s in sub), sum(s is not None and s >= BIRTH for s in sub)
+
+        gt = [
+            share(lambda b, lo=lo, hi=hi: b.kind == "gt" and lo <= b.depth < hi) for lo, hi in bands
+        ]
+        tp = kept_start(lambda b: b.kind == "tp")
+        n_tp = max(sum(b.kind == "tp" for b in sel), 1)
+        fp = kept_start(lambda b: b.kind == "fp")
+        bg = kept_start(lambda b: b.kind == "fp" and b.background)
+        print(
+            f"| {t:g} | {share(lambda b: b.kind == 'gt')} | {' | '.join(gt)} | "
+            f"{tp[0] / n_tp:.3f} / {tp[1] / n_tp:.3f} | {fp[0] / n:.2f} / {fp[1] / n:.2f} | "
+            f"{bg[0] / n:.2f} / {bg[1] / n:.2f} |"
+        )
+
+
+BIRTH = 0.35  # the stereo graph's tracker birth_score (pipeline.params.yaml)
+
+
+def judge_box(b: CheckedBox, params):
+    from stereo_depth_node.plausibility import judge
+
+    return judge(b.measures, params)
 
 
 def ground_table(boxes: list[CheckedBox], planes: dict, frames: list[RealFrame]) -> None:
@@ -599,6 +662,8 @@ def bench_plausibility() -> None:
     )
     for title, frs in groups:
         plausibility_table(judged, frs, title)
+    for title, frs in groups:
+        reject_below_table(boxes, frs, defaults, title)
     for title, frs in groups[1:]:
         print(f"\nlabelled boxes as input, {title}:")
         labelled_cases_table(judged, frs, defaults)
