@@ -312,3 +312,25 @@ def test_tentative_tracks_rank_below_confirmed_ones():
     assert list(out.state) == [CONFIRMED, TENTATIVE]
     np.testing.assert_allclose(out.score, [0.9, 0.45])
     assert out.score[0] > out.score[1]
+
+
+def test_no_second_track_where_a_track_already_holds_the_car():
+    """Issue #41 (duplicates): a second detection on a tracked car (its box overlapping the
+    track's by IoU 0.6, its 3D position beyond the association gate) starts no track with
+    birth_max_iou 0.5; with 1.0 (off) it does, and a detection on free ground always does."""
+    from tracker_node.overlap import covered_by_tracks
+
+    box = [600.0, 150.0, 660.0, 190.0]
+    dup = [610.0, 150.0, 670.0, 190.0]  # IoU 50 / 70 = 0.71 with box
+    free = [900.0, 150.0, 960.0, 190.0]
+    assert covered_by_tracks(np.array([dup, free]), np.array([box]), 0.5).tolist() == [
+        True,
+        False,
+    ]
+    assert not covered_by_tracks(np.array([dup]), np.array([box]), 1.0).any()
+    for max_iou, tracks in ((0.5, 2), (1.0, 3)):
+        trk = Tracker(TrackerConfig(birth_max_iou=max_iou, min_hits=1))
+        trk.step(DetectionBatch.create([[0.0, 1.0, 20.0]], bbox=[box]), stamp=0.0)
+        pos = [[0.0, 1.0, 20.0], [0.0, 1.0, 35.0], [10.0, 1.0, 20.0]]  # car, its duplicate, free
+        trk.step(DetectionBatch.create(pos, bbox=[box, dup, free]), stamp=0.1)
+        assert len(trk.tracks) == tracks, max_iou

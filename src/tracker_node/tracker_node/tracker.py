@@ -41,6 +41,7 @@ from .orientation import (
     wrap,
     yaw_from_bin,
 )
+from .overlap import covered_by_tracks
 from .track_table import TrackTable
 
 __all__ = ["COASTING", "CONFIRMED", "TENTATIVE", "DetectionBatch", "Tracker", "TrackSet"]
@@ -309,6 +310,8 @@ class Tracker:
         """New tracks from the detections no track took that may start one."""
         new = self._may_start(dets)
         new[matched_cols] = False
+        if new.any() and len(self.tracks):  # no second track on a car a track holds (#41)
+            new &= ~covered_by_tracks(dets.bbox, self._predicted_bboxes(), self.cfg.birth_max_iou)
         idx = np.nonzero(new)[0]
         k = len(idx)
         if not k:
