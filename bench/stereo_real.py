@@ -1228,3 +1228,67 @@ def cnn_edge_spread(frames: list[RealFrame]) -> float:
                 errs += [boxes[i][1] - o.bbox[1], boxes[i][3] - o.bbox[3]]
     e = np.array(errs)
     return float(1.4826 * np.median(np.abs(e - np.median(e))))
+
+
+# ----------------------------------------------------------------------------- box steps
+
+
+def _cars_in_box(box, objs: list[KittiObject]) -> list[KittiObject]:
+    """Labelled Car/Van boxes that each cover >= 25 % of ``box`` and lie >= 50 % inside it."""
+    x1, y1, x2, y2 = box
+    out = []
+    for o in objs:
+        if o.type not in VEHICLES:
+            continue
+        a1, b1, a2, b2 = o.bbox
+        inter = max(0.0, min(x2, a2) - max(x1, a1)) * max(0.0, min(y2, b2) - max(y1, b1))
+        if inter >= 0.25 * (x2 - x1) * (y2 - y1) and inter >= 0.5 * (a2 - a1) * (b2 - b1):
+            out.append(o)
+    return out
+
+
+def depth_step(disparity: np.ndarray, box, fb: float) -> float:
+    """The largest difference [m] between the median depths of the box's columns left and
+    right of a split (each side >= a quarter of the columns; a column's depth: the median of
+    its valid disparities); nan with < 8 usable columns."""
+    x1, y1, x2, y2 = (int(round(v)) for v in box)
+    sub = disparity[max(y1, 0) : y2, max(x1, 0) : x2]
+    z = []
+    for c in range(sub.shape[1]):
+        v = sub[:, c][sub[:, c] > 0]
+        z.append(fb / float(np.median(v)) if len(v) >= 3 else np.nan)
+    z = np.asarray(z)
+    z = z[np.isfinite(z)]
+    n = len(z)
+    if n < 8:
+        return float("nan")
+    return max(abs(np.median(z[:k]) - np.median(z[k:])) for k in range(n // 4, n - n // 4))
+
+
+def bench_box_steps() -> None:
+    """Issue #41 item 2, stereo part: how often a CNN box spans two labelled cars at depths
+    > 2 m apart, and whether a depth step inside the box tells them from one-car boxes."""
+    print("\n## CNN boxes across two cars: the depth step inside the box (issue #41)")
+    groups = (
+        ("0005 SGBM (16)", sgbm_0005()),
+        ("reporting keyframes, LiDAR (39)", [f for f in keyframes() if f.split == "reporting"]),
+    )
+    for name, frames in groups:
+        run_cnn(frames)
+        rows = []
+        for f in frames:
+            fb = f.geometry.fx * f.geometry.baseline
+            for d in f.detections:
+                cars = _cars_in_box(d.box, f.objects)
+                zs = sorted(float(o.location[2]) for o in cars)
+                two = len(zs) >= 2 and zs[-1] - zs[0] > 2.0
+                rows.append((two, len(cars), depth_step(f.disparity, d.box, fb)))
+        rows = [r for r in rows if np.isfinite(r[2])]
+        two = [r for r in rows if r[0]]
+        one = [r for r in rows if not r[0] and r[1] == 1]
+        print(f"{name}: CNN boxes {len(rows)}, across two cars > 2 m apart: {len(two)}")
+        for thr in (2.0, 3.0, 5.0):
+            print(
+                f"  step > {thr:g} m: two-car boxes {sum(r[2] > thr for r in two)} / {len(two)},"
+                f" one-car boxes {sum(r[2] > thr for r in one)} / {len(one)}"
+            )
