@@ -334,3 +334,19 @@ def test_no_second_track_where_a_track_already_holds_the_car():
         pos = [[0.0, 1.0, 20.0], [0.0, 1.0, 35.0], [10.0, 1.0, 20.0]]  # car, its duplicate, free
         trk.step(DetectionBatch.create(pos, bbox=[box, dup, free]), stamp=0.1)
         assert len(trk.tracks) == tracks, max_iou
+
+
+def test_a_coasting_track_whose_car_left_the_image_ends():
+    """Issue #41 (tracks that outlived their car): a car driving out at the left edge; once its
+    projected box is mostly outside the image, its coasting track ends with coast_min_visible
+    0.5, and coasts on (reported) with 0 (off)."""
+    P = np.array([[721.5, 0.0, 609.6, 0.0], [0.0, 721.5, 172.9, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    for visible, alive in ((0.5, False), (0.0, True)):  # the default, off
+        trk = Tracker(
+            TrackerConfig(min_hits=1, coast_min_visible=visible, measurement_noise=0.05),
+            projection=P,
+        )
+        for k in range(8):  # 10 m/s to the left at 8 m depth: x from -2 to -9 m
+            trk.step(DetectionBatch.create([[-2.0 - 1.0 * k, 1.0, 8.0]]), stamp=0.1 * k)
+        trk.step(DetectionBatch.empty(), stamp=0.8)  # predicted at x -10 m: outside the image
+        assert (len(trk.tracks) == 1) == alive, visible

@@ -145,6 +145,10 @@ class TrackerConfig:
     # no track: a duplicate on a car a track holds (issue #41; 0.5 chosen on the camera
     # benchmark's tuning trajectories, docs/tracker.md); 1: off
     birth_max_iou: float = param(0.5, low=0.0, high=1.0)
+    # a coasting track whose projected box has less than this share of its area inside the
+    # image ends (its car has left the view; issue #41: tracks that outlived their car; 0.5
+    # chosen on the camera benchmark's tuning trajectories, docs/tracker.md); 0: off
+    coast_min_visible: float = param(0.5, low=0.0, high=1.0)
 
     def validate(self) -> TrackerConfig:
         """Check every field's type, range and choices (see ``param``); raises
