@@ -1069,6 +1069,7 @@ def main() -> int:
             "odometry",
             "plausibility",
             "plausibility_range",
+            "box_steps",
             "all",
         ],
     )
@@ -1108,6 +1109,8 @@ def main() -> int:
         stereo_real.bench_plausibility()
     if args.section in ("plausibility_range", "all"):
         stereo_real.bench_plausibility_range()
+    if args.section in ("box_steps", "all"):
+        stereo_real.bench_box_steps()
     if args.section in ("timing", "all"):
         bench_timing(variants, args.repeats)
     return 0

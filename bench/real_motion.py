@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 from eval_node.bag_reader import OUTPUT_STATES, RANKED_STATES
 from eval_node.detection_metrics import precision_recall
+from eval_node.lost_cars import false_tracks
 from eval_node.motion_metrics import track_velocities
 from eval_node.tracking_metrics import evaluate_tracking_sequences
 from scipy.optimize import linear_sum_assignment
@@ -641,6 +642,7 @@ class MotionStats:
     ground_speed: list = field(default_factory=list)  # [m/s] the car's true speed over ground
     frames: int = 0  # frames tracked
     lost: list = field(default_factory=list)  # eval_node.lost_cars.CarRecord per labelled car
+    false: list = field(default_factory=list)  # eval_node.lost_cars.FalseRow per false row
     # orientation of the matched rows: (yaw error [rad] against the label's rotation_y, 4-bin
     # of the implied observation angle right, the car's speed over the ground [m/s] or nan)
     yaw: list = field(default_factory=list)
@@ -782,6 +784,7 @@ def evaluate_split(
                 preds[flt][(data.name, k)] = objs
             if st is not None:
                 st.lost += sequence_lost_cars(data, ranked, out, cfg.birth_score)
+                st.false += false_tracks(data.name, data.gt, out)
         times[flt] = time.perf_counter() - t0
         if st is not None:
             st.mot = evaluate_tracking_sequences(
@@ -927,12 +930,15 @@ def print_tracking_summary(stats: dict[str, MotionStats], bars: bool = False) ->
 
 def print_lost_cars(stats: dict[str, MotionStats]) -> None:
     """Per filter: why labelled cars were missed, per cause (eval_node.lost_cars)."""
-    from eval_node.lost_cars import cause_table
+    from eval_node.lost_cars import cause_table, false_track_table
 
     for flt, st in stats.items():
         if st is not None and st.lost:
             print(f"\n  [{flt}] why labelled cars were missed (2D IoU 0.5, KITTI tracking rules):")
             print("  " + cause_table(st.lost).replace("\n", "\n  "))
+        if st is not None and st.false:
+            print(f"\n  [{flt}] what the false-positive track rows were:")
+            print("  " + false_track_table(st.false).replace("\n", "\n  "))
     sys.stdout.flush()
 
 

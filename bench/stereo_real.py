@@ -362,15 +362,18 @@ def _judged(boxes: list[CheckedBox], params) -> list[tuple[CheckedBox, object]]:
     return [(b, judge(b.measures, params) if b.measures is not None else None) for b in boxes]
 
 
-def _kept(check, score: float, mode: str, threshold: float = 0.3) -> bool:
-    """Whether a ranged detection survives: before (every ranged one), reject (plausible
-    only), score (score x plausibility >= the detector's threshold)."""
+def _kept(check, score: float, mode: str, threshold: float = 0.3, params=None) -> bool:
+    """Whether a ranged detection survives: before (every ranged one), reject (the node's
+    ``published_score`` under ``params``, default: the shipped ones), score (score x
+    plausibility >= the detector's threshold)."""
     if check is None:
         return False
     if mode == "before":
         return True
-    if mode == "reject":
-        return check.plausible
+    if mode == "reject":  # the default action: published_score (reject_below) decides
+        from stereo_depth_node.plausibility import PlausibilityParams, published_score
+
+        return published_score(check, score, params or PlausibilityParams()) is not None
     return score * check.plausibility >= threshold
 
 
@@ -457,6 +460,66 @@ def _first_failure(check, p) -> str:
     if np.isfinite(m.bottom_height) and m.bottom_height < p.min_bottom_height:
         return "sunk"
     return "on the road"
+
+
+REJECT_BELOW = (1.0, 0.5, 0.3, 0.2, 0.1, 0.05, 0.02, 0.01, 0.0)
+
+
+def reject_below_table(boxes: list[CheckedBox], frames: list[RealFrame], params, title) -> None:
+    """Issue #41 item 3: the ``reject`` action drops a box only below ``reject_below``
+    (1.0: every implausible box, as before) and publishes the others the check is unsure of at
+    score x plausibility; the stereo graph's tracker starts tracks only from published scores
+    >= ``birth_score`` (0.35, pipeline.params.yaml), lower ones only keep tracks alive. Per
+    threshold: the ranged labelled boxes kept, per depth band; the CNN's true and false
+    detections kept / able to start a track, per frame for the false ones."""
+    from dataclasses import replace
+
+    from stereo_depth_node.plausibility import published_score
+
+    names = {f.name for f in frames}
+    sel = [b for b in boxes if b.frame in names and b.measures is not None]
+    print(f"\n### reject_below, {title}: {len(frames)} frames")
+    bands = ((0.0, 30.0), (30.0, 45.0), (45.0, 1e9))
+    head = " | ".join(f"labelled kept {dist_bin_name(lo, hi)}" for lo, hi in bands)
+    print(
+        f"| reject_below | labelled kept all | {head} | true det. kept / can start a track |"
+        " FP per frame kept / can start | background FP per frame kept / can start |"
+    )
+    print("|---" * (6 + len(bands)) + "|")
+    n = len(frames)
+    for t in REJECT_BELOW:
+        p = replace(params, plausibility_action="reject", reject_below=t)
+        pub = [(b, published_score(judge_box(b, p), b.score, p)) for b in sel]
+
+        def share(pred, pub=pub):
+            sub = [s is not None for b, s in pub if pred(b)]
+            return f"{sum(sub) / len(sub):.3f} ({len(sub) - sum(sub)} out)" if sub else "-"
+
+        def kept_start(pred, pub=pub):
+            sub = [s for b, s in pub if pred(b)]
+            return sum(s is not None for s in sub), sum(s is not None and s >= BIRTH for s in sub)
+
+        gt = [
+            share(lambda b, lo=lo, hi=hi: b.kind == "gt" and lo <= b.depth < hi) for lo, hi in bands
+        ]
+        tp = kept_start(lambda b: b.kind == "tp")
+        n_tp = max(sum(b.kind == "tp" for b in sel), 1)
+        fp = kept_start(lambda b: b.kind == "fp")
+        bg = kept_start(lambda b: b.kind == "fp" and b.background)
+        print(
+            f"| {t:g} | {share(lambda b: b.kind == 'gt')} | {' | '.join(gt)} | "
+            f"{tp[0] / n_tp:.3f} / {tp[1] / n_tp:.3f} | {fp[0] / n:.2f} / {fp[1] / n:.2f} | "
+            f"{bg[0] / n:.2f} / {bg[1] / n:.2f} |"
+        )
+
+
+BIRTH = 0.35  # the stereo graph's tracker birth_score (pipeline.params.yaml)
+
+
+def judge_box(b: CheckedBox, params):
+    from stereo_depth_node.plausibility import judge
+
+    return judge(b.measures, params)
 
 
 def ground_table(boxes: list[CheckedBox], planes: dict, frames: list[RealFrame]) -> None:
@@ -599,6 +662,8 @@ def bench_plausibility() -> None:
     )
     for title, frs in groups:
         plausibility_table(judged, frs, title)
+    for title, frs in groups:
+        reject_below_table(boxes, frs, defaults, title)
     for title, frs in groups[1:]:
         print(f"\nlabelled boxes as input, {title}:")
         labelled_cases_table(judged, frs, defaults)
@@ -1163,3 +1228,67 @@ def cnn_edge_spread(frames: list[RealFrame]) -> float:
                 errs += [boxes[i][1] - o.bbox[1], boxes[i][3] - o.bbox[3]]
     e = np.array(errs)
     return float(1.4826 * np.median(np.abs(e - np.median(e))))
+
+
+# ----------------------------------------------------------------------------- box steps
+
+
+def _cars_in_box(box, objs: list[KittiObject]) -> list[KittiObject]:
+    """Labelled Car/Van boxes that each cover >= 25 % of ``box`` and lie >= 50 % inside it."""
+    x1, y1, x2, y2 = box
+    out = []
+    for o in objs:
+        if o.type not in VEHICLES:
+            continue
+        a1, b1, a2, b2 = o.bbox
+        inter = max(0.0, min(x2, a2) - max(x1, a1)) * max(0.0, min(y2, b2) - max(y1, b1))
+        if inter >= 0.25 * (x2 - x1) * (y2 - y1) and inter >= 0.5 * (a2 - a1) * (b2 - b1):
+            out.append(o)
+    return out
+
+
+def depth_step(disparity: np.ndarray, box, fb: float) -> float:
+    """The largest difference [m] between the median depths of the box's columns left and
+    right of a split (each side >= a quarter of the columns; a column's depth: the median of
+    its valid disparities); nan with < 8 usable columns."""
+    x1, y1, x2, y2 = (int(round(v)) for v in box)
+    sub = disparity[max(y1, 0) : y2, max(x1, 0) : x2]
+    z = []
+    for c in range(sub.shape[1]):
+        v = sub[:, c][sub[:, c] > 0]
+        z.append(fb / float(np.median(v)) if len(v) >= 3 else np.nan)
+    z = np.asarray(z)
+    z = z[np.isfinite(z)]
+    n = len(z)
+    if n < 8:
+        return float("nan")
+    return max(abs(np.median(z[:k]) - np.median(z[k:])) for k in range(n // 4, n - n // 4))
+
+
+def bench_box_steps() -> None:
+    """Issue #41 item 2, stereo part: how often a CNN box spans two labelled cars at depths
+    > 2 m apart, and whether a depth step inside the box tells them from one-car boxes."""
+    print("\n## CNN boxes across two cars: the depth step inside the box (issue #41)")
+    groups = (
+        ("0005 SGBM (16)", sgbm_0005()),
+        ("reporting keyframes, LiDAR (39)", [f for f in keyframes() if f.split == "reporting"]),
+    )
+    for name, frames in groups:
+        run_cnn(frames)
+        rows = []
+        for f in frames:
+            fb = f.geometry.fx * f.geometry.baseline
+            for d in f.detections:
+                cars = _cars_in_box(d.box, f.objects)
+                zs = sorted(float(o.location[2]) for o in cars)
+                two = len(zs) >= 2 and zs[-1] - zs[0] > 2.0
+                rows.append((two, len(cars), depth_step(f.disparity, d.box, fb)))
+        rows = [r for r in rows if np.isfinite(r[2])]
+        two = [r for r in rows if r[0]]
+        one = [r for r in rows if not r[0] and r[1] == 1]
+        print(f"{name}: CNN boxes {len(rows)}, across two cars > 2 m apart: {len(two)}")
+        for thr in (2.0, 3.0, 5.0):
+            print(
+                f"  step > {thr:g} m: two-car boxes {sum(r[2] > thr for r in two)} / {len(two)},"
+                f" one-car boxes {sum(r[2] > thr for r in one)} / {len(one)}"
+            )

@@ -60,3 +60,41 @@ def test_uncounted_boxes_and_the_table():
     assert [(r.track_id, r.frames, r.tracked) for r in recs] == [(1, 2, 2)]
     table = cause_table(recs)
     assert "recall 1.000" in table and "mostly lost (< 20 % tracked) 0" in table
+
+
+def other(kind: str, x1: float, frame: int, w: float = 60.0) -> KittiObject:
+    """A labelled object of another class (or a DontCare region) at column x1."""
+    return car(-1, x1, frame).with_(type=kind, bbox=(x1, 150.0, x1 + w, 190.0))
+
+
+def test_every_false_track_row_gets_its_cause():
+    """Issue #41: a duplicate on a tracked car, a box off an untracked car, a track that
+    outlived its car, a track on a pedestrian / in a DontCare region, a ghost."""
+    from eval_node.lost_cars import false_track_table, false_tracks
+
+    # frame 0: car 1 at 100 tracked by 7; car 2 at 400 tracked by 8
+    # frame 1: car 1 tracked by 7 and a duplicate 9 (30 px off, same car); car 2 has left,
+    #   track 8 coasts on (its car was matched in frame 0); car 3 at 700 boxed 35 px off by 10
+    # frame 2: track 11 on a pedestrian, 12 in a DontCare region, 13 where nothing is
+    gt = {
+        0: [car(1, 100, 0), car(2, 400, 0)],
+        1: [car(1, 100, 1), car(3, 700, 1)],
+        2: [other("Pedestrian", 300, 2, 30), other("DontCare", 600, 2, 200)],
+    }
+    tracks = {
+        0: [car(7, 100, 0, 0.9), car(8, 400, 0, 0.9)],
+        1: [car(7, 100, 1, 0.9), car(9, 130, 1, 0.8), car(8, 420, 1, 0.7), car(10, 735, 1)],
+        2: [car(11, 290, 2, 0.9), car(12, 610, 2, 0.9).with_(bbox=(610, 150, 700, 180))],
+    }
+    tracks[2].append(car(13, 1000, 2, 0.9).with_(location=(30.0, 1.65, 40.0)))
+    rows = false_tracks("0000", gt, tracks)
+    got = {(r.frame, r.track_id): r.cause for r in rows}
+    assert got == {
+        (1, 9): "duplicate",
+        (1, 8): "outlived its car",
+        (1, 10): "off the box",
+        (2, 11): "wrong class",
+        (2, 13): "ghost",
+    }, got  # track 12: over half its box in the DontCare region, ignored by the evaluation
+    table = false_track_table(rows)
+    assert "| duplicate | 1 | 0.20 | 1 |" in table and "| ghost | 1 | 0.20 | 1 |" in table

@@ -327,3 +327,39 @@ def test_reset_ends_every_track_and_ids_go_on():
     out = trk.step(DetectionBatch.create([[5.0, 1.0, 20.0]]), stamp=100.0)
     assert list(trk.tracks.ids) == [2] and len(trk.filter.position) == 1
     assert out is not None
+def test_no_second_track_where_a_track_already_holds_the_car():
+    """Issue #41 (duplicates): a second detection on a tracked car (its box overlapping the
+    track's by IoU 0.6, its 3D position beyond the association gate) starts no track with
+    birth_max_iou 0.5; with 1.0 (off) it does, and a detection on free ground always does."""
+    from tracker_node.overlap import covered_by_tracks
+
+    box = [600.0, 150.0, 660.0, 190.0]
+    dup = [610.0, 150.0, 670.0, 190.0]  # IoU 50 / 70 = 0.71 with box
+    free = [900.0, 150.0, 960.0, 190.0]
+    assert covered_by_tracks(np.array([dup, free]), np.array([box]), 0.5).tolist() == [
+        True,
+        False,
+    ]
+    assert not covered_by_tracks(np.array([dup]), np.array([box]), 1.0).any()
+    for max_iou, tracks in ((0.5, 2), (1.0, 3)):
+        trk = Tracker(TrackerConfig(birth_max_iou=max_iou, min_hits=1))
+        trk.step(DetectionBatch.create([[0.0, 1.0, 20.0]], bbox=[box]), stamp=0.0)
+        pos = [[0.0, 1.0, 20.0], [0.0, 1.0, 35.0], [10.0, 1.0, 20.0]]  # car, its duplicate, free
+        trk.step(DetectionBatch.create(pos, bbox=[box, dup, free]), stamp=0.1)
+        assert len(trk.tracks) == tracks, max_iou
+
+
+def test_a_coasting_track_whose_car_left_the_image_ends():
+    """Issue #41 (tracks that outlived their car): a car driving out at the left edge; once its
+    projected box is mostly outside the image, its coasting track ends with coast_min_visible
+    0.5, and coasts on (reported) with 0 (off)."""
+    P = np.array([[721.5, 0.0, 609.6, 0.0], [0.0, 721.5, 172.9, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    for visible, alive in ((0.5, False), (0.0, True)):  # the default, off
+        trk = Tracker(
+            TrackerConfig(min_hits=1, coast_min_visible=visible, measurement_noise=0.05),
+            projection=P,
+        )
+        for k in range(8):  # 10 m/s to the left at 8 m depth: x from -2 to -9 m
+            trk.step(DetectionBatch.create([[-2.0 - 1.0 * k, 1.0, 8.0]]), stamp=0.1 * k)
+        trk.step(DetectionBatch.empty(), stamp=0.8)  # predicted at x -10 m: outside the image
+        assert (len(trk.tracks) == 1) == alive, visible

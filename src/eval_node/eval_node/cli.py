@@ -126,7 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument(
         "--lost-cars",
         action="store_true",
-        help="print why labelled cars were missed, per cause (eval_node.lost_cars; the "
+        help="print why labelled cars were missed, per cause, and what each false-positive "
+        "track row was (eval_node.lost_cars; the "
         "tracker's birth_score from --tracker-params)",
     )
     b.add_argument(
@@ -230,7 +231,7 @@ def _check_outputs(args) -> None:
 def lost_cars_table(run, labels_dir=None, sequence=None, config=None) -> str:
     """:func:`eval_node.lost_cars.cause_table` of a recorded run (ground truth as evaluated)."""
     from eval_node.bag_evaluation import run_ground_truth
-    from eval_node.lost_cars import cause_table, lost_cars
+    from eval_node.lost_cars import cause_table, false_track_table, false_tracks, lost_cars
 
     def per_frame(attr: str) -> dict:
         return {f.frame: getattr(f, attr) for f in run.frames}
@@ -246,8 +247,12 @@ def lost_cars_table(run, labels_dir=None, sequence=None, config=None) -> str:
         per_frame("tentative"),
         birth_score=config.birth_score if config is not None else 0.0,
     )
-    return "\nwhy labelled cars were missed (2D IoU 0.5, KITTI tracking rules):\n" + cause_table(
-        records
+    false_rows = false_tracks(seq, gt, per_frame("tracks"))
+    return (
+        "\nwhy labelled cars were missed (2D IoU 0.5, KITTI tracking rules):\n"
+        + cause_table(records)
+        + "\n\nwhat the false-positive track rows were (eval_node.lost_cars.false_tracks):\n"
+        + false_track_table(false_rows)
     )
 
 

@@ -173,3 +173,127 @@ def cause_table(records: list[CarRecord]) -> str:
                 f"{z.min():.0f}-{z.max():.0f} | {why} |"
             )
     return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- false tracks
+
+FALSE_CAUSES = (
+    "duplicate",
+    "off the box",
+    "outlived its car",
+    "wrong class",
+    "ghost",
+)
+
+
+@dataclass
+class FalseRow:
+    """One reported track row the tracking evaluation counts as a false positive."""
+
+    sequence: str
+    frame: int
+    track_id: int
+    cause: str
+    depth: float  # [m] the row's depth (its 3D position's z)
+
+
+def false_tracks(
+    sequence: str, gt: Frames, tracks: Frames, iou: float = 0.5, near: float = 3.0, touch=0.1
+) -> list[FalseRow]:
+    """Every reported track row (confirmed and coasting) the evaluation counts as a false
+    positive (KITTI's rules at 2D IoU ``iou``, every row kept: no score threshold), by cause,
+    first cause first:
+
+    - ``duplicate``: it is on a labelled Car (2D IoU >= ``touch`` or 3D centre within ``near``
+      metres) that another row of the frame is matched to;
+    - ``off the box``: it is on a labelled Car no row is matched to, its box overlapping the
+      label's less than ``iou`` (a visible-part box, a coasting projection off the car);
+    - ``outlived its car``: on no labelled Car, and its track was matched to a car earlier that
+      is no longer labelled here (left the view, or hidden: the track coasts on);
+    - ``wrong class``: on a labelled object of another class (Pedestrian, Cyclist, Truck, Tram,
+      Misc, ...) or a DontCare region (2D IoU, or the share of its box inside the region, >=
+      ``touch``);
+    - ``ghost``: near no labelled object at all (a false detection of the stereo graph).
+    """
+    from eval_node.tracking_metrics import (
+        _match_frame,
+        _prepare_frame,
+        _tracker_rows,
+        class_status,
+    )
+
+    out: list[FalseRow] = []
+    matched_cars: dict[int, set] = {}  # track id -> labelled car ids it was matched to so far
+    for k in sorted(set(gt) | set(tracks)):
+        labels, rows = gt.get(k, []), tracks.get(k, [])
+        fr = _prepare_frame(labels, rows, "Car", "iou2d", None)
+        res = _match_frame(fr, len(fr.t_ids), iou)
+        t = _tracker_rows(rows, "Car")
+        # the evaluation's ground-truth rows (Car and its neighbour Van), as it matched them
+        g = [o for o in labels if not o.is_dontcare and class_status(o.type, "Car") >= 0]
+        pairs = {tid: g[r] for r, tid in enumerate(res.g_tracker) if tid >= 0}
+        for tid, car in pairs.items():
+            matched_cars.setdefault(tid, set()).add(car.track_id)
+        cars = [o for o in labels if not o.is_dontcare and o.type == "Car"]
+        others = [o for o in labels if o.type != "Car"]  # DontCare, Van, Pedestrian, Truck...
+        taken = {id(c) for c in pairs.values()}
+        present = {o.track_id for o in g}
+        for j, row in enumerate(t):
+            if row.track_id in pairs or fr.t_ign[j]:
+                continue  # matched (a TP or an ignored pair) or ignored: not a false positive
+            car = _on(row, cars, touch, near)
+            if car is not None:
+                cause = "duplicate" if id(car) in taken else "off the box"
+            elif matched_cars.get(row.track_id, set()) - present:
+                cause = "outlived its car"
+            elif _on(row, others, touch, near) is not None:
+                cause = "wrong class"
+            else:
+                cause = "ghost"
+            out.append(FalseRow(sequence, k, row.track_id, cause, float(row.location[2])))
+    return out
+
+
+def _on(row: KittiObject, objs: list[KittiObject], touch: float, near: float):
+    """The object of ``objs`` that ``row`` is on: the best 2D overlap (IoU, or the share of the
+    row's box inside a DontCare region) >= ``touch``, else the nearest 3D centre within
+    ``near`` metres (objects without a 3D box: 2D only); None."""
+    from eval_node.detection_metrics import box_overlap_over_first
+
+    if not objs:
+        return None
+    b = np.asarray([row.bbox], float)
+    ov = box_iou_2d(b, boxes_2d(objs))[0]
+    dc = np.array([o.is_dontcare for o in objs])
+    if dc.any():
+        ov = np.where(dc, box_overlap_over_first(b, boxes_2d(objs))[0], ov)
+    j = int(np.argmax(ov))
+    if ov[j] >= touch:
+        return objs[j]
+    c = np.asarray(row.centre_of_mass, float)
+    dist = [
+        np.linalg.norm(np.asarray(o.centre_of_mass) - c) if not o.is_dontcare else np.inf
+        for o in objs
+    ]
+    j = int(np.argmin(dist))
+    return objs[j] if dist[j] < near else None
+
+
+def false_track_table(rows: list[FalseRow]) -> str:
+    """Markdown: the false-positive track rows per cause (rows, share, distinct tracks, median
+    depth)."""
+    n = len(rows)
+    lines = [
+        f"false-positive track rows {n} (every row kept; KITTI tracking rules, 2D IoU 0.5)",
+        "",
+        "| cause | false-positive rows | share | tracks | depth m (median) |",
+        "|---|---|---|---|---|",
+    ]
+    for c in FALSE_CAUSES:
+        sub = [r for r in rows if r.cause == c]
+        if not sub:
+            continue
+        tracks = len({(r.sequence, r.track_id) for r in sub})
+        z = float(np.median([r.depth for r in sub]))
+        lines.append(f"| {c} | {len(sub)} | {len(sub) / n:.2f} | {tracks} | {z:.0f} |")
+    return "\n".join(lines)

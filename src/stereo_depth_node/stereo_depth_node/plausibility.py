@@ -52,6 +52,13 @@ class PlausibilityParams:
     keyframes, docs/stereo_depth.md section 7)."""
 
     plausibility_action: str = "reject"  # reject (drop) | score (x plausibility) | flag (fields)
+    # reject: drop only a box whose plausibility is below this (clearly no vehicle: far outside
+    # the limits); a box between it and 1 is kept with score x plausibility (issue #41: a true
+    # car the check is unsure of, e.g. road seen under a car from the side, an uphill grade
+    # beyond the fitted road, costs more dropped than a false box kept at a lower score);
+    # 1.0: drop every implausible box (before issue #41). Chosen on the tuning keyframes
+    # (docs/stereo_depth.md section 11).
+    reject_below: float = 0.01
     min_height: float = 1.1  # [m] shorter boxes: not a vehicle (unless cut at top/bottom)
     max_height: float = 4.0  # [m] (trucks, buses; physical limit, not tuned)
     min_width: float = 0.0  # [m] narrower boxes: not a vehicle (unless cut at the left/right)
@@ -111,6 +118,8 @@ class PlausibilityParams:
         ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name}: {getattr(self, name)} must be > 0")
+        if not 0.0 <= self.reject_below <= 1.0:
+            raise ValueError(f"reject_below: {self.reject_below} must be in [0, 1]")
         for name in ("noise_sigmas", "road_tilt_std", "box_edge_std"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name}: {getattr(self, name)} must be >= 0")
@@ -424,6 +433,20 @@ def check_boxes(
         )
         out.append(judge(m, params))
     return out
+
+
+def published_score(check: Plausibility, score: float, params: PlausibilityParams) -> float | None:
+    """The score a ranged detection (detector ``score``) is published with after its
+    ``check``, or None when it is dropped: ``flag`` keeps every box at its score; ``score``
+    keeps every box at score x plausibility; ``reject`` drops a box whose plausibility is
+    below ``reject_below`` and keeps the others, a plausible one at its score and one the
+    check is unsure of (not plausible, plausibility >= reject_below) at score x plausibility."""
+    action = params.plausibility_action
+    if action == "flag" or check.plausible:
+        return float(score)
+    if action == "reject" and check.plausibility < params.reject_below:
+        return None
+    return float(score) * check.plausibility
 
 
 class GroundHeightCheck:

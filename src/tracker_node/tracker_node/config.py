@@ -144,6 +144,14 @@ class TrackerConfig:
     # is below this start no track (second association stage only, as below birth_score);
     # 0: off. Detections without the field are never held back by it.
     birth_plausibility: float = param(0.0, low=0.0, high=1.0)
+    # a detection whose 2D box overlaps a track's (predicted) box by a 2D IoU above this starts
+    # no track: a duplicate on a car a track holds (issue #41; 0.5 chosen on the camera
+    # benchmark's tuning trajectories, docs/tracker.md); 1: off
+    birth_max_iou: float = param(0.5, low=0.0, high=1.0)
+    # a coasting track whose projected box has less than this share of its area inside the
+    # image ends (its car has left the view; issue #41: tracks that outlived their car; 0.5
+    # chosen on the camera benchmark's tuning trajectories, docs/tracker.md); 0: off
+    coast_min_visible: float = param(0.5, low=0.0, high=1.0)
 
     def validate(self) -> TrackerConfig:
         """Check every field's type, range and choices (see ``param``); raises

@@ -36,11 +36,18 @@ class TrackLifecycle:
             table.score_sum >= self.cfg.confirm_score
         )
 
-    def missed(self, table: TrackTable, missed: np.ndarray) -> np.ndarray:
-        """Tracks where ``missed`` (bool) were not matched; returns which of them end now."""
+    def missed(
+        self, table: TrackTable, missed: np.ndarray, out_of_view: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Tracks where ``missed`` (bool) were not matched; returns which of them end now:
+        tentative ones, those past ``max_staleness``, and those ``out_of_view`` (bool, when
+        given: their car has left the image, issue #41)."""
         table.misses[missed] += 1
         table.conf[missed] *= self.cfg.decay_rate
-        return missed & (~table.confirmed | (table.misses > self.cfg.max_staleness))
+        end = ~table.confirmed | (table.misses > self.cfg.max_staleness)
+        if out_of_view is not None:
+            end |= out_of_view
+        return missed & end
 
     def born_confirmed(self, score: np.ndarray) -> np.ndarray:
         """Whether new tracks born from detections with ``score`` start confirmed

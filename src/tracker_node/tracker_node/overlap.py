@@ -8,6 +8,7 @@ length/width/height, yaw about the camera y axis (KITTI rotation_y; length along
 from __future__ import annotations
 
 import numpy as np
+from vehicle_common.box2d import iou_2d
 from vehicle_common.box3d import giou_3d as box3d_giou
 from vehicle_common.camera_frames import kitti_from_centre
 
@@ -20,6 +21,16 @@ def shape_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         d = np.abs(wa - wb) / (wa + wb) + np.abs(ha - hb) / (ha + hb)
     return np.nan_to_num(np.exp(-d))
+
+
+def covered_by_tracks(det_boxes: np.ndarray, track_boxes: np.ndarray, max_iou: float) -> np.ndarray:
+    """Which detection boxes (N, 4) overlap a track's box (M, 4) by a 2D IoU above ``max_iou``
+    (bool (N,)): a birth there would be a second track on a car a track already holds (issue
+    #41: duplicates). ``max_iou`` >= 1: none."""
+    if max_iou >= 1.0 or len(det_boxes) == 0 or len(track_boxes) == 0:
+        return np.zeros(len(det_boxes), bool)
+    iou = np.nan_to_num(iou_2d(np.asarray(det_boxes, float), np.asarray(track_boxes, float)))
+    return (iou > max_iou).any(axis=1)
 
 
 def kitti_box(

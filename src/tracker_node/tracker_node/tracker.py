@@ -41,6 +41,7 @@ from .orientation import (
     wrap,
     yaw_from_bin,
 )
+from .overlap import covered_by_tracks
 from .track_table import TrackTable
 
 __all__ = ["COASTING", "CONFIRMED", "TENTATIVE", "DetectionBatch", "Tracker", "TrackSet"]
@@ -312,15 +313,40 @@ class Tracker:
         """Unmatched tracks miss a frame; those the lifecycle ends are removed."""
         missed = np.ones(len(self.tracks), bool)
         missed[matched_rows] = False
-        dead = self.lifecycle.missed(self.tracks, missed)
+        dead = self.lifecycle.missed(self.tracks, missed, self._out_of_view(missed))
         if dead.any():
             self.filter.keep(~dead)
             self.tracks.keep(~dead)
+
+    def _out_of_view(self, rows: np.ndarray) -> np.ndarray | None:
+        """Tracks of ``rows`` (bool) whose projected box has less than ``coast_min_visible`` of
+        its area inside the image (their car has left the view); None when off or unknown."""
+        v = self.cfg.coast_min_visible
+        if v <= 0 or self.projection is None or not rows.any():
+            return None
+        out = np.zeros(len(rows), bool)
+        w, h = self.image_size
+        for i in np.nonzero(rows)[0]:
+            l_, w_, h_ = self.tracks.size[i]
+            bottom = kitti_from_centre(self.filter.position[i], h_)
+            full = projected_bbox(self.projection, (h_, w_, l_), bottom, float(self.tracks.yaw[i]))
+            if full is None:
+                out[i] = True
+                continue
+            x1, y1, x2, y2 = full
+            area = (x2 - x1) * (y2 - y1)
+            inside = max(0.0, min(x2, w - 1.0) - max(x1, 0.0)) * max(
+                0.0, min(y2, h - 1.0) - max(y1, 0.0)
+            )
+            out[i] = area <= 0 or inside < v * area
+        return out
 
     def _spawn(self, dets: DetectionBatch, matched_cols, R: np.ndarray, det_yaw) -> None:
         """New tracks from the detections no track took that may start one."""
         new = self._may_start(dets)
         new[matched_cols] = False
+        if new.any() and len(self.tracks):  # no second track on a car a track holds (#41)
+            new &= ~covered_by_tracks(dets.bbox, self._predicted_bboxes(), self.cfg.birth_max_iou)
         idx = np.nonzero(new)[0]
         k = len(idx)
         if not k:
