@@ -497,12 +497,22 @@ def _checked_frame(ctx, action: str, boxes, **params):
         h.close()
 
 
-def test_floating_box_is_rejected_and_counted_with_the_default_action(rclpy_context):
+def test_floating_box_is_kept_lower_or_rejected_by_reject_below(rclpy_context):
     """The test scene has no road: the level prior 1.65 m below the camera stands in. The box's
     bottom edge (row 90, 30 px below the principal point) at the plane's 17.5 m is 0.75 m below
-    the camera, 0.9 m above that road: floating, so the default action drops it."""
+    the camera, 0.9 m above that road: floating. The default action (reject, reject_below
+    0.01, issue #41) keeps a box the check is unsure of at score x plausibility; with
+    reject_below 1.0 (before issue #41) it is dropped and counted."""
     assert PlausibilityParams().plausibility_action == "reject"
     with _checked_frame(rclpy_context, "reject", [(150, 30, 250, 90)]) as (h, dets):
+        (det,) = dets
+        assert 0.01 <= det.plausibility < 0.2
+        assert det.score == pytest.approx(0.9 * det.plausibility)
+        assert h.node.pipeline.implausible_detections == 0
+    with _checked_frame(rclpy_context, "reject", [(150, 30, 250, 90)], reject_below=1.0) as (
+        h,
+        dets,
+    ):
         assert dets == []
         assert h.node.pipeline.implausible_detections == 1
 

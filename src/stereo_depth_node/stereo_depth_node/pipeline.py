@@ -39,7 +39,13 @@ from .disparity import (
     compute_disparity_in_boxes,
     match_band,
 )
-from .plausibility import GroundEstimator, GroundHeightCheck, PlausibilityParams, check_boxes
+from .plausibility import (
+    GroundEstimator,
+    GroundHeightCheck,
+    PlausibilityParams,
+    check_boxes,
+    published_score,
+)
 from .ranging import (
     RangingParams,
     RangingSetup,
@@ -356,7 +362,8 @@ class StereoPipeline:
                     f"({self.unranged_detections} unranged so far)",
                 )
                 continue
-            if action == "reject" and not c.plausible:
+            published = published_score(c, dets.scores[i], self.plausibility)
+            if published is None:  # reject: clearly no vehicle (plausibility < reject_below)
                 self.implausible_detections += 1
                 self.log(
                     "debug",
@@ -365,7 +372,11 @@ class StereoPipeline:
                     f"dropped ({self.implausible_detections} so far)",
                 )
                 continue
-            score = dets.scores[i] * c.plausibility if action == "score" else None
+            # None: the detector's score; an unsure box (reject) is kept at score x plausibility
+            if action == "score":
+                score = dets.scores[i] * c.plausibility
+            else:
+                score = None if published == dets.scores[i] else published
             kept.append((i, r, c, score))
         return kept
 
