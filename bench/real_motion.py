@@ -646,6 +646,13 @@ class MotionStats:
     # orientation of the matched rows: (yaw error [rad] against the label's rotation_y, 4-bin
     # of the implied observation angle right, the car's speed over the ground [m/s] or nan)
     yaw: list = field(default_factory=list)
+    mot3: dict = field(default_factory=dict)  # CLEAR-MOT at 3D IoU 0.25 and HOTA on 3D IoU
+    # position jitter (eval_node.motion_metrics.matched_jitter) pooled over the sequences:
+    # [sum of squared second differences of the tracks, of their cars, triplets]
+    jitter: list = field(default_factory=lambda: [0.0, 0.0, 0])
+    # rows of a car accelerating or braking over the ground (|a| > ACCEL_MIN): (velocity over
+    # the ground error [m/s], lag [s] = the error against the acceleration / |a|)
+    accel: list = field(default_factory=list)
 
 
 def run_tracker(
@@ -681,6 +688,10 @@ def run_tracker(
                 ew = (ts.velocity_over_ground[i] - vw)[[0, 2]]
                 stats.ground_err.append(float(np.linalg.norm(ew)))
                 stats.ground_speed.append(float(np.linalg.norm(vw[[0, 2]])))
+                a = _ground_acceleration(data.ground_velocity, k, g)
+                if a is not None and np.linalg.norm(a) > ACCEL_MIN:
+                    an = float(np.linalg.norm(a))
+                    stats.accel.append((float(np.linalg.norm(ew)), -float(ew @ a) / an**2))
             vg = gt_vel.get((k, g))
             if vg is None:
                 continue
@@ -695,6 +706,19 @@ def run_tracker(
                 stats.lag.append(lag)
                 stats.lag_s.append(lag / s)
     return ranked, out
+
+
+#: [m/s^2] a labelled car accelerating or braking (ground speed change over 0.4 s)
+ACCEL_MIN = 1.5
+
+
+def _ground_acceleration(ground_velocity, k: int, g: int):
+    """Acceleration over the ground (x, z) [m/s^2] of car ``g`` at frame ``k``: the central
+    difference of its ground velocity over frames k-2 .. k+2 (None where either is missing)."""
+    a, b = ground_velocity.get((k - 2, g)), ground_velocity.get((k + 2, g))
+    if a is None or b is None:
+        return None
+    return (np.asarray(b) - np.asarray(a))[[0, 2]] / (4 * FRAME_PERIOD)
 
 
 def _orientation_row(ts, i: int, o: KittiObject, v_ground) -> tuple[float, bool, float]:
@@ -785,13 +809,44 @@ def evaluate_split(
             if st is not None:
                 st.lost += sequence_lost_cars(data, ranked, out, cfg.birth_score)
                 st.false += false_tracks(data.name, data.gt, out)
+                _add_jitter(st, data.gt, out)
         times[flt] = time.perf_counter() - t0
         if st is not None:
             st.mot = evaluate_tracking_sequences(
                 gts, per_seq, similarity="iou2d", hota_similarity="iou2d", hota=hota
             )["total"]
+            st.mot3 = evaluate_tracking_sequences(
+                gts, per_seq, similarity="iou3d", hota_similarity="iou3d", hota=hota
+            )["total"]
         stats[flt] = st
     return _ap_table(gt, preds), stats, times
+
+
+def _add_jitter(st: MotionStats, gt, out) -> None:
+    """Pool one sequence's matched-car position jitter into ``st.jitter``."""
+    from eval_node.motion_metrics import matched_jitter
+
+    j = matched_jitter(gt, out)
+    if j["n"]:
+        st.jitter[0] += j["pred_rms_m"] ** 2 * j["n"]
+        st.jitter[1] += j["gt_rms_m"] ** 2 * j["n"]
+        st.jitter[2] += j["n"]
+
+
+def jitter_ratio(st: MotionStats) -> tuple[float, float]:
+    """(tracks' RMS second difference [m], ratio to their labelled cars') of ``st``."""
+    sp, sg, n = st.jitter
+    if not n or sg <= 0:
+        return math.nan, math.nan
+    return math.sqrt(sp / n), math.sqrt(sp / sg)
+
+
+def accel_lag(st: MotionStats) -> tuple[float, float, int]:
+    """(velocity RMSE over the ground [m/s], mean lag [s], rows) of the accelerating rows."""
+    if not st.accel:
+        return math.nan, math.nan, 0
+    e, lag = np.array(st.accel).T
+    return float(np.sqrt(np.mean(e**2))), float(np.mean(lag)), len(e)
 
 
 def sequence_lost_cars(data: SequenceData, ranked: dict, out: dict, birth_score: float) -> list:
@@ -894,7 +949,9 @@ def print_tracking_summary(stats: dict[str, MotionStats], bars: bool = False) ->
     print(
         "  | filter | MOTA (all rows) | MOTA (best thr.) | HOTA (2D IoU) | recall / precision | "
         "IDSW | false tracks / frame | velocity RMSE over ground [m/s] (n) | parked < 1 m/s: "
-        "RMSE |"
+        "RMSE | MOTA (3D IoU 0.25, all rows) | HOTA (3D IoU) | position jitter, matched cars: "
+        "tracks [m] / ratio to the labels | accelerating / braking cars: velocity RMSE over "
+        "ground [m/s], mean lag [s] (n) |"
     )
     for flt, st in stats.items():
         if st is None:
@@ -911,7 +968,11 @@ def print_tracking_summary(stats: dict[str, MotionStats], bars: bool = False) ->
         print(
             f"  | {flt} | {100 * a['mota']:.1f} | {100 * m['mota']:.1f} | {hota:.1f} | "
             f"{100 * recall:.1f} / {100 * precision:.1f} | {a['idsw']} | {fpf:.2f} | "
-            f"{rmse:.2f} ({len(ge)}) | {prmse:.2f} |"
+            f"{rmse:.2f} ({len(ge)}) | {prmse:.2f} | "
+            f"{100 * st.mot3.get('all_rows', {}).get('mota', math.nan):.1f} | "
+            f"{100 * st.mot3.get('hota', math.nan):.1f} | "
+            "{:.3f} / {:.1f} | ".format(*jitter_ratio(st))
+            + "{:.2f}, {:+.2f} ({}) |".format(*accel_lag(st))
         )
         if bars:  # issue 23's, then issue 34's (the CNN graph's bars; this replay stands in)
             checks = [

@@ -5,7 +5,13 @@ from __future__ import annotations
 import math
 
 import pytest
-from eval_node.motion_metrics import jitter, stability, track_velocities, velocity_errors
+from eval_node.motion_metrics import (
+    jitter,
+    matched_jitter,
+    stability,
+    track_velocities,
+    velocity_errors,
+)
 from vehicle_common.kitti import KittiObject, read_tracking_labels
 
 
@@ -77,6 +83,18 @@ def test_jitter_and_stability():
     assert s["ratio"] == pytest.approx(2.0)
     assert s["pred_rms_mps2"] == pytest.approx(0.2 / 0.01)
     assert math.isnan(stability(gt, zig)["ratio"])
+
+
+def test_matched_jitter_leaves_out_false_tracks():
+    """A false track far from every car jitters wildly; the matched-car ratio ignores it (the
+    all-tracks ratio does not), and counts the matched car's own triplets only."""
+    gt_zig = {f: [obj(f, 0, x=0.05 * (f % 2), z=20.0 + f)] for f in range(6)}
+    zig = {f: [obj(f, 5, x=0.1 * (f % 2), z=20.0 + f)] for f in range(6)}
+    ghost = {f: zig[f] + [obj(f, 9, x=3.0 * (f % 2), z=60.0, x1=900.0)] for f in range(6)}
+    m = matched_jitter(gt_zig, ghost)
+    assert m["n"] == 4 and m["ratio"] == pytest.approx(2.0)
+    assert stability(gt_zig, ghost)["ratio"] > 10.0
+    assert stability(gt_zig, ghost)["matched"]["ratio"] == pytest.approx(2.0)
 
 
 def test_labels_against_themselves(kitti_tracking_root):

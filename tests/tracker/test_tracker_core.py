@@ -327,6 +327,8 @@ def test_reset_ends_every_track_and_ids_go_on():
     out = trk.step(DetectionBatch.create([[5.0, 1.0, 20.0]]), stamp=100.0)
     assert list(trk.tracks.ids) == [2] and len(trk.filter.position) == 1
     assert out is not None
+
+
 def test_no_second_track_where_a_track_already_holds_the_car():
     """Issue #41 (duplicates): a second detection on a tracked car (its box overlapping the
     track's by IoU 0.6, its 3D position beyond the association gate) starts no track with

@@ -156,6 +156,20 @@ def test_2d_box_is_the_detection_box_when_matched_and_the_projection_when_coasti
     assert not np.allclose(ts.bbox[0], box[0] + 10)
 
 
+@pytest.mark.parametrize("coast_box", ["projection", "shifted"])
+def test_matched_box_projection_reports_the_full_3d_box(coast_box):
+    """``matched_box: projection`` (issue #41): a matched track's 2D box is its filtered 3D
+    box projected (full extent), not its detection's (the visible part of an occluded car)."""
+    cfg = TrackerConfig(min_hits=1, matched_box="projection", coast_box=coast_box)
+    trk = Tracker(cfg, projection=P)
+    box = np.array([[500.0, 150.0, 530.0, 200.0]])  # the visible half of a car
+    for k in range(3):
+        ts = trk.step(DetectionBatch.create([[0.0, 1.0, 20.0 - k]], bbox=box), stamp=k * DT)
+        expected = trk._project(ts.position[0], ts.size[0], ts.yaw[0])
+        np.testing.assert_allclose(ts.bbox[0], expected)
+        assert not np.allclose(ts.bbox[0], box[0])
+
+
 def test_implausible_detections_start_no_track_but_keep_one_alive():
     """A box the stereo check finds implausible (floating, sunk, wrong size) starts no track;
     it still updates a track that exists (second association stage); without the field (NaN)

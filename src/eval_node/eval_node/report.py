@@ -122,7 +122,14 @@ def _summary_rows(res: dict) -> list[list[str]]:
         ["velocity RMSE [m/s]", _num(v.get("rmse"))],
         ["velocity MAE [m/s]", _num(v.get("mae"))],
         ["velocity jitter [m/s per frame]", _num(v.get("velocity_jitter"))],
-        ["position jitter ratio (tracks/GT)", _num(v.get("stability", {}).get("ratio"))],
+        [
+            "position jitter ratio (tracks/GT, all tracks)",
+            _num(v.get("stability", {}).get("ratio")),
+        ],
+        [
+            "position jitter ratio (matched cars)",
+            _num(v.get("stability", {}).get("matched", {}).get("ratio")),
+        ],
         ["frames", str(th["frames"])],
         ["throughput [frames/s]", _num(th.get("fps"), "{:.2f}")],
         ["latency mean [ms]", _num(th.get("latency_ms_mean"), "{:.1f}")],

@@ -26,6 +26,7 @@ from .scene_motion import INIT_VELOCITIES
 
 FILTERS = ("kalman", "particle", "none")
 COAST_BOXES = ("projection", "shifted")
+MATCHED_BOXES = ("detection", "projection")
 ASSOCIATIONS = ("hungarian", "nearest")
 COSTS = ("mahalanobis", "euclidean", "iou2d", "giou3d")
 NODE_NAME = "vehicle_tracker"
@@ -86,6 +87,16 @@ class TrackerConfig:
     # corrections after which a track keeps its most probable hypothesis (before: the
     # mixture's moments)
     birth_resolve_updates: int = param(10, low=1)
+    # world frame: probability that a new track is a parked car, for the stationary model
+    # beside the motion filter (stationary.py, issue #41; the reported position is the two
+    # models' mixture); 0: off (graph: 0.8, chosen on the camera benchmark's tuning sequences)
+    stationary_prior: float = param(0.0, low=0.0, high=1.0, high_open=True)
+    # probability per frame that a car switches between parked and moving (tuning: 0.003)
+    stationary_switch: float = param(0.003, low=0.0, high=0.5, low_open=True)
+    # [m^2/s] random walk of a parked car's position in the world frame (odometry drift)
+    stationary_process_noise: float = param(0.01, low=0, low_open=True)
+    # the two models interact (IMM mixing; Kalman filter, tracks without birth hypotheses)
+    stationary_mixing: bool = param(True)
     max_staleness: int = param(2, low=0)  # [frames] a track unmatched for more is deleted
     decay_rate: float = param(0.8, low=0.0, high=1.0)  # confidence factor per unmatched frame
     # coasting tracks are reported while conf >= this
@@ -125,6 +136,10 @@ class TrackerConfig:
     # "shifted": its last detection box moved with its predicted centre's pixel and scaled by
     # the depth ratio (keeps the detector's box shape; issue #34, docs/tracker.md)
     coast_box: str = param("projection", choices=COAST_BOXES)
+    # 2D box of a track matched this frame: its "detection"'s box (the visible part of an
+    # occluded car) or the "projection" of its filtered 3D box (size, yaw, position through the
+    # camera matrix: a full-extent box, as KITTI labels occluded cars; issue #41, docs/tracker.md)
+    matched_box: str = param("detection", choices=MATCHED_BOXES)
     # [px] for clipping projected boxes (camera_info overrides)
     image_width: int = param(1242, low=1)
     image_height: int = param(375, low=1)  # [px]

@@ -42,6 +42,7 @@ from .orientation import (
     yaw_from_bin,
 )
 from .overlap import covered_by_tracks
+from .stationary import StationaryModel
 from .track_table import TrackTable
 
 __all__ = ["COASTING", "CONFIRMED", "TENTATIVE", "DetectionBatch", "Tracker", "TrackSet"]
@@ -185,6 +186,16 @@ class Tracker:
         self._last_motion: CameraMotion | None = None  # the last one given
         # whether the filter's velocities are over the ground (a camera motion has arrived)
         self.world_frame = False
+        # parked-car estimates beside the filter, world frame only (stationary.py)
+        self.stationary = (
+            StationaryModel(
+                self.cfg.stationary_prior,
+                self.cfg.stationary_switch,
+                self.cfg.stationary_process_noise,
+            )
+            if self.cfg.stationary_prior > 0
+            else None
+        )
 
     def __len__(self) -> int:
         return len(self.tracks)
@@ -265,6 +276,8 @@ class Tracker:
         known (zero over the ground)."""
         self.world_frame = True
         self.filter.set_process_noise(self.cfg.world_process_noise)
+        if self.stationary is not None:
+            self.stationary.start(self.filter.position, self.filter.position_cov)
         if not len(self.tracks):
             return
         self.filter.shift_velocity(static_velocity_before(motion, self.filter.position, motion.dt))
@@ -274,12 +287,28 @@ class Tracker:
 
     def _predict(self, dt: float) -> None:
         """Constant velocity over ``dt``, then (world frame) into this frame's camera axes."""
+        if self.stationary is not None and self.cfg.stationary_mixing:
+            self._mix_models()
         self.filter.predict(dt)
         motion = self._camera_motion
         if motion is not None:
             self.filter.move_frame(motion.rotation, motion.translation)
+            if self.stationary is not None:
+                self.stationary.predict(dt, motion.rotation, motion.translation)
         self.tracks.age += 1
         self.tracks.det_index[:] = -1
+
+    def _mix_models(self) -> None:
+        """The IMM's interaction step between the Kalman filter and the stationary model
+        (:meth:`.stationary.StationaryModel.mix`), for tracks without a bank of birth
+        hypotheses (their state is the bank's mixture, rebuilt every frame)."""
+        flt = self.filter
+        if getattr(flt, "name", "") != "kalman" or not len(flt):
+            return
+        free = np.ones(len(flt), bool)
+        if flt.hypotheses is not None and len(flt.hypotheses):
+            free[flt.hypotheses.owners()] = False
+        self.stationary.mix(flt.x, flt.P, np.nonzero(free)[0])
 
     def _assign(self, cost: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Matched (track rows, detection columns): the ``high`` detections (score >=
@@ -289,6 +318,14 @@ class Tracker:
     def _update(self, dets: DetectionBatch, rows, cols, R: np.ndarray, det_yaw) -> None:
         """Matched tracks take their detections: filter, lifecycle, size, yaw, box, class."""
         cfg, t = self.cfg, self.tracks
+        if self.stationary is not None:
+            self.stationary.update(
+                rows,
+                dets.position[cols],
+                R[cols],
+                self.filter.position[rows],
+                self.filter.position_cov[rows],
+            )
         self.filter.update(rows, dets.position[cols], R[cols])
         self.lifecycle.matched(t, rows, dets.score[cols])
         t.det_index[rows] = cols
@@ -316,6 +353,8 @@ class Tracker:
         dead = self.lifecycle.missed(self.tracks, missed, self._out_of_view(missed))
         if dead.any():
             self.filter.keep(~dead)
+            if self.stationary is not None:
+                self.stationary.keep(~dead)
             self.tracks.keep(~dead)
 
     def _out_of_view(self, rows: np.ndarray) -> np.ndarray | None:
@@ -355,6 +394,8 @@ class Tracker:
         static_v = np.zeros((k, 3)) if self.world_frame else None
         yaw = det_yaw[idx]
         self.filter.add(dets.position[idx], R[idx], static_v, heading=yaw)
+        if self.stationary is not None:
+            self.stationary.add(dets.position[idx], R[idx])
         size = dets.size[idx]
         self.tracks.append(
             ids=np.arange(self.next_id, self.next_id + k),
@@ -466,6 +507,8 @@ class Tracker:
         position = self.filter.position[idx].copy()
         velocity = self.filter.velocity[idx].copy()
         velocity_cov = self.filter.velocity_cov[idx]
+        if self.stationary is not None and self.world_frame:
+            position = self.stationary.blend(idx, position)
         yaw, bins = self._reported_yaw(idx, position, velocity, velocity_cov)
         if self.world_frame:  # the filter's velocity is over the ground
             ground, ground_cov = velocity, velocity_cov
@@ -483,7 +526,7 @@ class Tracker:
             size=t.size[idx].copy(),
             yaw=yaw,
             orientation_bin=bins,
-            bbox=self._report_boxes(idx),
+            bbox=self._report_boxes(idx, position),
             age=t.age[idx].copy(),
             frames_since_update=t.misses[idx].copy(),
             score=self.lifecycle.row_score(t, idx),
@@ -527,7 +570,7 @@ class Tracker:
             uv = np.where(z > 0.1, h[:, :2] / z, np.nan)
         return np.hstack([uv, np.where(z > 0.1, z, np.nan)])
 
-    def _report_boxes(self, idx: np.ndarray) -> np.ndarray:
+    def _report_boxes(self, idx: np.ndarray, position: np.ndarray) -> np.ndarray:
         """2D boxes of the reported tracks ``idx``: the matched detection's box when matched
         this frame, else (coasting, or a detection without a box) the projection of the
         filtered 3D box, or with ``coast_box: shifted`` the last detection box moved with the
@@ -538,15 +581,18 @@ class Tracker:
         last = t.bbox[idx].copy()
         bbox = last.copy()
         need = (t.misses[idx] > 0) | ~np.isfinite(bbox).all(axis=1)
+        if self.cfg.matched_box == "projection":
+            need[:] = True
         bbox[need] = np.nan
         if self.projection is None:
             return bbox
-        now = self._pixels(self.filter.position[idx])
+        now = self._pixels(position)
         w, h = self.image_size
         for j in np.nonzero(need)[0]:
             i = idx[j]
             a = t.box_anchor[i]
-            if self.cfg.coast_box == "shifted" and np.isfinite([*last[j], *a, *now[j]]).all():
+            shifted = self.cfg.coast_box == "shifted" and t.misses[i] > 0
+            if shifted and np.isfinite([*last[j], *a, *now[j]]).all():
                 s = a[2] / now[j, 2]
                 u, v = now[j, 0], now[j, 1]
                 b = (last[j] - np.array([a[0], a[1], a[0], a[1]])) * s + [u, v, u, v]
@@ -554,7 +600,7 @@ class Tracker:
                 if b[2] > b[0] and b[3] > b[1]:
                     bbox[j] = b
                     continue
-            b = self._project(self.filter.position[i], t.size[i], t.yaw[i])
+            b = self._project(position[j], t.size[i], t.yaw[i])
             if b is not None:
                 bbox[j] = b
         return bbox
