@@ -1,0 +1,129 @@
+"""Back-pressure (issue #39): a stage starts a frame only when the stage after it can take it."""
+
+import time
+
+import pytest
+from vehicle_common.flow_control import InFlightWindow
+from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 100.0
+
+    def __call__(self):
+        return self.t
+
+
+def test_window_admits_up_to_its_size_and_an_output_ends_every_older_frame():
+    clock = FakeClock()
+    w = InFlightWindow(2, 1.0, clock)
+    assert w.admit(10) is None and w.admit(20) is None
+    clock.t += 0.25
+    assert w.admit(30) == pytest.approx(0.75)  # full: ask again when frame 10 expires
+    assert w.finish(5) == 0  # an output of a frame not started here ends nothing
+    assert w.finish(20) == 2  # frame 10 was dropped downstream: 20's output ends it too
+    assert w.in_flight == 0 and w.finished == 2
+    assert w.admit(30) is None
+
+
+def test_window_frees_a_frame_whose_end_never_comes():
+    clock = FakeClock()
+    w = InFlightWindow(1, 0.5, clock)
+    assert w.admit(1) is None
+    assert w.admit(2) is not None
+    clock.t += 0.5
+    assert w.admit(2) is None and w.expired == 1
+
+
+def test_window_zero_is_no_back_pressure_and_bad_settings_are_refused():
+    w = InFlightWindow(0, 1.0)
+    assert all(w.admit(s) is None for s in range(10))
+    with pytest.raises(ValueError, match="window"):
+        InFlightWindow(-1, 1.0)
+    with pytest.raises(ValueError, match="timeout_s"):
+        InFlightWindow(1, 0.0)
+
+
+def _two_stages(back_pressure: bool, stereo_s: float = 0.04):
+    """A fast detector (its worker) feeding a slow stereo stage (its own latest-frame worker),
+    whose output ends the detector's frames in flight (window 1) when ``back_pressure``."""
+    det_frames, stereo_frames = FrameCounter(), FrameCounter()
+    window = InFlightWindow(1, 5.0)
+    detected, ranged = [], []
+    holder = {}
+
+    def stereo(stamp):
+        time.sleep(stereo_s)  # busy: the newest complete frame waits, older ones are dropped
+        ranged.append(stamp)
+        stereo_frames.published()
+        if window.finish(stamp):
+            holder["det"].wake()
+
+    stereo_worker = LatestFrameWorker(stereo, stereo_frames, "stereo")
+
+    def detect(stamp):
+        time.sleep(0.005)
+        detected.append(stamp)
+        det_frames.published()
+        stereo_frames.received()
+        stereo_worker.submit(stamp)
+
+    det = LatestFrameWorker(
+        detect, det_frames, "detector", admit=window.admit if back_pressure else None
+    )
+    holder["det"] = det
+    return det, stereo_worker, det_frames, stereo_frames, detected, ranged
+
+
+@pytest.mark.parametrize("back_pressure", [True, False])
+def test_burst_while_the_stereo_stage_is_busy(back_pressure):
+    """A camera at 100 Hz for 30 frames into a detector whose next stage needs 40 ms a frame:
+    with back-pressure the detector skips (and counts) the frames the stereo stage cannot
+    take, so nothing it detects is thrown away; without, most of its work is wasted."""
+    det, stereo, det_frames, stereo_frames, detected, ranged = _two_stages(back_pressure)
+    for stamp in range(30):
+        det_frames.received()
+        det.submit(stamp)
+        time.sleep(0.01)
+    assert det.wait_idle(10) and stereo.wait_idle(10)
+    assert det.wait_idle(10)  # the last frame may have waited for the stereo stage's end
+    d, s = det_frames.snapshot(), stereo_frames.snapshot()
+    assert d.received == 30 and d.pending == 0 and s.pending == 0
+    assert detected[-1] == 29  # the newest frame is always detected
+    if back_pressure:
+        assert s.dropped == 0 and ranged == detected  # every detection is used
+        assert d.dropped == 30 - len(detected) > 10  # the rest skipped where skipped, counted
+    else:
+        assert s.dropped > 0 and len(ranged) < len(detected)  # detections thrown away
+
+
+def test_a_held_frame_is_superseded_and_one_whose_end_never_comes_is_let_through():
+    counter = FrameCounter()
+    window = InFlightWindow(1, 0.3)
+    done = []
+    worker = LatestFrameWorker(done.append, counter, admit=window.admit)
+    t0 = time.monotonic()
+    counter.received()
+    worker.submit(0)
+    assert worker.wait_idle(5) and done == [0]
+    for stamp in (1, 2):  # 1 waits for frame 0's end, and is superseded by 2
+        counter.received()
+        worker.submit(stamp)
+    assert worker.wait_idle(5)
+    assert done == [0, 2] and counter.snapshot().dropped == 1
+    assert time.monotonic() - t0 >= 0.25 and window.expired == 1  # nobody ended frame 0
+    worker.stop()
+
+
+def test_stopping_finishes_a_held_frame():
+    window = InFlightWindow(1, 60.0)
+    done = []
+    worker = LatestFrameWorker(done.append, admit=window.admit)
+    worker.submit(0)
+    assert worker.wait_idle(5)
+    worker.submit(2)
+    worker.submit(1, frame=False)  # not a frame: never held back, but in order
+    assert not worker.wait_idle(0.2)
+    assert done == [0] and window.in_flight == 1  # frame 2 held: frame 0 is still in flight
+    assert worker.stop(5) and done == [0, 2, 1]
