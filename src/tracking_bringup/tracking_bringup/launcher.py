@@ -37,7 +37,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,6 +46,12 @@ from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
 
 from tracking_bringup import graph, hosts, parameter_file
 from tracking_bringup.environment import PARAMS_FILE, graph_environment
+from tracking_bringup.frame_summary import (
+    LatencyProbe,
+    camera_overrides,
+    dropped_by_node,
+    summary_line,
+)
 from vehicle_common import topics
 
 _PR_SET_PDEATHSIG = 1
@@ -678,11 +684,13 @@ def run_graph(
     announce=print,
     env: dict[str, str] | None = None,
     stall_timeout: float = 5.0,
+    summary: Callable[[dict], str] | None = None,
 ) -> int:
     """Run processes as a graph until a finishing node is done, Ctrl-C or SIGTERM.
     Returns the exit code: 0 on a clean run, 1 when a node died (named in the message), 2 when
     a node refused its parameters or input (its one line is the message), 130 when stopped
-    during start-up."""
+    during start-up. ``summary(reports)``: the last line announced, from the nodes' last
+    reports."""
     # every process at once: the player waits for every edge of the graph itself, and its
     # start-up overlaps the detector's (first tracks sooner, docs/RESULTS.md section 11)
     launcher = GraphLauncher(
@@ -729,6 +737,8 @@ def run_graph(
                 "warning: unclean exit of "
                 + ", ".join(f"{n} (code {c})" for n, c in unclean.items())
             )
+        if summary is not None:
+            announce(summary(launcher.reports))
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
@@ -782,6 +792,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="keep the graph up after the player finished (stop with Ctrl-C)",
     )
     parser.add_argument("--echo", action="store_true", help="print node output to the console")
+    parser.add_argument(
+        "--camera-hz",
+        type=float,
+        default=0.0,
+        help="the player as a camera at this rate, not waiting for the graph (e.g. 30); the "
+        "last line: frames tracked, dropped and where, latency",
+    )
     hosts.add_arguments(parser)
     args = parser.parse_args(argv)
     if not Path(args.params).is_file():
@@ -792,7 +809,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         plan = hosts.launch_plan(args)
         nodes = graph.by_name(plan.nodes)
         whole = graph.by_name(plan.graph_nodes)  # the player waits for nodes elsewhere too
-        overrides = [*plan.overrides, *args.param]
+        camera = camera_overrides(args.camera_hz) if args.camera_hz else []
+        overrides = [*plan.overrides, *camera, *args.param]
+        # the summary's latency probe (this process): where the player and tracker run here
+        probe = bool(args.camera_hz) and {graph.PLAYER.name, graph.TRACKER.name} <= {
+            n.name for n in nodes
+        }
         processes = graph_processes(
             nodes,
             args.params,
@@ -800,10 +822,27 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.namespace,
             graph_nodes=whole,
             params_out=log_dir / "parameters.yaml",
+            extra_subscriptions=LatencyProbe.EDGES if probe else None,
         )
     except (ValueError, LaunchError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    summary = None
+    if probe:
+        latency = LatencyProbe(args.namespace)
+
+        def summary(reports: dict) -> str:
+            latency.close()
+            player = reports.get(graph.PLAYER.name)
+            tracker = reports.get(graph.TRACKER.name)
+            return summary_line(
+                player.counts.published if player else 0,
+                tracker.counts.published if tracker else 0,
+                dropped_by_node(reports),
+                latency.frames.latencies_ms(),
+                args.camera_hz,
+            )
+
     elsewhere = [n.name for n in whole if n not in nodes]
     if elsewhere and any(n.source for n in nodes):
         print(f"expecting on other hosts: {', '.join(elsewhere)} (the player waits for them)")
@@ -815,6 +854,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         echo=args.echo,
         env=plan.discovery.environment(),
         stall_timeout=args.stall_timeout,
+        summary=summary,
     )
 
 
