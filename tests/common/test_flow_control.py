@@ -127,3 +127,33 @@ def test_stopping_finishes_a_held_frame():
     assert not worker.wait_idle(0.2)
     assert done == [0] and window.in_flight == 1  # frame 2 held: frame 0 is still in flight
     assert worker.stop(5) and done == [0, 2, 1]
+
+
+def test_serialized_image_reads_the_header_now_and_the_image_when_used():
+    """Images taken as the middleware's bytes (issue #39): a skipped frame costs no conversion;
+    the header is read from the bytes, the image converts when used; bad bytes are refused."""
+    import numpy as np
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import CompressedImage, Image
+    from vehicle_common.frame_messages import header
+    from vehicle_common.image_conversion import ImageConversionError, numpy_to_image
+    from vehicle_common.image_transport import SerializedImage, as_message, cdr_header
+
+    img = np.arange(4 * 6 * 3, dtype=np.uint8).reshape(4, 6, 3)
+    msg = numpy_to_image(img, "rgb8", header(1_500_000_007, "left_camera_optical_frame"))
+    data = serialize_message(msg)
+    lazy = SerializedImage(data, Image)
+    assert (lazy.header.stamp.sec, lazy.header.stamp.nanosec) == (1, 500_000_007)
+    assert lazy.header.frame_id == "left_camera_optical_frame"
+    full = as_message(lazy)
+    assert full == msg and as_message(msg) is msg and lazy.message() is full
+    comp = CompressedImage(header=msg.header, format="png", data=b"\x89PNG")
+    assert cdr_header(serialize_message(comp)) == (1, 500_000_007, "left_camera_optical_frame")
+    big = bytes([0, 0, 0, 0]) + (2).to_bytes(4, "big") + (3).to_bytes(4, "big")
+    assert cdr_header(big + (2).to_bytes(4, "big") + b"a\x00") == (2, 3, "a")  # big-endian
+    for bad in (b"", b"\x00\x01\x00\x00" + b"\xff" * 20, data[:14]):
+        with pytest.raises(ValueError):
+            SerializedImage(bad, Image)
+    broken = SerializedImage(data[:60], Image)  # a readable header, a cut image
+    with pytest.raises(ImageConversionError, match="deserialize"):
+        broken.message()

@@ -29,7 +29,11 @@ from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import kitti_objects_from_message, stamp_ns
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_size, image_to_rgb
-from vehicle_common.image_transport import ImageTransportParameters, subscribe_image
+from vehicle_common.image_transport import (
+    ImageTransportParameters,
+    as_message,
+    subscribe_image,
+)
 from vehicle_common.node_parameters import (
     ParameterError,
     check_overrides,
@@ -205,7 +209,14 @@ class VehicleDetectorNode(Node):
             )
         # raw or compressed; RELIABLE, the newest INPUT_DEPTH images (docs/ARCHITECTURE.md,
         # "Topics"): a burst taken late is seen and counted, only the newest is detected
-        subscribe_image(self, IMAGE_TOPIC, self._on_image, max(topics.INPUT_DEPTH, p.frame_queue))
+        # the CNN's images as bytes: converted only when detected (not the skipped ones)
+        subscribe_image(
+            self,
+            IMAGE_TOPIC,
+            self._on_image,
+            max(topics.INPUT_DEPTH, p.frame_queue),
+            serialized=self.backend == "cnn",
+        )
         self.health = NodeHealth(
             self, self.frames, busy=lambda: bool(self.worker and self.worker.busy)
         )
@@ -344,7 +355,7 @@ class VehicleDetectorNode(Node):
         stamp = stamp_ns(msg.header)
         self.trace("detect_start", stamp)
         try:
-            rgb = image_to_rgb(msg)
+            rgb = image_to_rgb(as_message(msg))
         except ImageConversionError as exc:
             self.get_logger().warning(f"{IMAGE_TOPIC}: {exc}; publishing no detections")
             self._publish(detections_message(msg.header, []))

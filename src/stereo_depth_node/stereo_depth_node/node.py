@@ -15,6 +15,7 @@ images cannot be used). All computation is in the pure core modules.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
 from concurrent.futures import ThreadPoolExecutor
 
@@ -39,7 +40,11 @@ from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
-from vehicle_common.image_transport import ImageTransportParameters, subscribe_image
+from vehicle_common.image_transport import (
+    ImageTransportParameters,
+    as_message,
+    subscribe_image,
+)
 from vehicle_common.node_parameters import (
     ParameterError,
     check_overrides,
@@ -294,9 +299,11 @@ class StereoDepthNode(Node):
         # CameraInfo that arrives with its images is read before the frame is processed
         self.create_subscription(CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, 1)
         self.create_subscription(CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, 1)
-        # raw or compressed (parameter image_transport)
-        subscribe_image(self, TOPIC_LEFT, lambda m: self._on_input("left", m), qos_in)
-        subscribe_image(self, TOPIC_RIGHT, lambda m: self._on_input("right", m), qos_in)
+        # raw or compressed (parameter image_transport); as bytes, converted only for a frame
+        # that is processed (a frame the detector skipped costs no image conversion)
+        for slot, topic in (("left", TOPIC_LEFT), ("right", TOPIC_RIGHT)):
+            on_image = functools.partial(self._on_input, slot)
+            subscribe_image(self, topic, on_image, qos_in, serialized=True)
         self.create_subscription(
             VehicleDetection2DArray,
             TOPIC_DETECTIONS_2D,
@@ -445,6 +452,7 @@ class StereoDepthNode(Node):
                 self.ground.reset()
                 if self.odometry is not None:
                     self.odometry.reset()
+            left_msg, right_msg = as_message(left_msg), as_message(right_msg)
             left = image_to_rgb(left_msg)
             right = image_to_rgb(right_msg)
             # sizes and frame ids of the images and their camera_infos
