@@ -157,3 +157,18 @@ def test_serialized_image_reads_the_header_now_and_the_image_when_used():
     broken = SerializedImage(data[:60], Image)  # a readable header, a cut image
     with pytest.raises(ImageConversionError, match="deserialize"):
         broken.message()
+
+
+def test_window_timeout_follows_a_slow_downstream_stage():
+    """On a starved machine a frame takes seconds downstream: the timeout grows to twice the
+    longest recent time in flight, so frames do not expire and back-pressure holds."""
+    clock = FakeClock()
+    w = InFlightWindow(1, 1.0, clock)
+    assert w.admit(1) is None
+    clock.t += 3.0
+    assert w.finish(1) == 1 and w.timeout == pytest.approx(6.0)
+    assert w.admit(2) is None
+    clock.t += 4.0
+    assert w.admit(3) is not None and w.expired == 0  # 4 s: still waiting for frame 2
+    clock.t += 2.0
+    assert w.admit(3) is None and w.expired == 1

@@ -90,7 +90,8 @@ class DetectorParameters:
     # back (skipped and counted). 0: none. Applies only while someone publishes the 3D
     # arrays; at least frame_queue (lockstep: the launchers set 0, the player paces)
     downstream_window: int = param(1, low=0)
-    # [s] a detected frame whose 3D array never comes leaves the window after this
+    # [s] a detected frame whose 3D array never comes leaves the window after this, or after
+    # twice the longest of the last 8 frames' times from the CNN's start to their 3D array
     downstream_timeout: float = param(1.0, low=0.0, low_open=True)
     vehicle_types: list = param(["Car", "Van"])  # oracle: label types republished
     oracle_box_noise_px: float = param(0.0, low=0.0)
@@ -265,8 +266,8 @@ class VehicleDetectorNode(Node):
             self._expired_seen = self.flow.expired
             self.get_logger().warning(
                 f"{DOWNSTREAM_TOPIC}: no 3D array for a detected frame within "
-                f"{self.params.downstream_timeout:g} s ({self.flow.expired} so far); its place "
-                "in the window is freed",
+                f"{self.flow.timeout:.1f} s ({self.flow.expired} so far); its place in the "
+                "window is freed",
                 throttle_duration_sec=5.0,
             )
         return wait

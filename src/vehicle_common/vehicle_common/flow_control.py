@@ -14,8 +14,10 @@ every older frame: one it dropped, or one whose output was lost). The upstream s
 new frame only while fewer than ``window`` are in flight; otherwise the frame waits, and a newer
 one arriving meanwhile supersedes it (the latest-frame policy: skipped and counted where it is
 skipped). A frame whose end never comes (the downstream node stopped, a message lost) leaves the
-window after ``timeout_s`` seconds, counted as ``expired``, so the upstream stage never stops
-for good.
+window after a timeout, counted as ``expired``, so the upstream stage never stops for good: the
+larger of ``timeout_s`` and twice the longest of the last frames' times in flight (a starved
+machine, where a frame takes seconds, must not see every frame expire and lose the
+back-pressure; measured on a 2-core machine at load 25-36: 5-12 s per frame).
 
 ``window`` 1: one frame in the pipeline after the camera, like lockstep with window 1 for the
 player: no frame is started that the next stage could not take at once, and on one core no
@@ -26,7 +28,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from collections.abc import Callable
 
 
@@ -46,7 +48,17 @@ class InFlightWindow:
         self._lock = threading.Lock()
         self._started: OrderedDict[int, float] = OrderedDict()  # stamp -> start time
         self.finished = 0  # frames ended by a downstream output
-        self.expired = 0  # frames whose end never came within timeout_s
+        self.expired = 0  # frames whose end never came within the timeout
+        self._times: deque[float] = deque(maxlen=self.TIMED_FRAMES)  # [s] start -> own output
+
+    #: frames whose time in flight sets the timeout
+    TIMED_FRAMES = 8
+
+    @property
+    def timeout(self) -> float:
+        """[s] after which a frame in flight expires: ``timeout_s``, or twice the longest of
+        the last :attr:`TIMED_FRAMES` frames' times from start to their own output."""
+        return max(self.timeout_s, 2.0 * max(self._times, default=0.0))
 
     @property
     def in_flight(self) -> int:
@@ -55,9 +67,10 @@ class InFlightWindow:
             return len(self._started)
 
     def _expire(self, now: float) -> None:
+        timeout = self.timeout
         while self._started:
             stamp, t0 = next(iter(self._started.items()))
-            if now - t0 < self.timeout_s:
+            if now - t0 < timeout:
                 return
             del self._started[stamp]
             self.expired += 1
@@ -70,7 +83,7 @@ class InFlightWindow:
             self._expire(now)
             if self.window and len(self._started) >= self.window:
                 oldest = next(iter(self._started.values()))
-                return max(oldest + self.timeout_s - now, 1e-3)
+                return max(oldest + self.timeout - now, 1e-3)
             self._started[int(stamp)] = now
             self._started.move_to_end(int(stamp))
             return None
@@ -80,6 +93,8 @@ class InFlightWindow:
         ends. Returns how many ended (0: an output of a frame not started here)."""
         with self._lock:
             ended = [s for s in self._started if s <= stamp]
+            if stamp in self._started:
+                self._times.append(self._clock() - self._started[stamp])
             for s in ended:
                 del self._started[s]
             self.finished += len(ended)
