@@ -172,3 +172,17 @@ def test_window_timeout_follows_a_slow_downstream_stage():
     assert w.admit(3) is not None and w.expired == 0  # 4 s: still waiting for frame 2
     clock.t += 2.0
     assert w.admit(3) is None and w.expired == 1
+
+
+def test_window_learns_a_stage_slower_than_the_timeout_from_an_expired_frame():
+    """Every frame takes 5 s downstream and the timeout starts at 1 s: the first frame expires,
+    but its output still comes and sets the timeout, so the next frames wait for theirs."""
+    clock = FakeClock()
+    w = InFlightWindow(1, 1.0, clock)
+    assert w.admit(1) is None
+    clock.t += 1.0
+    assert w.admit(2) is None and w.expired == 1  # frame 1 expired
+    clock.t += 4.0
+    assert w.finish(1) == 0 and w.timeout == pytest.approx(10.0)  # 5 s in flight, learnt
+    clock.t += 5.0
+    assert w.admit(3) is not None and w.expired == 1  # frame 2 is still in flight

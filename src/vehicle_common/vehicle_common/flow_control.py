@@ -50,6 +50,7 @@ class InFlightWindow:
         self.finished = 0  # frames ended by a downstream output
         self.expired = 0  # frames whose end never came within the timeout
         self._times: deque[float] = deque(maxlen=self.TIMED_FRAMES)  # [s] start -> own output
+        self._expired_starts: OrderedDict[int, float] = OrderedDict()  # stamp -> start time
 
     #: frames whose time in flight sets the timeout
     TIMED_FRAMES = 8
@@ -57,7 +58,8 @@ class InFlightWindow:
     @property
     def timeout(self) -> float:
         """[s] after which a frame in flight expires: ``timeout_s``, or twice the longest of
-        the last :attr:`TIMED_FRAMES` frames' times from start to their own output."""
+        the last :attr:`TIMED_FRAMES` frames' times from start to their own output (also of a
+        frame that had expired: a stage slower than the timeout is learnt from it)."""
         return max(self.timeout_s, 2.0 * max(self._times, default=0.0))
 
     @property
@@ -74,6 +76,10 @@ class InFlightWindow:
                 return
             del self._started[stamp]
             self.expired += 1
+            # its output may still come: its time in flight then sets the timeout
+            self._expired_starts[stamp] = t0
+            while len(self._expired_starts) > self.TIMED_FRAMES:
+                self._expired_starts.popitem(last=False)
 
     def admit(self, stamp: int) -> float | None:
         """Start the frame at ``stamp`` if the window has room (then None), else the seconds
@@ -93,8 +99,9 @@ class InFlightWindow:
         ends. Returns how many ended (0: an output of a frame not started here)."""
         with self._lock:
             ended = [s for s in self._started if s <= stamp]
-            if stamp in self._started:
-                self._times.append(self._clock() - self._started[stamp])
+            t0 = self._started.get(stamp, self._expired_starts.pop(stamp, None))
+            if t0 is not None:
+                self._times.append(self._clock() - t0)
             for s in ended:
                 del self._started[s]
             self.finished += len(ended)
