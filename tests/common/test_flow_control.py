@@ -20,7 +20,7 @@ def test_window_admits_up_to_its_size_and_an_output_ends_every_older_frame():
     w = InFlightWindow(2, 1.0, clock)
     assert w.admit(10) is None and w.admit(20) is None
     clock.t += 0.25
-    assert w.admit(30) == pytest.approx(0.75)  # full: ask again when frame 10 expires
+    assert w.admit(30) == pytest.approx(4.75)  # full: ask again when frame 10 expires
     assert w.finish(5) == 0  # an output of a frame not started here ends nothing
     assert w.finish(20) == 2  # frame 10 was dropped downstream: 20's output ends it too
     assert w.in_flight == 0 and w.finished == 2
@@ -32,6 +32,8 @@ def test_window_frees_a_frame_whose_end_never_comes():
     w = InFlightWindow(1, 0.5, clock)
     assert w.admit(1) is None
     assert w.admit(2) is not None
+    clock.t += 2.0
+    assert w.admit(2) is not None  # nothing timed yet: 5 x 0.5 s
     clock.t += 0.5
     assert w.admit(2) is None and w.expired == 1
 
@@ -100,7 +102,7 @@ def test_burst_while_the_stereo_stage_is_busy(back_pressure):
 
 def test_a_held_frame_is_superseded_and_one_whose_end_never_comes_is_let_through():
     counter = FrameCounter()
-    window = InFlightWindow(1, 0.3)
+    window = InFlightWindow(1, 0.06)  # 0.3 s until a frame is timed
     done = []
     worker = LatestFrameWorker(done.append, counter, admit=window.admit)
     t0 = time.monotonic()
@@ -178,10 +180,10 @@ def test_window_learns_a_stage_slower_than_the_timeout_from_an_expired_frame():
     """Every frame takes 5 s downstream and the timeout starts at 1 s: the first frame expires,
     but its output still comes and sets the timeout, so the next frames wait for theirs."""
     clock = FakeClock()
-    w = InFlightWindow(1, 1.0, clock)
+    w = InFlightWindow(1, 0.2, clock)
     assert w.admit(1) is None
     clock.t += 1.0
-    assert w.admit(2) is None and w.expired == 1  # frame 1 expired
+    assert w.admit(2) is None and w.expired == 1  # frame 1 expired (nothing timed: 5 x 0.2 s)
     clock.t += 4.0
     assert w.finish(1) == 0 and w.timeout == pytest.approx(10.0)  # 5 s in flight, learnt
     clock.t += 5.0

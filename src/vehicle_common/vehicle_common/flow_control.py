@@ -14,8 +14,8 @@ every older frame: one it dropped, or one whose output was lost). The upstream s
 new frame only while fewer than ``window`` are in flight; otherwise the frame waits, and a newer
 one arriving meanwhile supersedes it (the latest-frame policy: skipped and counted where it is
 skipped). A frame whose end never comes (the downstream node stopped, a message lost) leaves the
-window after a timeout, counted as ``expired``, so the upstream stage never stops for good: the
-larger of ``timeout_s`` and twice the longest of the last frames' times in flight (a starved
+window after a timeout, counted as ``expired``, so the upstream stage never stops for good: 5 x
+``timeout_s`` until a frame's time in flight is known, then the larger of ``timeout_s`` and twice the longest of the last frames' times in flight (a starved
 machine, where a frame takes seconds, must not see every frame expire and lose the
 back-pressure; measured on a 2-core machine at load 25-36: 5-12 s per frame).
 
@@ -54,13 +54,20 @@ class InFlightWindow:
 
     #: frames whose time in flight sets the timeout
     TIMED_FRAMES = 8
+    #: the timeout until a frame's time in flight is known: timeout_s x this (the first frame
+    #: of a graph is slower, and at load 20 on one core it took 7 s: with 1 s every frame of
+    #: the first seconds expired and the stereo node got a backlog of 4-6 frames)
+    FIRST_TIMEOUT_FACTOR = 5.0
 
     @property
     def timeout(self) -> float:
-        """[s] after which a frame in flight expires: ``timeout_s``, or twice the longest of
+        """[s] after which a frame in flight expires: ``timeout_s`` x :attr:`FIRST_TIMEOUT_FACTOR`
+        until a frame's time is known, then ``timeout_s``, or twice the longest of
         the last :attr:`TIMED_FRAMES` frames' times from start to their own output (also of a
         frame that had expired: a stage slower than the timeout is learnt from it)."""
-        return max(self.timeout_s, 2.0 * max(self._times, default=0.0))
+        if not self._times:  # the first frames (a cold start, a starved machine): longer
+            return self.FIRST_TIMEOUT_FACTOR * self.timeout_s
+        return max(self.timeout_s, 2.0 * max(self._times))
 
     @property
     def in_flight(self) -> int:
