@@ -15,9 +15,10 @@ new frame only while fewer than ``window`` are in flight; otherwise the frame wa
 one arriving meanwhile supersedes it (the latest-frame policy: skipped and counted where it is
 skipped). A frame whose end never comes (the downstream node stopped, a message lost) leaves the
 window after a timeout, counted as ``expired``, so the upstream stage never stops for good: 5 x
-``timeout_s`` until a frame's time in flight is known, then the larger of ``timeout_s`` and twice the longest of the last frames' times in flight (a starved
-machine, where a frame takes seconds, must not see every frame expire and lose the
-back-pressure; measured on a 2-core machine at load 25-36: 5-12 s per frame).
+``timeout_s`` until a frame's time in flight is known, then the larger of ``timeout_s`` and
+twice the longest of the last frames' times in flight (a starved machine, where a frame takes
+seconds, must not see every frame expire and lose the back-pressure; measured on a 2-core
+machine at load 25-36: 5-12 s per frame).
 
 ``window`` 1: one frame in the pipeline after the camera, like lockstep with window 1 for the
 player: no frame is started that the next stage could not take at once, and on one core no
