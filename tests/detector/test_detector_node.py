@@ -314,3 +314,76 @@ def test_burst_of_images_the_newest_is_detected_and_the_older_counted_dropped(rc
         ex.shutdown()
         det.destroy_node()
         test.destroy_node()
+
+
+@pytest.mark.parametrize("window", [1, 0])
+def test_live_camera_back_pressure_waits_for_the_stereo_node(rclpy_context, window):
+    """Issue #39: images keep coming while the stereo node (here the test) has not published
+    the 3D array of the frame the detector detected. With ``downstream_window`` 1 the detector
+    detects none of them; when the 3D array comes it detects the newest and counts the rest as
+    dropped, where they were skipped. With 0 (no back-pressure) it detects every image."""
+    from detector_node.node import VehicleDetectorNode
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import Image
+    from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
+    from vehicle_common.frame_messages import header
+    from vehicle_common.image_conversion import numpy_to_image
+
+    det = VehicleDetectorNode(
+        context=rclpy_context,
+        parameter_overrides=[
+            Parameter("checkpoint", value="tiny_kitti"),
+            Parameter("downstream_window", value=window),
+            # the framing given: no image waits for a CameraInfo
+            Parameter("input_width", value=320),
+            Parameter("input_height", value=96),
+            Parameter("roi_top", value=0.0),
+        ],
+    )
+    test = Node("detector_flow_test", context=rclpy_context)
+    got = []
+    test.create_subscription(VehicleDetection2DArray, "/vehicles/detections_2d", got.append, 10)
+    pub = test.create_publisher(Image, "/stereo/left/image_rect", 10)
+    done = test.create_publisher(VehicleDetection3DArray, "/vehicles/detections_3d", 10)
+    ex = SingleThreadedExecutor(context=rclpy_context)
+    ex.add_node(det)
+    ex.add_node(test)
+    img = np.zeros((96, 320, 3), np.uint8)
+
+    def stamp(k):
+        return header(1_000_000_000 + k * 100_000_000, "left_camera_optical_frame")
+
+    try:
+        assert _spin_until(
+            ex,
+            lambda: (
+                pub.get_subscription_count() > 0
+                and det.pub.get_subscription_count() > 0
+                and (window == 0 or done.get_subscription_count() > 0)
+                and det.count_publishers("/vehicles/detections_3d") > 0
+            ),
+        )
+        for k in range(5):  # a 10 Hz camera; the 3D array of frame 0 comes only afterwards
+            pub.publish(numpy_to_image(img, "rgb8", stamp(k)))
+            _spin_until(ex, lambda: False, 0.1)
+        assert _spin_until(ex, lambda: det.frames.snapshot().received == 5)
+        _spin_until(ex, lambda: False, 0.3)  # a detection it should not start would come now
+        stamps = [(_stamp_ns(m.header) - 1_000_000_000) // 100_000_000 for m in got]
+        if window == 0:
+            assert _spin_until(ex, lambda: len(got) == 5, 20)
+            assert det.frames.snapshot().dropped == 0
+            return
+        assert stamps == [0]  # frames 1-4 held back: frame 0 is in flight downstream
+        out = VehicleDetection3DArray()
+        out.header = got[0].header
+        done.publish(out)
+        assert _spin_until(ex, lambda: len(got) == 2 and not det.worker.busy, 20)
+        assert _stamp_ns(got[1].header) == _stamp_ns(stamp(4))  # the newest
+        counts = det.frames.snapshot()
+        assert (counts.received, counts.published, counts.dropped) == (5, 2, 3)
+    finally:
+        ex.shutdown()
+        det.destroy_node()
+        test.destroy_node()

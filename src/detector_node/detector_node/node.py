@@ -12,18 +12,25 @@ from __future__ import annotations
 
 import sys
 import threading
+import time
 
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
-from stereo_vehicle_msgs.msg import KittiFrameLabels, VehicleDetection2DArray
+from stereo_vehicle_msgs.msg import (
+    KittiFrameLabels,
+    VehicleDetection2DArray,
+    VehicleDetection3DArray,
+)
 from vehicle_common.camera_settings import CameraModel, detector_framing
+from vehicle_common.flow_control import InFlightWindow
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import kitti_objects_from_message, stamp_ns
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_size, image_to_rgb
 from vehicle_common.image_transport import (
     ImageTransportParameters,
+    as_message,
     subscribe_camera,
     subscribe_image,
 )
@@ -46,6 +53,9 @@ IMAGE_TOPIC = topics.LEFT_IMAGE
 INFO_TOPIC = topics.LEFT_INFO
 GT_TOPIC = topics.GROUND_TRUTH
 DETECTIONS_TOPIC = topics.DETECTIONS_2D
+DOWNSTREAM_TOPIC = topics.DETECTIONS_3D  # back-pressure: a frame's end downstream
+#: [s] between two looks at whether anyone publishes the 3D arrays
+DOWNSTREAM_CHECK_S = 0.5
 
 
 class VehicleDetectorNode(Node):
@@ -118,14 +128,26 @@ class VehicleDetectorNode(Node):
             # cache when its CameraInfo arrives)
             self.cnn.detect(np.zeros((c.input_height, c.input_width, 3), np.uint8))
             # latest-frame policy: the newest image is detected, an image still waiting when a
-            # newer one arrives is skipped and counted (never a growing queue)
+            # newer one arrives is skipped and counted (never a growing queue); with
+            # back-pressure an image also waits while the stereo node has no room for it
+            self.flow = None
+            if p.downstream_window > 0:
+                window = max(p.downstream_window, p.frame_queue)
+                self.flow = InFlightWindow(window, p.downstream_timeout)
+                self._downstream = (False, float("-inf"))  # (publisher seen, checked at)
+                self._expired_seen = 0
             self.worker = LatestFrameWorker(
                 self._work,
                 self.frames,
                 "detector",
                 self._failed,
                 max_waiting=p.frame_queue,
+                admit=self._admit if self.flow is not None else None,
             )
+            if self.flow is not None:
+                self.create_subscription(
+                    VehicleDetection3DArray, DOWNSTREAM_TOPIC, self._on_downstream, 10
+                )
             if not self._derive:
                 self.worker.submit(None, frame=False)  # the framing of the parameters, logged
             subscribe_camera(self, CameraInfo, INFO_TOPIC, self._on_camera_info, 5, self.usage.note)
@@ -146,9 +168,10 @@ class VehicleDetectorNode(Node):
             )
         # raw or compressed; BEST_EFFORT (any camera) or RELIABLE (camera_reliability), the
         # newest INPUT_DEPTH images (docs/ARCHITECTURE.md, "Topics"): a burst taken late is
-        # seen and counted, only the newest is detected
-        depth = max(topics.INPUT_DEPTH, p.frame_queue)
-        subscribe_image(self, IMAGE_TOPIC, self._on_image, depth, self.usage.note)
+        # seen and counted, only the newest is detected; the CNN's images as bytes, converted
+        # only when detected (not the skipped ones)
+        depth, cnn = max(topics.INPUT_DEPTH, p.frame_queue), self.backend == "cnn"
+        subscribe_image(self, IMAGE_TOPIC, self._on_image, depth, self.usage.note, serialized=cnn)
         self.health = NodeHealth(
             self,
             self.frames,
@@ -181,6 +204,35 @@ class VehicleDetectorNode(Node):
                     )
                 return
         self.worker.submit(msg)
+
+    def _admit(self, msg: Image) -> float | None:
+        """The worker's question before it detects ``msg`` (back-pressure): None to start it,
+        else seconds to wait for a frame's end downstream. No one publishing the 3D arrays
+        (checked every DOWNSTREAM_CHECK_S): no back-pressure."""
+        seen, at = self._downstream
+        now = time.monotonic()
+        if now - at >= DOWNSTREAM_CHECK_S:
+            seen = self.count_publishers(DOWNSTREAM_TOPIC) > 0
+            if not seen:
+                self.flow.clear()
+            self._downstream = (seen, now)
+        if not seen:
+            return None
+        wait = self.flow.admit(stamp_ns(msg.header))
+        if self.flow.expired > self._expired_seen:
+            self._expired_seen = self.flow.expired
+            self.get_logger().warning(
+                f"{DOWNSTREAM_TOPIC}: no 3D array for a detected frame within "
+                f"{self.flow.timeout:.1f} s ({self.flow.expired} so far); its place in the "
+                "window is freed",
+                throttle_duration_sec=5.0,
+            )
+        return wait
+
+    def _on_downstream(self, msg: VehicleDetection3DArray) -> None:
+        """A 3D array: the frames detected up to its stamp are done downstream."""
+        if self.flow.finish(stamp_ns(msg.header)):
+            self.worker.wake()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         """A left CameraInfo: the framing is derived again when the camera's size or fx
@@ -261,7 +313,7 @@ class VehicleDetectorNode(Node):
         stamp = stamp_ns(msg.header)
         self.trace("detect_start", stamp)
         try:
-            rgb = image_to_rgb(msg)
+            rgb = image_to_rgb(as_message(msg))
         except ImageConversionError as exc:
             self.usage.skipped(f"{IMAGE_TOPIC}: {exc}")
             self.get_logger().warning(f"{IMAGE_TOPIC}: {exc}; publishing no detections")

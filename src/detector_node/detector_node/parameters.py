@@ -36,6 +36,15 @@ class DetectorParameters:
     # newest images kept waiting while one is detected (1: latest-frame policy; the launchers
     # set it to the player's lockstep_window in lockstep so that nothing is skipped)
     frame_queue: int = param(1, low=1)
+    # back-pressure of a live camera (vehicle_common.flow_control): an image is detected only
+    # while fewer than this many detected frames wait for their 3D array
+    # (/vehicles/detections_3d, the stereo node's output); a newer image supersedes one held
+    # back (skipped and counted). 0: none. Applies only while someone publishes the 3D
+    # arrays; at least frame_queue (lockstep: the launchers set 0, the player paces)
+    downstream_window: int = param(1, low=0)
+    # [s] a detected frame whose 3D array never comes leaves the window after this, or after
+    # twice the longest of the last 8 frames' times from the CNN's start to their 3D array
+    downstream_timeout: float = param(1.0, low=0.0, low_open=True)
     vehicle_types: list = param(["Car", "Van"])  # oracle: label types republished
     oracle_box_noise_px: float = param(0.0, low=0.0)
     oracle_score: float = param(1.0, low=0.0, high=1.0)

@@ -33,7 +33,7 @@ from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.image_conversion import ImageConversionError, image_to_rgb
-from vehicle_common.image_transport import subscribe_camera, subscribe_image
+from vehicle_common.image_transport import as_message, subscribe_camera, subscribe_image
 from vehicle_common.input_usage import InputUsage
 from vehicle_common.node_parameters import ParameterError, check_overrides, declare_config
 from vehicle_common.node_runtime import NodeHealth, apply_process_settings, run_node
@@ -197,10 +197,11 @@ class StereoDepthNode(Node):
         note = self.usage.note
         subscribe_camera(self, CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, depth_in, note)
         subscribe_camera(self, CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, depth_in, note)
-        # raw or compressed (parameter image_transport)
+        # raw or compressed (parameter image_transport); as bytes, converted only for a frame
+        # that is processed (a frame the detector skipped costs no image conversion)
         left_cb, right_cb = (lambda m: self._on_input("left", m)), self._on_right
-        subscribe_image(self, TOPIC_LEFT, left_cb, depth_in, note)
-        subscribe_image(self, TOPIC_RIGHT, right_cb, depth_in, note)
+        subscribe_image(self, TOPIC_LEFT, left_cb, depth_in, note, serialized=True)
+        subscribe_image(self, TOPIC_RIGHT, right_cb, depth_in, note, serialized=True)
         self.create_subscription(
             VehicleDetection2DArray,
             TOPIC_DETECTIONS_2D,
@@ -341,6 +342,7 @@ class StereoDepthNode(Node):
         dets = list(det_msg.detections)
         try:
             geometry, settings = self.pipeline.camera()
+            left_msg, right_msg = as_message(left_msg), as_message(right_msg)
             left = image_to_rgb(left_msg)
             right = image_to_rgb(right_msg)
             # sizes and frame ids of the images and their camera_infos

@@ -2,8 +2,9 @@
 
 1. Renders the project's synthetic KITTI-format sequence (unless it exists), or opens a real
    KITTI tracking root (``--kitti-root DIR --sequence 0005``).
-2. Starts the graph (player in lockstep, detector, stereo depth, tracker, recorder) with the
-   process launcher and shows progress while the sequence plays.
+2. Starts the graph (player in lockstep, or as a camera at ``--camera-hz`` Hz; detector, stereo
+   depth, tracker, recorder) with the process launcher and shows progress while the sequence
+   plays; the last line: frames tracked, dropped and where, latency (``frame_summary``).
 3. Evaluates the recorded bag offline (3D localisation mAP, 2D AP, orientation, CLEAR-MOT/HOTA,
    the unfiltered/Kalman/particle comparison), prints the results table and leaves the report,
    figures, logs and bag in one output folder.
@@ -13,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import threading
 import time
 from datetime import datetime
 from pathlib import Path
@@ -22,6 +22,12 @@ from detector_node.loading import checkpoint_path
 
 from tracking_bringup import graph
 from tracking_bringup.environment import apply_graph_environment
+from tracking_bringup.frame_summary import (
+    LatencyProbe,
+    camera_overrides,
+    dropped_by_node,
+    summary_line,
+)
 from tracking_bringup.launcher import (
     GraphLauncher,
     LaunchError,
@@ -59,42 +65,23 @@ class TrackProgress:
     """Counts tracked-vehicle arrays (one per processed frame) and shows a progress bar."""
 
     def __init__(self, total: int):
-        import rclpy
-        from rclpy.context import Context
-        from stereo_vehicle_msgs.msg import TrackedVehicleArray
         from tqdm import tqdm
 
         self.count = 0
-        self._ctx = Context()
-        rclpy.init(context=self._ctx, args=[])
-        self._node = rclpy.create_node("demo_progress", context=self._ctx)
-        self._node.create_subscription(TrackedVehicleArray, graph.TRACKS, self._on_tracks, 10)
         self._bar = tqdm(
             total=total, unit="frame", desc="pipeline", dynamic_ncols=True, mininterval=0.5
         )
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
+        # each frame's clock and tracks: the latency of the final summary line
+        self.probe = LatencyProbe(on_tracks=self._on_tracks)
 
     def _on_tracks(self, msg) -> None:
         self.count += 1
         self._bar.update(1)
         self._bar.set_postfix(tracks=len(msg.vehicles))
 
-    def _spin(self) -> None:
-        from rclpy.executors import SingleThreadedExecutor
-
-        executor = SingleThreadedExecutor(context=self._ctx)
-        executor.add_node(self._node)
-        while not self._stop.is_set() and self._ctx.ok():
-            executor.spin_once(timeout_sec=0.1)
-
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
+        self.probe.close()
         self._bar.close()
-        self._node.destroy_node()
-        self._ctx.try_shutdown()
 
 
 def _kitti_settings(checkpoint: str) -> list[str]:
@@ -162,12 +149,23 @@ def main(argv: list[str] | None = None) -> int:
     add_params_arguments(parser)
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NODE.PARAM:=VALUE")
     parser.add_argument("--no-eval", action="store_true", help="skip the offline evaluation")
+    parser.add_argument(
+        "--camera-hz",
+        type=float,
+        default=0.0,
+        help="play as a camera at this rate, not waiting for the graph (e.g. 30; default: "
+        "lockstep, every frame)",
+    )
     args = parser.parse_args(argv)
     if args.frames < 0:
         return _error("--frames: must be >= 0")
     problem = parameter_layers(args)  # args.params: the pipeline file, then --params
     if problem:
         return _error(problem)
+    try:
+        camera_rate = camera_overrides(args.camera_hz) if args.camera_hz else []
+    except ValueError as exc:
+        return _error(str(exc))
     try:
         graph.file_parameters(args.params)  # one line for a file the launcher cannot use
     except ValueError as exc:
@@ -207,6 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         # the stereo bias model describes KITTI's cameras; the synthetic renderer's are exact
         *([] if args.kitti_root else SYNTHETIC_CAMERA_OVERRIDES),
         *camera,
+        *camera_rate,
         *args.param,
     ]
     apply_graph_environment()
@@ -216,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
             graph.PIPELINE,
             args.params,
             overrides,
-            extra_subscriptions={graph.TRACKS: 1},
+            extra_subscriptions=LatencyProbe.EDGES,
             params_out=out / "logs" / "parameters.yaml",
         )
     except (LaunchError, ValueError) as exc:
@@ -253,9 +252,20 @@ def main(argv: list[str] | None = None) -> int:
     )
     nodes = node_frame_counts(launcher)
     print(frame_counts_table(nodes), flush=True)
+    published = nodes.get(graph.PLAYER.name, {}).get("out", frames)
+    summary = "[demo] " + summary_line(
+        published,
+        processed,
+        dropped_by_node(launcher.reports),
+        progress.probe.frames.latencies_ms() if progress else [],
+        args.camera_hz or None,
+    )
+    print(summary, flush=True)
     if args.no_eval:
         return 0
-    return _evaluate(bag, root, sequence, out, processed, elapsed, args.params, nodes)
+    code = _evaluate(bag, root, sequence, out, processed, elapsed, args.params, nodes)
+    print(summary, flush=True)  # the run's last line
+    return code
 
 
 def node_frame_counts(launcher: GraphLauncher) -> dict[str, dict[str, int]]:

@@ -143,6 +143,18 @@ def with_lockstep(nodes: list[NodeSpec], lockstep: bool) -> list[NodeSpec]:
     return [spec if n.name == PLAYER.name else n for n in nodes]
 
 
+def with_back_pressure(nodes: list[NodeSpec], on: bool) -> list[NodeSpec]:
+    """``nodes`` with the detector subscribing to the 3D arrays when its back-pressure is on
+    (a live camera: ``downstream_window`` > 0 with the CNN, not in lockstep), the end of each
+    frame it detected (vehicle_common.flow_control)."""
+    if not on:
+        return nodes
+    return [
+        replace(n, subscribes=(*n.subscribes, DETECTIONS_3D)) if n.name == DETECTOR.name else n
+        for n in nodes
+    ]
+
+
 def with_recorded_images(nodes: list[NodeSpec], include_images: bool) -> list[NodeSpec]:
     """``nodes`` with the recorder subscribing to the camera images when it records them
     (``include_images``): the sources then wait for its image subscriptions too, and
@@ -309,7 +321,9 @@ def plan(
       plus ``extra_subscriptions`` per topic from outside the graph (a progress display);
     - in lockstep with ``lockstep_window`` K frames in flight, ``frame_queue: K`` on the
       latest-frame nodes, so that none of the K frames waiting there is skipped (unless the
-      node's ``frame_queue`` is overridden);
+      node's ``frame_queue`` is overridden), and ``downstream_window: 0`` on the detector (no
+      back-pressure: the player paces the graph); without lockstep, the detector's
+      back-pressure edge (:func:`with_back_pressure`);
     - on the nodes that subscribe to the images (the recorder too when its
       ``include_images`` is on), ``image_transport`` "raw" or "compressed" as the player's
       ``image_transport`` ("raw" | "png" | "jpeg") says (unless overridden), and the image
@@ -339,8 +353,13 @@ def plan(
         own = value(n, "image_transport", None) if n.name in IMAGE_CONSUMERS else None
         return n if own is None else with_own_transport(n, str(own))
 
+    # the detector's back-pressure: off in lockstep (the player paces the graph)
+    back_pressure = backend == "cnn" and not lockstep
+    back_pressure = back_pressure and int(value(DETECTOR, "downstream_window")) > 0
+
     def shaped(specs: list[NodeSpec]) -> list[NodeSpec]:
         specs = with_lockstep(with_detector_backend(list(specs), backend), lockstep)
+        specs = with_back_pressure(specs, back_pressure)
         specs = with_tracks_frame(with_odometry_outputs(specs, *outputs), tracks_frame)
         specs = with_image_transport(with_recorded_images(specs, images), transport)
         return [own_transport(n) for n in specs]
@@ -357,6 +376,8 @@ def plan(
         overridden = {ov.partition(":=")[0] for ov in overrides.get(n.name, [])}
         if window is not None and n.latest_frame and "frame_queue" not in overridden:
             extra["frame_queue"] = window
+        if window is not None and n.name == DETECTOR.name and "downstream_window" not in overridden:
+            extra["downstream_window"] = 0  # lockstep: nothing changes
         images_in = any(topics.image_topic(t, transport) in n.subscribes for t in IMAGES)
         if images_in and "image_transport" not in overridden:
             extra["image_transport"] = subscriber_transport(transport)

@@ -47,6 +47,12 @@ from vehicle_common.option_checks import first_problem, number_problem
 
 from tracking_bringup import graph, hosts, parameter_file
 from tracking_bringup.environment import PARAMS_FILE, graph_environment
+from tracking_bringup.frame_summary import (
+    LatencyProbe,
+    camera_overrides,
+    dropped_by_node,
+    summary_line,
+)
 from tracking_bringup.run_summary import RunSummary
 from vehicle_common import topics
 
@@ -726,11 +732,13 @@ def run_graph(
     announce=print,
     env: dict[str, str] | None = None,
     stall_timeout: float = 5.0,
+    summary: Callable[[dict], str] | None = None,
 ) -> int:
     """Run processes as a graph until a finishing node is done, Ctrl-C or SIGTERM.
     Returns the exit code: 0 on a clean run, 1 when a node died (named in the message), 2 when
     a node refused its parameters or input (its one line is the message), 130 when stopped
-    during start-up."""
+    during start-up. ``summary(reports)``: the last line announced, from the nodes' last
+    reports."""
     # every process at once: the player waits for every edge of the graph itself, and its
     # start-up overlaps the detector's (first tracks sooner, docs/RESULTS.md section 11)
     launcher = GraphLauncher(
@@ -746,8 +754,8 @@ def run_graph(
         sig: signal.signal(sig, launcher.request_stop) for sig in (signal.SIGINT, signal.SIGTERM)
     }
     failed = None  # the node the error names (its exit is not reported again)
-    summary = RunSummary(announce)  # input the nodes cannot use (run_summary.py)
-    launcher.on_poll = summary.check
+    usage = RunSummary(announce)  # input the nodes cannot use (run_summary.py)
+    launcher.on_poll = usage.check
     codes = None
     try:
         launcher.start()
@@ -761,7 +769,7 @@ def run_graph(
             )
         launcher.wait(until_finished=until_finished)
         codes = launcher.shutdown()  # drained first: the reports' counts are the run's
-        return summary.final(launcher.reports)
+        return usage.final(launcher.reports)
     except LaunchInterrupted:
         announce("interrupted during start-up: every node stopped")
         return 130
@@ -781,6 +789,8 @@ def run_graph(
                 "warning: unclean exit of "
                 + ", ".join(f"{n} (code {c})" for n, c in unclean.items())
             )
+        if summary is not None:
+            announce(summary(launcher.reports))
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 
@@ -906,6 +916,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="keep the graph up after the player finished (stop with Ctrl-C)",
     )
     parser.add_argument("--echo", action="store_true", help="print node output to the console")
+    parser.add_argument(
+        "--camera-hz",
+        type=float,
+        default=0.0,
+        help="the player as a camera at this rate, not waiting for the graph (e.g. 30); the "
+        "last line: frames tracked, dropped and where, latency",
+    )
     hosts.add_arguments(parser)
     args = parser.parse_args(argv)
     problem = check_arguments(args)
@@ -921,7 +938,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         plan = hosts.launch_plan(args)
         nodes = graph.by_name(plan.nodes)
         whole = graph.by_name(plan.graph_nodes)  # the player waits for nodes elsewhere too
-        overrides = [*plan.overrides, *args.param]
+        camera = camera_overrides(args.camera_hz) if args.camera_hz else []
+        overrides = [*plan.overrides, *camera, *args.param]
+        # the summary's latency probe (this process): where the player and tracker run here
+        probe = bool(args.camera_hz) and {graph.PLAYER.name, graph.TRACKER.name} <= {
+            n.name for n in nodes
+        }
         processes = graph_processes(
             nodes,
             args.params,
@@ -929,10 +951,27 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.namespace,
             graph_nodes=whole,
             params_out=log_dir / "parameters.yaml",
+            extra_subscriptions=LatencyProbe.EDGES if probe else None,
         )
     except (ValueError, LaunchError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    summary = None
+    if probe:
+        latency = LatencyProbe(args.namespace)
+
+        def summary(reports: dict) -> str:
+            latency.close()
+            player = reports.get(graph.PLAYER.name)
+            tracker = reports.get(graph.TRACKER.name)
+            return summary_line(
+                player.counts.published if player else 0,
+                tracker.counts.published if tracker else 0,
+                dropped_by_node(reports),
+                latency.frames.latencies_ms(),
+                args.camera_hz,
+            )
+
     elsewhere = [n.name for n in whole if n not in nodes]
     if elsewhere and any(n.source for n in nodes):
         print(f"expecting on other hosts: {', '.join(elsewhere)} (the player waits for them)")
@@ -944,6 +983,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         echo=args.echo,
         env=plan.discovery.environment(),
         stall_timeout=args.stall_timeout,
+        summary=summary,
     )
 
 

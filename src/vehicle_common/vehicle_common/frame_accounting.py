@@ -105,6 +105,13 @@ class LatestFrameWorker:
     exception in ``process`` goes to ``on_error(exc, item)`` (default: one line on stderr) and
     the worker goes on. Each processed frame's wall and thread-CPU time is booked on
     ``timing`` (default: ``counter``).
+
+    ``admit(item)`` (optional) is the back-pressure of the stage after this one
+    (:class:`vehicle_common.flow_control.InFlightWindow`): asked before a frame that is not
+    stale starts, it returns None to start it, or the seconds to wait before asking again; the
+    frame then waits (a newer one supersedes it, skipped and counted as above) until
+    :meth:`wake` is called or that time has passed. Items that are not frames, and every item
+    once the worker is stopping, are not held back.
     """
 
     def __init__(
@@ -116,12 +123,14 @@ class LatestFrameWorker:
         skip: Callable[[Any], None] | None = None,
         max_waiting: int = 1,
         timing: FrameCounter | None = None,
+        admit: Callable[[Any], float | None] | None = None,
     ) -> None:
         if max_waiting < 1:
             raise ValueError(f"max_waiting {max_waiting} must be >= 1")
         self.max_waiting = int(max_waiting)
         self._process = process
         self._skip = skip
+        self._admit = admit
         self._on_error = on_error or _print_error
         self.counter = counter
         self._timing = timing or counter  # books each processed frame's wall / CPU time
@@ -145,16 +154,29 @@ class LatestFrameWorker:
         with self._cond:
             return self._busy or bool(self._queue)
 
+    def wake(self) -> None:
+        """Ask ``admit`` again now (the stage after this one finished a frame)."""
+        with self._cond:
+            self._cond.notify_all()
+
     def _next(self) -> tuple[bool, Any, bool, bool]:
         """(ok, item, is a frame, stale) of the next item; ok is False once closed and empty."""
         with self._cond:
-            self._cond.wait_for(lambda: self._queue or self._closed)
-            if not self._queue:
-                return False, None, False, False
-            item, frame = self._queue.popleft()
-            self._frames_waiting -= frame
-            self._busy = True
-            return True, item, frame, frame and self._frames_waiting >= self.max_waiting
+            while True:
+                self._cond.wait_for(lambda: self._queue or self._closed)
+                if not self._queue:
+                    return False, None, False, False
+                item, frame = self._queue[0]
+                stale = frame and self._frames_waiting - 1 >= self.max_waiting
+                if frame and not stale and self._admit is not None and not self._closed:
+                    wait = self._admit(item)
+                    if wait is not None:  # held back: woken by a newer item, wake() or time
+                        self._cond.wait(wait)
+                        continue
+                self._queue.popleft()
+                self._frames_waiting -= frame
+                self._busy = True
+                return True, item, frame, stale
 
     def _run(self) -> None:
         while True:

@@ -20,10 +20,16 @@ The launchers set "reliable" when the graph's own player is the camera (lockstep
 frame). A QoS
 incompatibility with a publisher (a TRANSIENT_LOCAL-only writer, say) is reported once per
 topic through ``on_incompatible``.
+``subscribe_image(..., serialized=True)`` takes the images as the middleware's bytes
+(:class:`SerializedImage`: the header is read at once, the image only when a node uses it): a
+node that skips most frames under overload (the latest-frame policy, the detector's
+back-pressure) then does not pay rclpy's conversion of the frames it skips (about 2.4 ms of CPU
+for a 1242x375 rgb8 image, against 0.3 ms for the bytes; issue #39).
 """
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 
 from vehicle_common import topics
@@ -91,8 +97,8 @@ class CameraSubscription:
     """A subscription with the node's ``camera_reliability``; with "auto", re-created with the
     publishers' reliability when it changes (module docstring)."""
 
-    def __init__(self, node, msg_type, topic, callback, depth, events):
-        self.node, self._args = node, (msg_type, topic, callback)
+    def __init__(self, node, msg_type, topic, callback, depth, events, raw: bool = False):
+        self.node, self._args, self._raw = node, (msg_type, topic, callback), raw
         self._depth, self._events = depth, events
         mode = _parameter(node, "camera_reliability")
         self.reliability = mode
@@ -110,7 +116,7 @@ class CameraSubscription:
         msg_type, topic, callback = self._args
         qos = camera_qos(self._depth, self.reliability)
         return self.node.create_subscription(
-            msg_type, topic, callback, qos, event_callbacks=self._events
+            msg_type, topic, callback, qos, event_callbacks=self._events, raw=self._raw
         )
 
     def adapt(self) -> None:
@@ -125,7 +131,9 @@ class CameraSubscription:
         )
 
 
-def subscribe_camera(node, msg_type, topic: str, callback, depth: int, on_incompatible=None):
+def subscribe_camera(
+    node, msg_type, topic: str, callback, depth: int, on_incompatible=None, raw: bool = False
+):
     """Subscribe ``node`` to a camera topic (image or camera_info) with the reliability of its
     ``camera_reliability`` (:class:`CameraSubscription`), KEEP_LAST ``depth``;
     ``on_incompatible(line)`` is called with one line naming the topic and the QoS policy when
@@ -150,17 +158,84 @@ def subscribe_camera(node, msg_type, topic: str, callback, depth: int, on_incomp
             on_incompatible(line)
 
     events = SubscriptionEventCallbacks(incompatible_qos=incompatible)
-    return CameraSubscription(node, msg_type, topic, callback, depth, events)
+    return CameraSubscription(node, msg_type, topic, callback, depth, events, raw)
 
 
-def subscribe_image(node, topic: str, callback, depth: int, on_incompatible=None):
+def subscribe_image(
+    node, topic: str, callback, depth: int, on_incompatible=None, serialized: bool = False
+):
     """Subscribe ``node`` to the image ``topic`` with the transport of its ``image_transport``
     parameter and the reliability of its ``camera_reliability`` (declared at the first call; a
     bad value raises ParameterError naming it), KEEP_LAST ``depth``. The callback gets a
-    sensor_msgs/Image or CompressedImage (``image_to_rgb`` reads both)."""
+    sensor_msgs/Image or CompressedImage (``image_to_rgb`` reads both), or with ``serialized``
+    a :class:`SerializedImage` of one (a message whose header cannot be read is warned about
+    and not passed on)."""
     from sensor_msgs.msg import CompressedImage, Image
 
     transport = _parameter(node, "image_transport")
     cls = Image if transport == "raw" else CompressedImage
     name = topics.image_topic(topic, transport)
-    return subscribe_camera(node, cls, name, callback, depth, on_incompatible)
+    if not serialized:
+        return subscribe_camera(node, cls, name, callback, depth, on_incompatible)
+
+    def on_bytes(data: bytes) -> None:
+        try:
+            image = SerializedImage(data, cls)
+        except ValueError as exc:
+            node.get_logger().warning(f"{name}: {exc}; message ignored", throttle_duration_sec=5.0)
+            return
+        callback(image)
+
+    return subscribe_camera(node, cls, name, on_bytes, depth, on_incompatible, raw=True)
+
+
+def cdr_header(data: bytes) -> tuple[int, int, str]:
+    """(sec, nanosec, frame_id) of the std_msgs/Header a serialized message starts with (CDR,
+    either byte order, after the 4-byte encapsulation); ValueError for bytes that are not."""
+    if len(data) < 16 or data[0] != 0 or data[1] not in (0, 1):
+        raise ValueError("not a CDR-serialized message")
+    order = "<" if data[1] == 1 else ">"
+    sec, nanosec, length = struct.unpack_from(order + "iII", data, 4)
+    if length < 1 or 16 + length > len(data) or data[15 + length] != 0 or nanosec >= 10**9:
+        raise ValueError("its header cannot be read")
+    try:
+        frame_id = data[16 : 15 + length].decode("utf-8")
+    except UnicodeDecodeError:
+        raise ValueError("its header's frame_id is not UTF-8") from None
+    return sec, nanosec, frame_id
+
+
+class SerializedImage:
+    """An image message as the middleware's bytes: ``header`` (a std_msgs/Header) read at once,
+    :meth:`message` converted on first use."""
+
+    __slots__ = ("data", "cls", "header", "_message")
+
+    def __init__(self, data: bytes, cls) -> None:
+        from std_msgs.msg import Header
+
+        sec, nanosec, frame_id = cdr_header(data)
+        self.data, self.cls = data, cls
+        self.header = Header(frame_id=frame_id)
+        self.header.stamp.sec, self.header.stamp.nanosec = sec, nanosec
+        self._message = None
+
+    def message(self):
+        """The sensor_msgs/Image or CompressedImage (ImageConversionError when the bytes are
+        not one)."""
+        if self._message is None:
+            from rclpy.serialization import deserialize_message
+
+            from .image_conversion import ImageConversionError
+
+            try:
+                self._message = deserialize_message(self.data, self.cls)
+            except Exception as exc:  # noqa: BLE001 - rclpy raises several kinds
+                raise ImageConversionError(f"cannot deserialize the image: {exc}") from None
+            self.data = b""  # converted: the bytes are no longer needed
+        return self._message
+
+
+def as_message(msg):
+    """``msg`` itself, or the message a :class:`SerializedImage` holds."""
+    return msg.message() if isinstance(msg, SerializedImage) else msg

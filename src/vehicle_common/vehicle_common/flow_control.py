@@ -1,0 +1,121 @@
+"""Back-pressure between two stages of the graph, free of ROS: a window of frames in flight.
+
+A live camera does not wait for the graph (lockstep makes the player wait; a camera cannot).
+When the camera is faster than the graph, a stage that takes every frame it can does work that
+the next stage throws away: issue #39 measured the detector detecting every frame while the
+stereo node took only the newest complete set, so most detections were wasted, and on one core
+that waste took the core from the stereo node.
+
+:class:`InFlightWindow` is the upstream stage's account of the frames it has started and the
+downstream stage has not finished yet. A frame is *in flight* from the moment the upstream stage
+starts working on it until the downstream stage's output with a stamp at or after it arrives
+(the downstream stage processes its frames in stamp order, so an output at stamp S also ends
+every older frame: one it dropped, or one whose output was lost). The upstream stage starts a
+new frame only while fewer than ``window`` are in flight; otherwise the frame waits, and a newer
+one arriving meanwhile supersedes it (the latest-frame policy: skipped and counted where it is
+skipped). A frame whose end never comes (the downstream node stopped, a message lost) leaves the
+window after a timeout, counted as ``expired``, so the upstream stage never stops for good: 5 x
+``timeout_s`` until a frame's time in flight is known, then the larger of ``timeout_s`` and
+twice the longest of the last frames' times in flight (a starved machine, where a frame takes
+seconds, must not see every frame expire and lose the back-pressure; measured on a 2-core
+machine at load 25-36: 5-12 s per frame).
+
+``window`` 1: one frame in the pipeline after the camera, like lockstep with window 1 for the
+player: no frame is started that the next stage could not take at once, and on one core no
+stage's work competes with another's. ``window`` 0: no back-pressure.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import OrderedDict, deque
+from collections.abc import Callable
+
+
+class InFlightWindow:
+    """Frames started upstream and not yet finished downstream, keyed by stamp (thread-safe)."""
+
+    def __init__(
+        self, window: int, timeout_s: float, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        if window < 0:
+            raise ValueError(f"window {window} must be >= 0 (0: no back-pressure)")
+        if not timeout_s > 0:
+            raise ValueError(f"timeout_s {timeout_s} must be > 0")
+        self.window = int(window)
+        self.timeout_s = float(timeout_s)
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._started: OrderedDict[int, float] = OrderedDict()  # stamp -> start time
+        self.finished = 0  # frames ended by a downstream output
+        self.expired = 0  # frames whose end never came within the timeout
+        self._times: deque[float] = deque(maxlen=self.TIMED_FRAMES)  # [s] start -> own output
+        self._expired_starts: OrderedDict[int, float] = OrderedDict()  # stamp -> start time
+
+    #: frames whose time in flight sets the timeout
+    TIMED_FRAMES = 8
+    #: the timeout until a frame's time in flight is known: timeout_s x this (the first frame
+    #: of a graph is slower, and at load 20 on one core it took 7 s: with 1 s every frame of
+    #: the first seconds expired and the stereo node got a backlog of 4-6 frames)
+    FIRST_TIMEOUT_FACTOR = 5.0
+
+    @property
+    def timeout(self) -> float:
+        """[s] after which a frame in flight expires: ``timeout_s`` x :attr:`FIRST_TIMEOUT_FACTOR`
+        until a frame's time is known, then ``timeout_s``, or twice the longest of
+        the last :attr:`TIMED_FRAMES` frames' times from start to their own output (also of a
+        frame that had expired: a stage slower than the timeout is learnt from it)."""
+        if not self._times:  # the first frames (a cold start, a starved machine): longer
+            return self.FIRST_TIMEOUT_FACTOR * self.timeout_s
+        return max(self.timeout_s, 2.0 * max(self._times))
+
+    @property
+    def in_flight(self) -> int:
+        with self._lock:
+            self._expire(self._clock())
+            return len(self._started)
+
+    def _expire(self, now: float) -> None:
+        timeout = self.timeout
+        while self._started:
+            stamp, t0 = next(iter(self._started.items()))
+            if now - t0 < timeout:
+                return
+            del self._started[stamp]
+            self.expired += 1
+            # its output may still come: its time in flight then sets the timeout
+            self._expired_starts[stamp] = t0
+            while len(self._expired_starts) > self.TIMED_FRAMES:
+                self._expired_starts.popitem(last=False)
+
+    def admit(self, stamp: int) -> float | None:
+        """Start the frame at ``stamp`` if the window has room (then None), else the seconds
+        after which the oldest frame in flight expires (ask again then, or when a frame ends)."""
+        with self._lock:
+            now = self._clock()
+            self._expire(now)
+            if self.window and len(self._started) >= self.window:
+                oldest = next(iter(self._started.values()))
+                return max(oldest + self.timeout - now, 1e-3)
+            self._started[int(stamp)] = now
+            self._started.move_to_end(int(stamp))
+            return None
+
+    def finish(self, stamp: int) -> int:
+        """The downstream stage's output at ``stamp``: every frame in flight at or before it
+        ends. Returns how many ended (0: an output of a frame not started here)."""
+        with self._lock:
+            ended = [s for s in self._started if s <= stamp]
+            t0 = self._started.get(stamp, self._expired_starts.pop(stamp, None))
+            if t0 is not None:
+                self._times.append(self._clock() - t0)
+            for s in ended:
+                del self._started[s]
+            self.finished += len(ended)
+            return len(ended)
+
+    def clear(self) -> None:
+        """Forget the frames in flight (the downstream stage went away)."""
+        with self._lock:
+            self._started.clear()
