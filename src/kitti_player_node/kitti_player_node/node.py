@@ -8,7 +8,6 @@ decided by :mod:`kitti_player_node.playback`; KITTI files are read through :mod:
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 import time
 
@@ -56,16 +55,14 @@ from .playback import (
     FrameEvent,
     FramePrefetcher,
     LockstepAnswers,
-    PlaybackScheduler,
-    add_snr_noise,
-    frame_noise_rng,
-    select_frames,
-    snr_enabled,
+    PreloadWatch,
+    StartGate,
+    noisy_pair,
+    plan_playback,
+    summary_line,
 )
 
 NODE_NAME = "kitti_player"
-#: s between the player's ticks in unpaced lockstep (start of playback, lockstep timeouts)
-LOCKSTEP_TICK_S = 0.02
 
 
 def parse_topic_counts(spec: str, name: str = "wait_for_topics") -> dict[str, int]:
@@ -96,24 +93,9 @@ class KittiPlayerNode(Node):
         # a pair the graph cannot range (no baseline) is refused here, not frame by frame later
         check_stereo_calibration(self.sequence.calib, self.sequence.calib_path)
         try:
-            frames = select_frames(self.sequence.frame_ids, p["first_frame"], p["last_frame"])
+            frames, self.scheduler, period, tick = plan_playback(p, self.sequence.frame_ids)
         except ValueError as exc:
-            raise PlayerError(f"first_frame/last_frame: {exc}") from None
-        hz = float(p["rate"]) * float(p["rate_multiplier"])
-        period = 1.0 / hz if hz > 0 and math.isfinite(hz) else 0.0
-        try:
-            self.scheduler = PlaybackScheduler(
-                frames,
-                start_time=float(p["start_time"]),
-                period_s=period,
-                loop=bool(p["loop"]),
-                lockstep_timeout=float(p["lockstep_timeout"]) if p["lockstep"] else None,
-                drop_probability=float(p["drop_probability"]),
-                seed=int(p["seed"]),
-                lockstep_window=int(p["lockstep_window"]),
-            )
-        except ValueError as exc:
-            raise PlayerError(f"drop_probability/lockstep_window: {exc}") from None
+            raise PlayerError(str(exc)) from None
 
         transport = p["image_transport"]
         image_type = Image if transport == "raw" else CompressedImage
@@ -138,8 +120,7 @@ class KittiPlayerNode(Node):
         self.answers = LockstepAnswers()  # one answer per published frame
         self._started = False
         self._summary_logged = False
-        self._last_wait_log = 0.0
-        self._matched_at: float | None = None
+        self.gate = StartGate(float(p["match_settle_time"]))
         self._expected = {
             self.resolve_topic_name(topic): n
             for topic, n in parse_topic_counts(p["wait_for_topics"]).items()
@@ -149,12 +130,7 @@ class KittiPlayerNode(Node):
             name = self.resolve_topic_name(topic)
             self._expected[name] = self._expected.get(name, 0) + n
         self.reader = FramePrefetcher(self.sequence.read_stereo)
-        self._preload_t0 = time.monotonic()
-        self._preload_logged = p["preload_mib"] <= 0
-        if p["preload_mib"] > 0:
-            self.reader.preload(frames, int(p["preload_mib"]) * 2**20)
-        else:
-            self.reader.prefetch(self.scheduler.next_frame)
+        self.preload = PreloadWatch(self.reader, p["preload_mib"], frames, self.scheduler)
         self.frames = FrameCounter()  # frames scheduled, published, dropped (drop_probability)
         self.health = NodeHealth(self, self.frames)
         # the other nodes' reports: matched subscriptions of the topics they publish
@@ -164,14 +140,6 @@ class KittiPlayerNode(Node):
             self._report_sub = self.create_subscription(
                 DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_reports, 50
             )
-        # the tick's period: the pacing's resolution when paced; unpaced in lockstep, each
-        # acknowledgement starts the next frames at once (_on_lockstep) and the tick only
-        # starts playback and notices timeouts (a 2 ms tick cost ~8 % of a core for nothing);
-        # unpaced without lockstep it sets the rate
-        if period > 0:
-            tick = min(0.01, period / 2)
-        else:
-            tick = LOCKSTEP_TICK_S if p["lockstep"] else 0.002
         self.timer = self.create_timer(tick, self._tick)
         self.get_logger().info(
             f"sequence {self.sequence.sequence}: {len(frames)} frames "
@@ -228,19 +196,10 @@ class KittiPlayerNode(Node):
                 return
             want = int(self.params["wait_for_subscribers"])
             have = self.pub_left.get_subscription_count()
-            # every edge of the graph must be matched, so that no node misses the first frame
-            unmatched = self._unready()
-            if have < want or unmatched:
-                if now - self._last_wait_log > 2.0:
-                    self._last_wait_log = now
-                    self.get_logger().info(
-                        f"waiting for subscribers: left image {have}/{want}"
-                        + (f", not yet matched on {', '.join(unmatched)}" if unmatched else "")
-                    )
-                self._matched_at = None
-                return
-            self._matched_at = self._matched_at or now
-            if now - self._matched_at < float(self.params["match_settle_time"]):
+            start, line = self.gate.check(now, have, want, self._unready())
+            if line is not None:
+                self.get_logger().info(line)
+            if not start:
                 return
             self._started = True
             if self._report_sub is not None:
@@ -292,10 +251,9 @@ class KittiPlayerNode(Node):
     def _publish(self, event: FrameEvent) -> None:
         left, right = self.reader.get(event.frame)
         self.reader.prefetch(self.scheduler.next_frame)  # read while the graph works
-        snr = float(self.params["snr_db"])
-        if snr_enabled(snr):
-            rng = frame_noise_rng(self.params["seed"], event.frame, event.loop_pass)
-            left, right = add_snr_noise(left, snr, rng), add_snr_noise(right, snr, rng)
+        left, right = noisy_pair(
+            left, right, float(self.params["snr_db"]), self.params["seed"], event
+        )
         calib, stamp = self.sequence.calib, event.stamp_ns
         clock = Clock()
         clock.clock = header(stamp, "").stamp
@@ -323,34 +281,17 @@ class KittiPlayerNode(Node):
 
     def _preload_done(self) -> bool:
         """False while the frames are being read into memory; logs the preload once."""
-        if not self.reader.preloaded:
-            return False
-        if not self._preload_logged:
-            self._preload_logged = True
-            n, size = self.reader.preload_result()
-            if n:
-                self.get_logger().info(
-                    f"{n} frames in memory ({size / 2**20:.0f} MiB, read in "
-                    f"{time.monotonic() - self._preload_t0:.1f} s)"
-                )
-            else:
-                self.get_logger().info(
-                    f"frames not preloaded (more than preload_mib {self.params['preload_mib']} "
-                    "MiB, or the first frame unreadable): each is read ahead while the graph works"
-                )
-                self.reader.prefetch(self.scheduler.next_frame)
-        return True
+        done, line = self.preload.done(self.scheduler)
+        if line is not None:
+            self.get_logger().info(line)
+        return done
 
     def _log_summary(self) -> None:
         if self._summary_logged:
             return
         self._summary_logged = True
-        s = self.scheduler.stats
-        line = (
-            f"done: {s.published} frames published, {s.dropped} dropped, "
-            f"{s.lockstep_timeouts} lockstep timeouts"
-        )
-        if s.lockstep_timeouts:
+        line = summary_line(self.scheduler.stats)
+        if self.scheduler.stats.lockstep_timeouts:
             self.get_logger().warning(line)
         else:
             self.get_logger().info(line)
