@@ -29,7 +29,6 @@ from vehicle_common.frame_messages import (
 )
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.graph_readiness import NodeReport, unready_topics
-from vehicle_common.image_conversion import numpy_to_compressed, numpy_to_image
 from vehicle_common.kitti import KittiFormatError, TrackingSequence, check_stereo_calibration
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
@@ -48,7 +47,7 @@ from vehicle_common.node_runtime import (
     spin_until_stopped,
 )
 
-from vehicle_common import graph_readiness, topics
+from vehicle_common import topics
 
 from .parameters import PlayerParameters
 from .playback import (
@@ -57,21 +56,17 @@ from .playback import (
     LockstepAnswers,
     PreloadWatch,
     StartGate,
+    expected_topics,
+    image_message,
+    mixed_runs_line,
     noisy_pair,
     plan_playback,
+    playing_line,
+    progress_line,
     summary_line,
 )
 
 NODE_NAME = "kitti_player"
-
-
-def parse_topic_counts(spec: str, name: str = "wait_for_topics") -> dict[str, int]:
-    """``"/a:2,/b:1"`` -> ``{"/a": 2, "/b": 1}``; raises PlayerError naming the parameter
-    ``name`` for a malformed entry."""
-    try:
-        return graph_readiness.parse_topic_counts(spec)
-    except ValueError as exc:
-        raise PlayerError(f"{name}: {exc}") from None
 
 
 class PlayerError(RuntimeError):
@@ -109,6 +104,8 @@ class KittiPlayerNode(Node):
         self.pub_right_info = self.create_publisher(CameraInfo, topics.RIGHT_INFO, 5)
         self.pub_gt = self.create_publisher(KittiFrameLabels, topics.GROUND_TRUTH, 10)
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, 10)
+        self.publishers_list = [self.pub_clock, self.pub_gt, self.pub_left_info]
+        self.publishers_list += [self.pub_right_info, self.pub_left, self.pub_right]
         if p["lockstep"]:
             self.create_subscription(
                 TrackedVehicleArray, p["lockstep_topic"], self._on_lockstep, 10
@@ -121,14 +118,11 @@ class KittiPlayerNode(Node):
         self._started = False
         self._summary_logged = False
         self.gate = StartGate(float(p["match_settle_time"]))
-        self._expected = {
-            self.resolve_topic_name(topic): n
-            for topic, n in parse_topic_counts(p["wait_for_topics"]).items()
-        }
-        external = parse_topic_counts(p["external_subscribers"], "external_subscribers")
-        for topic, n in external.items():
-            name = self.resolve_topic_name(topic)
-            self._expected[name] = self._expected.get(name, 0) + n
+        wait, external = p["wait_for_topics"], p["external_subscribers"]
+        try:
+            self._expected = expected_topics(wait, external, self.resolve_topic_name)
+        except ValueError as exc:
+            raise PlayerError(str(exc)) from None
         self.reader = FramePrefetcher(self.sequence.read_stereo)
         self.preload = PreloadWatch(self.reader, p["preload_mib"], frames, self.scheduler)
         self.frames = FrameCounter()  # frames scheduled, published, dropped (drop_probability)
@@ -141,23 +135,7 @@ class KittiPlayerNode(Node):
                 DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_reports, 50
             )
         self.timer = self.create_timer(tick, self._tick)
-        self.get_logger().info(
-            f"sequence {self.sequence.sequence}: {len(frames)} frames "
-            f"({frames[0]}..{frames[-1]}) from {self.sequence.root}, "
-            f"{'unpaced' if period == 0 else f'{1 / period:.2f} Hz'}"
-            f"{', lockstep on ' + p['lockstep_topic'] if p['lockstep'] else ''}"
-        )
-
-    @property
-    def publishers_list(self):
-        return [
-            self.pub_clock,
-            self.pub_gt,
-            self.pub_left_info,
-            self.pub_right_info,
-            self.pub_left,
-            self.pub_right,
-        ]
+        self.get_logger().info(playing_line(self.sequence, frames, period, p))
 
     def _on_reports(self, msg: DiagnosticArray) -> None:
         for report in reports_from_message(msg):
@@ -177,11 +155,7 @@ class KittiPlayerNode(Node):
         problem = self.answers.answer(stamp)
         if problem is not None and self.fatal is None:
             topic = self.resolve_topic_name(self.params["lockstep_topic"])
-            self.fatal = (
-                f"{NODE_NAME}: {topic}: {problem}: another graph publishes on this ROS domain "
-                f"({self.count_publishers(topic)} publishers on {topic}), and the runs mix; "
-                "give each graph its own namespace (--namespace) or ROS_DOMAIN_ID"
-            )
+            self.fatal = mixed_runs_line(NODE_NAME, topic, problem, self.count_publishers(topic))
             self.done = True
             return
         if self.scheduler.acknowledge(stamp):
@@ -241,11 +215,9 @@ class KittiPlayerNode(Node):
                 self.done = True
                 return False
             self.frames.published()
-        stats = self.scheduler.stats
-        if (stats.published + stats.dropped) % 10 == 0:
-            self.get_logger().info(
-                f"frame {event.frame}: {stats.published} published, {stats.dropped} dropped"
-            )
+        line = progress_line(self.scheduler.stats, event.frame)
+        if line is not None:
+            self.get_logger().info(line)
         return True
 
     def _publish(self, event: FrameEvent) -> None:
@@ -267,17 +239,11 @@ class KittiPlayerNode(Node):
         left_info, right_info = stereo_camera_infos(calib, w, h, stamp)
         self.pub_left_info.publish(left_info)
         self.pub_right_info.publish(right_info)
-        self.pub_left.publish(self._image_message(left, header(stamp, LEFT_FRAME)))
+        transport, quality = self.params["image_transport"], self.params["jpeg_quality"]
+        self.pub_left.publish(image_message(left, header(stamp, LEFT_FRAME), transport, quality))
         self.trace("left_published", stamp)
-        self.pub_right.publish(self._image_message(right, header(stamp, RIGHT_FRAME)))
+        self.pub_right.publish(image_message(right, header(stamp, RIGHT_FRAME), transport, quality))
         self.trace("right_published", stamp)
-
-    def _image_message(self, rgb, hdr):
-        """The image as the ``image_transport`` parameter says: raw rgb8, PNG or JPEG."""
-        transport = self.params["image_transport"]
-        if transport == "raw":
-            return numpy_to_image(rgb, "rgb8", hdr)
-        return numpy_to_compressed(rgb, transport, self.params["jpeg_quality"], hdr)
 
     def _preload_done(self) -> bool:
         """False while the frames are being read into memory; logs the preload once."""

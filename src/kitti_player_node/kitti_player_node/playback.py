@@ -16,6 +16,9 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+from vehicle_common.image_conversion import numpy_to_compressed, numpy_to_image
+
+from vehicle_common import graph_readiness
 
 #: KITTI tracking sequences are recorded at 10 Hz.
 KITTI_FRAME_PERIOD_S = 0.1
@@ -459,3 +462,56 @@ class PreloadWatch:
             f"frames not preloaded (more than preload_mib {self.preload_mib} "
             "MiB, or the first frame unreadable): each is read ahead while the graph works"
         )
+
+
+def expected_topics(
+    wait_for_topics: str, external_subscribers: str, resolve: Callable[[str], str]
+) -> dict[str, int]:
+    """The subscriptions each topic must have matched before playback (parameters
+    ``wait_for_topics`` plus ``external_subscribers``, ``"/a:2,/b:1"``; names resolved with
+    ``resolve``). ValueError naming the parameter for a malformed entry."""
+
+    def counts(spec: str, name: str) -> dict[str, int]:
+        try:
+            return graph_readiness.parse_topic_counts(spec)
+        except ValueError as exc:
+            raise ValueError(f"{name}: {exc}") from None
+
+    expected = {resolve(t): n for t, n in counts(wait_for_topics, "wait_for_topics").items()}
+    for topic, n in counts(external_subscribers, "external_subscribers").items():
+        name = resolve(topic)
+        expected[name] = expected.get(name, 0) + n
+    return expected
+
+
+def mixed_runs_line(node: str, topic: str, problem: str, publishers: int) -> str:
+    """The fatal line for a lockstep answer no frame of this run asked for (``problem``)."""
+    return (
+        f"{node}: {topic}: {problem}: another graph publishes on this ROS domain "
+        f"({publishers} publishers on {topic}), and the runs mix; "
+        "give each graph its own namespace (--namespace) or ROS_DOMAIN_ID"
+    )
+
+
+def progress_line(stats: PlaybackStats, frame: int) -> str | None:
+    """Every 10th frame published or dropped: the progress line (else None)."""
+    if (stats.published + stats.dropped) % 10 == 0:
+        return f"frame {frame}: {stats.published} published, {stats.dropped} dropped"
+    return None
+
+
+def playing_line(sequence, frames: list[int], period: float, p: dict) -> str:
+    """The player's first line: the sequence, its frames, the pacing and the lockstep."""
+    return (
+        f"sequence {sequence.sequence}: {len(frames)} frames "
+        f"({frames[0]}..{frames[-1]}) from {sequence.root}, "
+        f"{'unpaced' if period == 0 else f'{1 / period:.2f} Hz'}"
+        f"{', lockstep on ' + p['lockstep_topic'] if p['lockstep'] else ''}"
+    )
+
+
+def image_message(rgb, hdr, transport: str, jpeg_quality: int):
+    """The image as the ``image_transport`` parameter says: raw rgb8, PNG or JPEG."""
+    if transport == "raw":
+        return numpy_to_image(rgb, "rgb8", hdr)
+    return numpy_to_compressed(rgb, transport, jpeg_quality, hdr)
