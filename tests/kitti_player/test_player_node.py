@@ -245,7 +245,7 @@ def test_unpaced_lockstep_fills_its_window_at_once(rclpy_context, tmp_path):
     """Unpaced lockstep with a window of 2 (``rate_multiplier`` 0): the first two frames go out
     in the same tick and each answer releases the next frame itself; the player's timer only
     starts playback (a slow tick, not 500 wakes a second)."""
-    from kitti_player_node.node import LOCKSTEP_TICK_S
+    from kitti_player_node.playback import LOCKSTEP_TICK_S
 
     player, col, slow = _play_behind_slow_tracker(
         rclpy_context,

@@ -66,7 +66,7 @@ class Harness:
                 all(p.get_subscription_count() > 0 for p in self.pubs.values())
                 and self.io.count_publishers("/vehicles/detections_3d") > 0
                 # the disparity image is built only for a matched subscriber
-                and self.node.pub_disparity.get_subscription_count() > 0
+                and self.node.outputs.disparity.get_subscription_count() > 0
             )
         )
         K = np.array([[FX, 0, W / 2], [0, FX, H / 2], [0, 0, 1]])
@@ -215,7 +215,7 @@ def test_camera_motion_spans_the_gap_to_the_previous_3d_array(harness):
     harness.send_detections(1, [])
     assert harness.spin_until(lambda: len(harness.det3d) == 1)
     harness.send_frame(2)  # no detections for frame 2
-    assert harness.spin_until(lambda: len(harness.node.frame_sync) == 1)
+    assert harness.spin_until(lambda: len(harness.node.intake.frame_sync) == 1)
     harness.send_frame(3)
     harness.send_detections(3, [])
     assert harness.spin_until(lambda: len(harness.det3d) == 2)
@@ -237,12 +237,14 @@ def test_visual_odometry_off_publishes_no_camera_motion(rclpy_context):
 
 def test_detections_whose_images_never_arrive_are_dropped_and_counted(harness):
     harness.send_detections(50, [(150, 30, 250, 90)])  # stereo frame 50 never comes
-    assert harness.spin_until(lambda: len(harness.node.frame_sync) == 1)
+    assert harness.spin_until(lambda: len(harness.node.intake.frame_sync) == 1)
     for sec in (51, 52, 53):  # images without detections fill the cache (size 3)
         harness.send_frame(sec)
-        assert harness.spin_until(lambda s=sec: len(harness.node.frame_sync) == min(3, s - 49))
-    assert harness.spin_until(lambda: harness.node.dropped_detection_arrays == 1)
-    assert len(harness.node.frame_sync) == 3
+        assert harness.spin_until(
+            lambda s=sec: len(harness.node.intake.frame_sync) == min(3, s - 49)
+        )
+    assert harness.spin_until(lambda: harness.node.intake.dropped_detection_arrays == 1)
+    assert len(harness.node.intake.frame_sync) == 3
     counts = harness.node.frames.snapshot()
     assert (counts.received, counts.published, counts.dropped) == (1, 0, 1)
     assert harness.det3d == [] and harness.node.pipeline.frames_processed == 0
@@ -250,7 +252,7 @@ def test_detections_whose_images_never_arrive_are_dropped_and_counted(harness):
     assert harness.spin_until(lambda: len(harness.det3d) == 1)
     assert harness.det3d[0].header.stamp.sec == 53 and len(harness.det3d[0].detections) == 1
     # the older incomplete frames can no longer complete: gone from the cache
-    assert len(harness.node.frame_sync) == 0
+    assert len(harness.node.intake.frame_sync) == 0
     counts = harness.node.frames.snapshot()
     assert (counts.received, counts.published, counts.dropped) == (2, 1, 1)
 
@@ -265,18 +267,18 @@ def test_frame_whose_image_is_lost_is_dropped_when_a_newer_one_completes(harness
         harness.pubs[name].publish(info)
     harness.pubs["left"].publish(numpy_to_image(harness.left, "rgb8", hdr))
     harness.send_detections(60, [(150, 30, 250, 90)])
-    assert harness.spin_until(lambda: len(harness.node.frame_sync) == 1)
+    assert harness.spin_until(lambda: len(harness.node.intake.frame_sync) == 1)
     assert harness.det3d == []
     harness.send_frame(61)
     harness.send_detections(61, [(150, 30, 250, 90)])
     assert harness.spin_until(lambda: len(harness.det3d) == 1)
     assert harness.det3d[0].header.stamp.sec == 61 and len(harness.det3d[0].detections) == 1
-    assert harness.node.frame_sync.dropped == {"left": 1, "right": 0, "detections": 1}
-    assert harness.node.dropped_detection_arrays == 1
+    assert harness.node.intake.frame_sync.dropped == {"left": 1, "right": 0, "detections": 1}
+    assert harness.node.intake.dropped_detection_arrays == 1
     counts = harness.node.frames.snapshot()
     assert (counts.received, counts.published, counts.dropped) == (2, 1, 1)
     assert harness.node.pipeline.frames_processed == 1 and harness.node.frames_failed == 0
-    assert len(harness.node.frame_sync) == 0
+    assert len(harness.node.intake.frame_sync) == 0
 
 
 def test_newest_complete_frame_is_processed_after_a_burst(harness, monkeypatch):
@@ -331,7 +333,7 @@ def test_newest_complete_frame_is_processed_after_a_burst(harness, monkeypatch):
     counts = harness.node.frames.snapshot()
     assert (counts.received, counts.published, counts.dropped) == (3, 2, 1)
     assert harness.node.pipeline.frames_processed == 2
-    assert harness.node.frame_sync.pending_stamps() == [6 * 10**9 + 500]
+    assert harness.node.intake.frame_sync.pending_stamps() == [6 * 10**9 + 500]
 
 
 def test_geometry_is_built_once_per_calibration_and_a_bad_one_skips_frames(harness):
@@ -397,7 +399,7 @@ def test_disparity_image_is_built_only_while_someone_subscribes(rclpy_context, m
         h.io.destroy_subscription(
             next(s for s in h.io.subscriptions if s.topic_name == "/stereo/disparity")
         )
-        assert h.spin_until(lambda: h.node.pub_disparity.get_subscription_count() == 0)
+        assert h.spin_until(lambda: h.node.outputs.disparity.get_subscription_count() == 0)
         h.send_frame(4)
         h.send_detections(4, [])
         assert h.spin_until(lambda: h.node.pipeline.frames_processed == 2)
@@ -413,7 +415,7 @@ def test_point_cloud_is_published_when_enabled(rclpy_context):
     clouds = []
     h.io.create_subscription(PointCloud2, "/stereo/points", clouds.append, 5)
     try:
-        assert h.spin_until(lambda: h.node.pub_points.get_subscription_count() > 0)
+        assert h.spin_until(lambda: h.node.outputs.points.get_subscription_count() > 0)
         h.send_frame(9)
         h.send_detections(9, [])
         assert h.spin_until(lambda: clouds)
@@ -456,7 +458,7 @@ def test_node_ranges_real_kitti_like_the_offline_core(rclpy_context, kitti_track
             h.io.destroy_subscription(
                 next(s for s in h.io.subscriptions if s.topic_name == "/stereo/disparity")
             )
-            assert h.spin_until(lambda: h.node.pub_disparity.get_subscription_count() == 0)
+            assert h.spin_until(lambda: h.node.outputs.disparity.get_subscription_count() == 0)
         h.send_frame(3)
         h.send_detections(3, [o.bbox for o in cars])
         assert h.spin_until(lambda: h.det3d, timeout=20.0)

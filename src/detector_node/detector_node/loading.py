@@ -104,3 +104,48 @@ def checkpoint_framing(checkpoint: str = "", cache: OnnxCache | None = None):
     path = checkpoint_path(checkpoint)
     info = CheckpointSource(path, file_digest(path), cache or OnnxCache(cache_dir())).info()
     return info.config, info.training_input, info.training_roi_top
+
+
+def load_node_detector(p) -> tuple[object, str, str | None]:
+    """The node's CNN detector of its parameters ``p`` (:class:`.parameters.DetectorParameters`;
+    PyTorch's threads set to ``p.num_threads`` when it runs it), its info line and, for a
+    CenterNet on PyTorch on the CPU that could run on ONNX Runtime, a warning line (else None).
+    A checkpoint that cannot be used: ParameterError naming ``checkpoint``."""
+    try:  # device and runtime raise ParameterError themselves
+        cnn = load_detector(
+            p.checkpoint,
+            p.device,
+            p.score_threshold,
+            p.nms_iou,
+            p.input_width,
+            p.input_height,
+            runtime=p.runtime,
+            threads=p.num_threads,
+            roi_top=p.roi_top,
+        )
+    except CheckpointError as exc:
+        raise ParameterError("checkpoint", str(exc)) from None
+    if cnn.runtime == "torch":
+        import torch
+
+        torch.set_num_threads(p.num_threads)
+    c = cnn.config
+    built = getattr(getattr(cnn, "source", None), "built", [])
+    info = (
+        f"cnn backend: {c.size} model (width {c.width}, depth {c.depth}), device "
+        f"{cnn.device}, runtime {cnn.runtime}"
+        + (f"; built and cached: {', '.join(built)}" if built else "")
+    )
+    warning = None
+    if (
+        c.size == "centernet"
+        and p.runtime == "auto"
+        and str(cnn.device) == "cpu"  # on a GPU, PyTorch is the right choice
+        and cnn.runtime == "torch"
+    ):
+        warning = (
+            "onnx / onnxruntime not installed: the CenterNet runs on PyTorch, about 3x "
+            "slower (pip install onnx==1.23.1 onnxruntime==1.30.0; scripts/setup.sh "
+            "installs them)"
+        )
+    return cnn, info, warning

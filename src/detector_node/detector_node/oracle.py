@@ -38,6 +38,17 @@ class OracleDetector:
     def __post_init__(self) -> None:
         self._rng = np.random.default_rng(self.seed)
 
+    @classmethod
+    def from_parameters(cls, p) -> OracleDetector:
+        """The node's oracle of its parameters ``p`` (:class:`.parameters.DetectorParameters`)."""
+        return cls(
+            positive_types=tuple(p.vehicle_types),
+            box_noise_px=p.oracle_box_noise_px,
+            score=p.oracle_score,
+            drop_probability=p.oracle_drop_probability,
+            seed=p.oracle_seed,
+        )
+
     def detect(
         self, objects: list[KittiObject], image_size: tuple[int, int] | None = None
     ) -> list[Detection]:

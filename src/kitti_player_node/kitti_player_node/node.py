@@ -8,7 +8,6 @@ decided by :mod:`kitti_player_node.playback`; KITTI files are read through :mod:
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 import time
 
@@ -30,7 +29,6 @@ from vehicle_common.frame_messages import (
 )
 from vehicle_common.frame_trace import frame_tracer
 from vehicle_common.graph_readiness import NodeReport, unready_topics
-from vehicle_common.image_conversion import numpy_to_compressed, numpy_to_image
 from vehicle_common.kitti import KittiFormatError, TrackingSequence, check_stereo_calibration
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
@@ -49,32 +47,26 @@ from vehicle_common.node_runtime import (
     spin_until_stopped,
 )
 
-from vehicle_common import graph_readiness, topics
+from vehicle_common import topics
 
 from .parameters import PlayerParameters
 from .playback import (
     FrameEvent,
     FramePrefetcher,
     LockstepAnswers,
-    PlaybackScheduler,
-    add_snr_noise,
-    frame_noise_rng,
-    select_frames,
-    snr_enabled,
+    PreloadWatch,
+    StartGate,
+    expected_topics,
+    image_message,
+    mixed_runs_line,
+    noisy_pair,
+    plan_playback,
+    playing_line,
+    progress_line,
+    summary_line,
 )
 
 NODE_NAME = "kitti_player"
-#: s between the player's ticks in unpaced lockstep (start of playback, lockstep timeouts)
-LOCKSTEP_TICK_S = 0.02
-
-
-def parse_topic_counts(spec: str, name: str = "wait_for_topics") -> dict[str, int]:
-    """``"/a:2,/b:1"`` -> ``{"/a": 2, "/b": 1}``; raises PlayerError naming the parameter
-    ``name`` for a malformed entry."""
-    try:
-        return graph_readiness.parse_topic_counts(spec)
-    except ValueError as exc:
-        raise PlayerError(f"{name}: {exc}") from None
 
 
 class PlayerError(RuntimeError):
@@ -96,24 +88,9 @@ class KittiPlayerNode(Node):
         # a pair the graph cannot range (no baseline) is refused here, not frame by frame later
         check_stereo_calibration(self.sequence.calib, self.sequence.calib_path)
         try:
-            frames = select_frames(self.sequence.frame_ids, p["first_frame"], p["last_frame"])
+            frames, self.scheduler, period, tick = plan_playback(p, self.sequence.frame_ids)
         except ValueError as exc:
-            raise PlayerError(f"first_frame/last_frame: {exc}") from None
-        hz = float(p["rate"]) * float(p["rate_multiplier"])
-        period = 1.0 / hz if hz > 0 and math.isfinite(hz) else 0.0
-        try:
-            self.scheduler = PlaybackScheduler(
-                frames,
-                start_time=float(p["start_time"]),
-                period_s=period,
-                loop=bool(p["loop"]),
-                lockstep_timeout=float(p["lockstep_timeout"]) if p["lockstep"] else None,
-                drop_probability=float(p["drop_probability"]),
-                seed=int(p["seed"]),
-                lockstep_window=int(p["lockstep_window"]),
-            )
-        except ValueError as exc:
-            raise PlayerError(f"drop_probability/lockstep_window: {exc}") from None
+            raise PlayerError(str(exc)) from None
 
         transport = p["image_transport"]
         image_type = Image if transport == "raw" else CompressedImage
@@ -127,6 +104,8 @@ class KittiPlayerNode(Node):
         self.pub_right_info = self.create_publisher(CameraInfo, topics.RIGHT_INFO, 5)
         self.pub_gt = self.create_publisher(KittiFrameLabels, topics.GROUND_TRUTH, 10)
         self.pub_clock = self.create_publisher(Clock, topics.CLOCK, 10)
+        self.publishers_list = [self.pub_clock, self.pub_gt, self.pub_left_info]
+        self.publishers_list += [self.pub_right_info, self.pub_left, self.pub_right]
         if p["lockstep"]:
             self.create_subscription(
                 TrackedVehicleArray, p["lockstep_topic"], self._on_lockstep, 10
@@ -138,23 +117,14 @@ class KittiPlayerNode(Node):
         self.answers = LockstepAnswers()  # one answer per published frame
         self._started = False
         self._summary_logged = False
-        self._last_wait_log = 0.0
-        self._matched_at: float | None = None
-        self._expected = {
-            self.resolve_topic_name(topic): n
-            for topic, n in parse_topic_counts(p["wait_for_topics"]).items()
-        }
-        external = parse_topic_counts(p["external_subscribers"], "external_subscribers")
-        for topic, n in external.items():
-            name = self.resolve_topic_name(topic)
-            self._expected[name] = self._expected.get(name, 0) + n
+        self.gate = StartGate(float(p["match_settle_time"]))
+        wait, external = p["wait_for_topics"], p["external_subscribers"]
+        try:
+            self._expected = expected_topics(wait, external, self.resolve_topic_name)
+        except ValueError as exc:
+            raise PlayerError(str(exc)) from None
         self.reader = FramePrefetcher(self.sequence.read_stereo)
-        self._preload_t0 = time.monotonic()
-        self._preload_logged = p["preload_mib"] <= 0
-        if p["preload_mib"] > 0:
-            self.reader.preload(frames, int(p["preload_mib"]) * 2**20)
-        else:
-            self.reader.prefetch(self.scheduler.next_frame)
+        self.preload = PreloadWatch(self.reader, p["preload_mib"], frames, self.scheduler)
         self.frames = FrameCounter()  # frames scheduled, published, dropped (drop_probability)
         self.health = NodeHealth(self, self.frames)
         # the other nodes' reports: matched subscriptions of the topics they publish
@@ -164,32 +134,8 @@ class KittiPlayerNode(Node):
             self._report_sub = self.create_subscription(
                 DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_reports, 50
             )
-        # the tick's period: the pacing's resolution when paced; unpaced in lockstep, each
-        # acknowledgement starts the next frames at once (_on_lockstep) and the tick only
-        # starts playback and notices timeouts (a 2 ms tick cost ~8 % of a core for nothing);
-        # unpaced without lockstep it sets the rate
-        if period > 0:
-            tick = min(0.01, period / 2)
-        else:
-            tick = LOCKSTEP_TICK_S if p["lockstep"] else 0.002
         self.timer = self.create_timer(tick, self._tick)
-        self.get_logger().info(
-            f"sequence {self.sequence.sequence}: {len(frames)} frames "
-            f"({frames[0]}..{frames[-1]}) from {self.sequence.root}, "
-            f"{'unpaced' if period == 0 else f'{1 / period:.2f} Hz'}"
-            f"{', lockstep on ' + p['lockstep_topic'] if p['lockstep'] else ''}"
-        )
-
-    @property
-    def publishers_list(self):
-        return [
-            self.pub_clock,
-            self.pub_gt,
-            self.pub_left_info,
-            self.pub_right_info,
-            self.pub_left,
-            self.pub_right,
-        ]
+        self.get_logger().info(playing_line(self.sequence, frames, period, p))
 
     def _on_reports(self, msg: DiagnosticArray) -> None:
         for report in reports_from_message(msg):
@@ -209,11 +155,7 @@ class KittiPlayerNode(Node):
         problem = self.answers.answer(stamp)
         if problem is not None and self.fatal is None:
             topic = self.resolve_topic_name(self.params["lockstep_topic"])
-            self.fatal = (
-                f"{NODE_NAME}: {topic}: {problem}: another graph publishes on this ROS domain "
-                f"({self.count_publishers(topic)} publishers on {topic}), and the runs mix; "
-                "give each graph its own namespace (--namespace) or ROS_DOMAIN_ID"
-            )
+            self.fatal = mixed_runs_line(NODE_NAME, topic, problem, self.count_publishers(topic))
             self.done = True
             return
         if self.scheduler.acknowledge(stamp):
@@ -228,19 +170,10 @@ class KittiPlayerNode(Node):
                 return
             want = int(self.params["wait_for_subscribers"])
             have = self.pub_left.get_subscription_count()
-            # every edge of the graph must be matched, so that no node misses the first frame
-            unmatched = self._unready()
-            if have < want or unmatched:
-                if now - self._last_wait_log > 2.0:
-                    self._last_wait_log = now
-                    self.get_logger().info(
-                        f"waiting for subscribers: left image {have}/{want}"
-                        + (f", not yet matched on {', '.join(unmatched)}" if unmatched else "")
-                    )
-                self._matched_at = None
-                return
-            self._matched_at = self._matched_at or now
-            if now - self._matched_at < float(self.params["match_settle_time"]):
+            start, line = self.gate.check(now, have, want, self._unready())
+            if line is not None:
+                self.get_logger().info(line)
+            if not start:
                 return
             self._started = True
             if self._report_sub is not None:
@@ -282,20 +215,17 @@ class KittiPlayerNode(Node):
                 self.done = True
                 return False
             self.frames.published()
-        stats = self.scheduler.stats
-        if (stats.published + stats.dropped) % 10 == 0:
-            self.get_logger().info(
-                f"frame {event.frame}: {stats.published} published, {stats.dropped} dropped"
-            )
+        line = progress_line(self.scheduler.stats, event.frame)
+        if line is not None:
+            self.get_logger().info(line)
         return True
 
     def _publish(self, event: FrameEvent) -> None:
         left, right = self.reader.get(event.frame)
         self.reader.prefetch(self.scheduler.next_frame)  # read while the graph works
-        snr = float(self.params["snr_db"])
-        if snr_enabled(snr):
-            rng = frame_noise_rng(self.params["seed"], event.frame, event.loop_pass)
-            left, right = add_snr_noise(left, snr, rng), add_snr_noise(right, snr, rng)
+        left, right = noisy_pair(
+            left, right, float(self.params["snr_db"]), self.params["seed"], event
+        )
         calib, stamp = self.sequence.calib, event.stamp_ns
         clock = Clock()
         clock.clock = header(stamp, "").stamp
@@ -309,48 +239,25 @@ class KittiPlayerNode(Node):
         left_info, right_info = stereo_camera_infos(calib, w, h, stamp)
         self.pub_left_info.publish(left_info)
         self.pub_right_info.publish(right_info)
-        self.pub_left.publish(self._image_message(left, header(stamp, LEFT_FRAME)))
+        transport, quality = self.params["image_transport"], self.params["jpeg_quality"]
+        self.pub_left.publish(image_message(left, header(stamp, LEFT_FRAME), transport, quality))
         self.trace("left_published", stamp)
-        self.pub_right.publish(self._image_message(right, header(stamp, RIGHT_FRAME)))
+        self.pub_right.publish(image_message(right, header(stamp, RIGHT_FRAME), transport, quality))
         self.trace("right_published", stamp)
-
-    def _image_message(self, rgb, hdr):
-        """The image as the ``image_transport`` parameter says: raw rgb8, PNG or JPEG."""
-        transport = self.params["image_transport"]
-        if transport == "raw":
-            return numpy_to_image(rgb, "rgb8", hdr)
-        return numpy_to_compressed(rgb, transport, self.params["jpeg_quality"], hdr)
 
     def _preload_done(self) -> bool:
         """False while the frames are being read into memory; logs the preload once."""
-        if not self.reader.preloaded:
-            return False
-        if not self._preload_logged:
-            self._preload_logged = True
-            n, size = self.reader.preload_result()
-            if n:
-                self.get_logger().info(
-                    f"{n} frames in memory ({size / 2**20:.0f} MiB, read in "
-                    f"{time.monotonic() - self._preload_t0:.1f} s)"
-                )
-            else:
-                self.get_logger().info(
-                    f"frames not preloaded (more than preload_mib {self.params['preload_mib']} "
-                    "MiB, or the first frame unreadable): each is read ahead while the graph works"
-                )
-                self.reader.prefetch(self.scheduler.next_frame)
-        return True
+        done, line = self.preload.done(self.scheduler)
+        if line is not None:
+            self.get_logger().info(line)
+        return done
 
     def _log_summary(self) -> None:
         if self._summary_logged:
             return
         self._summary_logged = True
-        s = self.scheduler.stats
-        line = (
-            f"done: {s.published} frames published, {s.dropped} dropped, "
-            f"{s.lockstep_timeouts} lockstep timeouts"
-        )
-        if s.lockstep_timeouts:
+        line = summary_line(self.scheduler.stats)
+        if self.scheduler.stats.lockstep_timeouts:
             self.get_logger().warning(line)
         else:
             self.get_logger().info(line)

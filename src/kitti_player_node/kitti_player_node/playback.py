@@ -9,12 +9,16 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+from vehicle_common.image_conversion import numpy_to_compressed, numpy_to_image
+
+from vehicle_common import graph_readiness
 
 #: KITTI tracking sequences are recorded at 10 Hz.
 KITTI_FRAME_PERIOD_S = 0.1
@@ -338,3 +342,176 @@ def _nbytes(data) -> int:
     if isinstance(data, (tuple, list)):
         return sum(_nbytes(d) for d in data)
     return int(getattr(data, "nbytes", 0))
+
+
+#: s between the player's ticks in unpaced lockstep (start of playback, lockstep timeouts)
+LOCKSTEP_TICK_S = 0.02
+
+
+def plan_playback(
+    p: dict, frame_ids: list[int]
+) -> tuple[list[int], PlaybackScheduler, float, float]:
+    """The player's parameters ``p`` (as a dict) over a sequence's ``frame_ids``: (frames,
+    scheduler, period [s], 0 unpaced; tick [s]). ValueError naming the parameters at fault."""
+    try:
+        frames = select_frames(frame_ids, p["first_frame"], p["last_frame"])
+    except ValueError as exc:
+        raise ValueError(f"first_frame/last_frame: {exc}") from None
+    hz = float(p["rate"]) * float(p["rate_multiplier"])
+    period = 1.0 / hz if hz > 0 and math.isfinite(hz) else 0.0
+    try:
+        scheduler = PlaybackScheduler(
+            frames,
+            start_time=float(p["start_time"]),
+            period_s=period,
+            loop=bool(p["loop"]),
+            lockstep_timeout=float(p["lockstep_timeout"]) if p["lockstep"] else None,
+            drop_probability=float(p["drop_probability"]),
+            seed=int(p["seed"]),
+            lockstep_window=int(p["lockstep_window"]),
+        )
+    except ValueError as exc:
+        raise ValueError(f"drop_probability/lockstep_window: {exc}") from None
+    # the tick's period: the pacing's resolution when paced; unpaced in lockstep, each
+    # acknowledgement starts the next frames at once (_on_lockstep) and the tick only
+    # starts playback and notices timeouts (a 2 ms tick cost ~8 % of a core for nothing);
+    # unpaced without lockstep it sets the rate
+    if period > 0:
+        tick = min(0.01, period / 2)
+    else:
+        tick = LOCKSTEP_TICK_S if p["lockstep"] else 0.002
+    return frames, scheduler, period, tick
+
+
+class StartGate:
+    """When playback starts: the left image's subscribers and every expected edge matched, then
+    ``settle_s`` more with all matched; a waiting line at most every 2 s meanwhile."""
+
+    def __init__(self, settle_s: float) -> None:
+        self.settle_s = settle_s
+        self._last_wait_log = 0.0
+        self._matched_at: float | None = None
+
+    def check(
+        self, now: float, have: int, want: int, unmatched: list[str]
+    ) -> tuple[bool, str | None]:
+        """(whether to start now, a waiting line to log or None)."""
+        # every edge of the graph must be matched, so that no node misses the first frame
+        if have < want or unmatched:
+            line = None
+            if now - self._last_wait_log > 2.0:
+                self._last_wait_log = now
+                line = f"waiting for subscribers: left image {have}/{want}" + (
+                    f", not yet matched on {', '.join(unmatched)}" if unmatched else ""
+                )
+            self._matched_at = None
+            return False, line
+        self._matched_at = self._matched_at or now
+        return now - self._matched_at >= self.settle_s, None
+
+
+def noisy_pair(left, right, snr_db: float, seed: int, event: FrameEvent):
+    """The frame's images with the ``snr_db`` noise of its frame and pass (unchanged when
+    off)."""
+    if snr_enabled(snr_db):
+        rng = frame_noise_rng(seed, event.frame, event.loop_pass)
+        left, right = add_snr_noise(left, snr_db, rng), add_snr_noise(right, snr_db, rng)
+    return left, right
+
+
+def summary_line(stats: PlaybackStats) -> str:
+    """The player's last line (a warning when a lockstep answer timed out)."""
+    return (
+        f"done: {stats.published} frames published, {stats.dropped} dropped, "
+        f"{stats.lockstep_timeouts} lockstep timeouts"
+    )
+
+
+class PreloadWatch:
+    """The reading of the frames before playback: all of them into memory within
+    ``preload_mib`` (none: each read ahead), its end reported once (:meth:`done`)."""
+
+    def __init__(
+        self, reader: FramePrefetcher, preload_mib: int, frames: list[int], scheduler
+    ) -> None:
+        self.reader = reader
+        self.preload_mib = preload_mib
+        self._t0 = time.monotonic()
+        self._logged = preload_mib <= 0
+        if preload_mib > 0:
+            reader.preload(frames, int(preload_mib) * 2**20)
+        else:
+            reader.prefetch(scheduler.next_frame)
+
+    def done(self, scheduler) -> tuple[bool, str | None]:
+        """(False while the frames are being read into memory, the line reporting the preload
+        the first time it is over, else None); without it the next frame is read ahead."""
+        if not self.reader.preloaded:
+            return False, None
+        if self._logged:
+            return True, None
+        self._logged = True
+        n, size = self.reader.preload_result()
+        if n:
+            return True, (
+                f"{n} frames in memory ({size / 2**20:.0f} MiB, read in "
+                f"{time.monotonic() - self._t0:.1f} s)"
+            )
+        self.reader.prefetch(scheduler.next_frame)
+        return True, (
+            f"frames not preloaded (more than preload_mib {self.preload_mib} "
+            "MiB, or the first frame unreadable): each is read ahead while the graph works"
+        )
+
+
+def expected_topics(
+    wait_for_topics: str, external_subscribers: str, resolve: Callable[[str], str]
+) -> dict[str, int]:
+    """The subscriptions each topic must have matched before playback (parameters
+    ``wait_for_topics`` plus ``external_subscribers``, ``"/a:2,/b:1"``; names resolved with
+    ``resolve``). ValueError naming the parameter for a malformed entry."""
+
+    def counts(spec: str, name: str) -> dict[str, int]:
+        try:
+            return graph_readiness.parse_topic_counts(spec)
+        except ValueError as exc:
+            raise ValueError(f"{name}: {exc}") from None
+
+    expected = {resolve(t): n for t, n in counts(wait_for_topics, "wait_for_topics").items()}
+    for topic, n in counts(external_subscribers, "external_subscribers").items():
+        name = resolve(topic)
+        expected[name] = expected.get(name, 0) + n
+    return expected
+
+
+def mixed_runs_line(node: str, topic: str, problem: str, publishers: int) -> str:
+    """The fatal line for a lockstep answer no frame of this run asked for (``problem``)."""
+    return (
+        f"{node}: {topic}: {problem}: another graph publishes on this ROS domain "
+        f"({publishers} publishers on {topic}), and the runs mix; "
+        "give each graph its own namespace (--namespace) or ROS_DOMAIN_ID"
+    )
+
+
+def progress_line(stats: PlaybackStats, frame: int) -> str | None:
+    """Every 10th frame published or dropped: the progress line (else None)."""
+    if (stats.published + stats.dropped) % 10 == 0:
+        return f"frame {frame}: {stats.published} published, {stats.dropped} dropped"
+    return None
+
+
+def playing_line(sequence, frames: list[int], period: float, p: dict) -> str:
+    """The player's first line: the sequence, its frames, the pacing and the lockstep."""
+    return (
+        f"sequence {sequence.sequence}: {len(frames)} frames "
+        f"({frames[0]}..{frames[-1]}) from {sequence.root}, "
+        f"{'unpaced' if period == 0 else f'{1 / period:.2f} Hz'}"
+        f"{', lockstep on ' + p['lockstep_topic'] if p['lockstep'] else ''}"
+    )
+
+
+def image_message(rgb, hdr, transport: str, jpeg_quality: int):
+    """The image as the ``image_transport`` parameter says: raw rgb8, PNG or JPEG."""
+    if transport == "raw":
+        return numpy_to_image(rgb, "rgb8", hdr)
+    return numpy_to_compressed(rgb, transport, jpeg_quality, hdr)

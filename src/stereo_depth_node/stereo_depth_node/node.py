@@ -6,7 +6,7 @@ Subscribes to the rectified stereo pair, its CameraInfos and ``/vehicles/detecti
 default); with the visual odometry, ``/stereo/odometry`` (nav_msgs/Odometry), odom -> camera (or
 base) on ``/tf`` and the rig on ``/tf_static`` (:mod:`.odometry_output`). A frame is the complete
 set of its three inputs with one stamp: the left and right images and the 2D detection array
-(:mod:`.stamp_sync`, in order). The newest complete set is processed; a set still waiting when a
+(:mod:`.intake`, in order). The newest complete set is processed; a set still waiting when a
 newer one is complete, and a set that can no longer complete (a newer one did), is dropped and
 counted before any work on it. Each processed set gets exactly one 3D array (empty when its
 images cannot be used). The node converts messages, reads its parameters (:mod:`.parameters`)
@@ -43,15 +43,13 @@ from vehicle_common import topics
 
 from .conversions import build_point_cloud, detection_3d_message, disparity_message
 from .disparity import RowBandError
+from .intake import FrameIntake, stamp_text
 from .odometry_output import OdometryOutput
 from .parameters import read_stereo_config
 from .pipeline import FrameBoxes, NoGeometry, StereoPipeline
 from .reprojection import decimated_points
-from .stamp_sync import ExactStampSync, StereoPairing
 
 NODE_NAME = "stereo_depth"
-#: the inputs of one frame, paired by stamp
-FRAME_SLOTS = ("left", "right", "detections")
 TOPIC_LEFT = topics.LEFT_IMAGE
 TOPIC_RIGHT = topics.RIGHT_IMAGE
 TOPIC_LEFT_INFO = topics.LEFT_INFO
@@ -60,10 +58,6 @@ TOPIC_DETECTIONS_2D = topics.DETECTIONS_2D
 TOPIC_DISPARITY = topics.DISPARITY
 TOPIC_POINTS = topics.POINTS
 TOPIC_DETECTIONS_3D = topics.DETECTIONS_3D
-
-
-def _stamp_text(ns: int) -> str:
-    return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
 
 
 def log_line(logger, level: str, line: str) -> None:
@@ -128,6 +122,40 @@ class OdometryPublishers:
             self.tf.publish(tf)
 
 
+class FrameOutputs:
+    """The node's per-frame images: stereo/disparity and stereo/points (each when enabled)."""
+
+    def __init__(self, node: Node, given) -> None:
+        self.given = given
+        self.disparity = node.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)
+        self.points = None
+        if given.publish_points:
+            self.points = node.create_publisher(PointCloud2, TOPIC_POINTS, 5)
+
+    def wanted(self) -> bool:
+        """Whether someone subscribes to the disparity image or the point cloud (they need the
+        whole band's map)."""
+        if self.given.publish_disparity and self.disparity.get_subscription_count() > 0:
+            return True
+        return self.points is not None and self.points.get_subscription_count() > 0
+
+    def publish(self, frame, header, left) -> None:
+        """The frame's disparity image and point cloud (when enabled and subscribed to: nothing
+        is built for no one)."""
+        if self.given.publish_disparity and self.disparity.get_subscription_count() > 0:
+            msg = disparity_message(frame.disparity, frame.geometry, frame.params, header)
+            self.disparity.publish(msg)
+        if self.points is not None and self.points.get_subscription_count() > 0:
+            pts, rgb = decimated_points(
+                frame.disparity,
+                frame.geometry,
+                self.given.points_decimation,
+                left if self.given.points_rgb else None,
+                self.given.points_max_depth,
+            )
+            self.points.publish(build_point_cloud(pts, rgb, header))
+
+
 class StereoDepthNode(Node):
     """ROS wrapper of :class:`.pipeline.StereoPipeline`: parameters, messages, publishing."""
 
@@ -154,18 +182,10 @@ class StereoDepthNode(Node):
             trace=self.trace,
             log=lambda level, line: log_line(self.get_logger(), level, line),
         )
-        # a frame = its left image, right image and 2D detection array (one stamp; in order)
-        self.frame_sync = ExactStampSync(FRAME_SLOTS, p.sync_cache_size, in_order=True)
-        # a right image goes into the set of the left one it pairs with (within a tolerance)
-        tolerance = -1 if p.stereo_sync_tolerance < 0 else round(p.stereo_sync_tolerance * 1e9)
-        self.pairing = StereoPairing(tolerance, max_pending=p.sync_cache_size)
         #: frames used, and the cause of each one not used (on /diagnostics; issue #42)
         self.usage = InputUsage()
-        self._last_left_stamp: int | None = None  # a jump back: a restarted camera
-        self._last_frame_stamp: int | None = None  # the worker's
         self.left_info = None
         self.right_info = None
-        self.dropped_detection_arrays = 0  # whose images never arrived (lost or superseded)
         self.frames_failed = 0
         # frames = detection arrays: in, 3D arrays out, dropped (superseded while waiting, or
         # their images never arrived). The complete sets are processed in one worker thread;
@@ -178,7 +198,15 @@ class StereoDepthNode(Node):
             on_error=self._work_failed,
             max_waiting=p.frame_queue,
         )
-
+        # a frame = its left image, right image and 2D detection array, one stamp (.intake)
+        self.intake = FrameIntake(
+            p.sync_cache_size,
+            p.stereo_sync_tolerance,
+            self.frames,
+            self.usage,
+            self.worker.submit,
+            lambda line: self.get_logger().warning(line, throttle_duration_sec=5.0),
+        )
         # QoS (docs/ARCHITECTURE.md, "Topics"): the newest INPUT_DEPTH messages of each input:
         # a burst the executor takes late is still seen, and dropped and counted here before
         # any work; older ones are never taken. The camera's topics BEST_EFFORT (any camera)
@@ -186,10 +214,7 @@ class StereoDepthNode(Node):
         # nothing); the detector's arrays RELIABLE.
         depth_in = max(topics.INPUT_DEPTH, p.frame_queue)
         qos_in = QoSProfile(depth=depth_in)
-        self.pub_disparity = self.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)
-        self.pub_points = None
-        if p.publish_points:
-            self.pub_points = self.create_publisher(PointCloud2, TOPIC_POINTS, 5)
+        self.outputs = FrameOutputs(self, p)  # the disparity image and the point cloud
         self.pub_det3d = self.create_publisher(VehicleDetection3DArray, TOPIC_DETECTIONS_3D, 10)
         self.odometry_pubs = OdometryPublishers(self, config.odometry_output, p.visual_odometry)
         # camera infos first: the executor runs ready callbacks in creation order, so a frame's
@@ -236,45 +261,26 @@ class StereoDepthNode(Node):
             log_line(self.get_logger(), level, line)
 
     def _on_input(self, slot: str, msg) -> None:
-        """An image or a 2D detection array: into the frame's set; a complete set goes to the
-        worker, and the sets it leaves behind (older, never to complete) are dropped."""
+        """A left image or a 2D detection array: into the frame's set (:mod:`.intake`)."""
         stamp = stamp_ns(msg.header)
         self.trace(f"{slot}_received", stamp)
-        if slot == "detections":
-            self.frames.received()
-        pairs = []
-        if slot == "left":
-            self._check_time(stamp)
-            pairs = self.pairing.add_left(stamp)
-        self._add_to_set(stamp, slot, msg)
-        for left_stamp, right in pairs:
-            self._add_to_set(left_stamp, "right", right)
+        self.intake.add(slot, stamp, msg)
 
     def _on_right(self, msg) -> None:
-        """A right image: into the set of the left image it pairs with (``pairing``)."""
+        """A right image: into the set of the left image it pairs with (:mod:`.intake`)."""
         stamp = stamp_ns(msg.header)
         self.trace("right_received", stamp)
-        for left_stamp, right in self.pairing.add_right(stamp, msg):
-            self._add_to_set(left_stamp, "right", right)
-
-    def _check_time(self, stamp: int) -> None:
-        """A left stamp older than the previous one (a restarted camera or bag): the sets of
-        the previous stream still waiting can no longer complete (the worker resets the
-        odometry when it meets the new stream's first frame, :meth:`_time_went_back`)."""
-        last, self._last_left_stamp = self._last_left_stamp, stamp
-        if last is not None and stamp < last:
-            for ev in self.frame_sync.take_pending():
-                self._drop_incomplete(ev, "the camera's time went back")
+        self.intake.add_right(stamp, msg)
 
     def _time_went_back(self, stamp: int) -> None:
         """The worker's frame is older than its previous one (a restarted camera or bag): the
         visual odometry, its integration in odom and the road plane start afresh, with one
         warning line."""
-        last, self._last_frame_stamp = self._last_frame_stamp, stamp
-        if last is None or stamp >= last:
+        last = self.intake.frame_went_back(stamp)
+        if last is None:
             return
         self.get_logger().warning(
-            f"time went back from {_stamp_text(last)} s to {_stamp_text(stamp)} s (a restarted "
+            f"time went back from {stamp_text(last)} s to {stamp_text(stamp)} s (a restarted "
             "camera?): the odometry starts afresh in odom"
         )
         self.pipeline.ground.reset()
@@ -282,48 +288,6 @@ class StereoDepthNode(Node):
             self.pipeline.odometry.reset()
         if self.odometry_pubs.out is not None:
             self.odometry_pubs.out.integrator.reset()
-
-    def _add_to_set(self, stamp: int, slot: str, msg) -> None:
-        """Into the frame's set; a complete set goes to the worker, and the sets it leaves
-        behind (older, never to complete) are dropped with their cause."""
-        group = self.frame_sync.add(stamp, slot, msg)
-        for ev in self.frame_sync.take_evicted():
-            self._drop_incomplete(ev, "lost, or superseded by a newer one")
-        if group is not None:
-            self.worker.submit((group["left"], group["right"], group["detections"]))
-
-    def _drop_incomplete(self, ev, why: str) -> None:
-        """A frame whose set cannot complete: counted as dropped, its cause logged."""
-        if "detections" not in ev.values:
-            return  # images of a frame the detector skipped (it counted it)
-        self.frames.dropped()
-        self.dropped_detection_arrays += 1
-        cause = self._missing_cause(ev, why)
-        self.usage.skipped(cause)
-        self.get_logger().warning(
-            f"{TOPIC_DETECTIONS_2D}: detection array at stamp {_stamp_text(ev.stamp)} "
-            f"dropped: {cause}; {self.dropped_detection_arrays} so far",
-            throttle_duration_sec=5.0,
-        )
-
-    def _missing_cause(self, ev, why: str) -> str:
-        """Why a frame's set is incomplete: a right image too far from its left one, or an
-        image that never arrived (``why``)."""
-        missing = ev.missing(FRAME_SLOTS)
-        offset = self.pairing.nearest_right(ev.stamp) if "right" in missing else None
-        tolerance = self.pairing.tolerance()
-        if offset is not None and abs(offset) > tolerance:
-            return (
-                f"no right image within {tolerance / 1e6:.1f} ms of its left one (the nearest "
-                f"is {offset / 1e6:+.1f} ms away; parameter stereo_sync_tolerance)"
-            )
-        return f"its {' and '.join(missing)} image never arrived ({why})"
-
-    def drop_pending(self) -> None:
-        """At the end of the run: the sets still waiting are dropped, each with its cause
-        (every frame in is then out or dropped)."""
-        for ev in self.frame_sync.take_pending():
-            self._drop_incomplete(ev, "the run ended first")
 
     def _work_failed(self, exc: Exception, item) -> None:
         self.get_logger().warning(f"stereo processing failed: {exc}")
@@ -365,7 +329,7 @@ class StereoDepthNode(Node):
             return
         boxes = frame_boxes(dets)
         frame = self.pipeline.process(
-            stamp, left, right, geometry, params, boxes, self._outputs_wanted()
+            stamp, left, right, geometry, params, boxes, self.outputs.wanted()
         )
         out = VehicleDetection3DArray()
         out.header = det_msg.header
@@ -381,30 +345,7 @@ class StereoDepthNode(Node):
         self.usage.used()
         self.pipeline.frame_done(boxes.boxes)
         if frame.full_map:
-            self._publish_frame_outputs(frame, det_msg.header, left)
-
-    def _outputs_wanted(self) -> bool:
-        """Whether someone subscribes to the disparity image or the point cloud (they need the
-        whole band's map)."""
-        if self.given.publish_disparity and self.pub_disparity.get_subscription_count() > 0:
-            return True
-        return self.pub_points is not None and self.pub_points.get_subscription_count() > 0
-
-    def _publish_frame_outputs(self, frame, header, left) -> None:
-        """The frame's disparity image and point cloud (when enabled and subscribed to: nothing
-        is built for no one)."""
-        if self.given.publish_disparity and self.pub_disparity.get_subscription_count() > 0:
-            msg = disparity_message(frame.disparity, frame.geometry, frame.params, header)
-            self.pub_disparity.publish(msg)
-        if self.pub_points is not None and self.pub_points.get_subscription_count() > 0:
-            pts, rgb = decimated_points(
-                frame.disparity,
-                frame.geometry,
-                self.given.points_decimation,
-                left if self.given.points_rgb else None,
-                self.given.points_max_depth,
-            )
-            self.pub_points.publish(build_point_cloud(pts, rgb, header))
+            self.outputs.publish(frame, det_msg.header, left)
 
     def _publish_empty(self, det_msg) -> None:
         """An empty 3D array for a detection array whose frame cannot be used."""
@@ -418,7 +359,10 @@ class StereoDepthNode(Node):
 def main(args=None) -> int:
     """Console script ``stereo_depth``; exit code 2 for a bad parameter."""
     return run_node(
-        StereoDepthNode, NODE_NAME, args, on_stop=lambda node: [node.worker.stop, node.drop_pending]
+        StereoDepthNode,
+        NODE_NAME,
+        args,
+        on_stop=lambda node: [node.worker.stop, node.intake.drop_pending],
     )
 
 
