@@ -1,7 +1,7 @@
 """The command line of ``stereo_tracking_launch``: its options, their checks (one line and exit
 code 2 for one that cannot be used), the run's log folder and :func:`main`, which plans the
-graph (:mod:`tracking_bringup.hosts`, :func:`graph_processes`) and runs it
-(:func:`tracking_bringup.launcher.run_graph`).
+graph (:mod:`tracking_bringup.hosts`, ``graph_processes``) and runs it (``run_graph``);
+``tracking_bringup.launcher.main`` calls it with the launcher's.
 
 Command line: ``stereo_tracking_launch [--params FILE] [--nodes a,b] [-p node.param:=value] ...``
 """
@@ -12,7 +12,7 @@ import argparse
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from vehicle_common.option_checks import first_problem, number_problem
@@ -99,11 +99,9 @@ def make_log_dir(log_dir: Path) -> str | None:
     return None
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    # the graph is planned and run by tracking_bringup.launcher's functions, looked up there
-    # when called (it imports this module; tests replace launcher.run_graph)
-    from tracking_bringup import launcher
-
+def main(argv: Sequence[str] | None, graph_processes: Callable, run_graph: Callable) -> int:
+    """``stereo_tracking_launch``: the graph planned by ``graph_processes`` and run by
+    ``run_graph`` (:func:`tracking_bringup.launcher.main` passes its own)."""
     parser = argparse.ArgumentParser(
         prog="stereo_tracking_launch",
         description="Start the stereo tracking graph as separate processes (one per node).",
@@ -181,7 +179,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         probe = bool(args.camera_hz) and {graph.PLAYER.name, graph.TRACKER.name} <= {
             n.name for n in nodes
         }
-        processes = launcher.graph_processes(
+        processes = graph_processes(
             nodes,
             args.params,
             overrides,
@@ -212,7 +210,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     elsewhere = [n.name for n in whole if n not in nodes]
     if elsewhere and any(n.source for n in nodes):
         print(f"expecting on other hosts: {', '.join(elsewhere)} (the player waits for them)")
-    return launcher.run_graph(
+    return run_graph(
         processes,
         log_dir,
         until_finished=not args.keep_running,
@@ -222,7 +220,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         stall_timeout=args.stall_timeout,
         summary=summary,
     )
-
-
-if __name__ == "__main__":
-    sys.exit(main())

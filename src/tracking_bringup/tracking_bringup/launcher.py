@@ -23,14 +23,13 @@ frame, bounded by ``drain_timeout``), then the other nodes get SIGINT in data-fl
 SIGTERM, then SIGKILL), so a recorded bag has as many outputs as inputs. Ctrl-C during start-up
 stops everything at once. Children are bound to the launcher with PR_SET_PDEATHSIG so none is
 orphaned.
-
-Command line (:mod:`.cli`): ``stereo_tracking_launch [--params FILE] [--nodes a,b] [-p ...]``
 """
 
 from __future__ import annotations
 
 import os
 import signal
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -38,8 +37,8 @@ from pathlib import Path
 from vehicle_common.graph_readiness import NodeReport, ProgressWatch, graph_quiescent
 from vehicle_common.node_runtime import reports_from_message
 
-from tracking_bringup import supervision
-from tracking_bringup.cli import add_params_arguments, main, parameter_layers  # noqa: F401
+from tracking_bringup import cli, supervision
+from tracking_bringup.cli import add_params_arguments, parameter_layers  # noqa: F401
 from tracking_bringup.environment import graph_environment
 from tracking_bringup.node_processes import (  # noqa: F401
     graph_processes,
@@ -54,9 +53,6 @@ from tracking_bringup.supervision import (
     LaunchInterrupted,
     ProcessSpec,
     Running,
-)
-from tracking_bringup.supervision import (
-    Running as _Running,  # noqa: F401
 )
 from tracking_bringup.watchdog import ProcessWatchdog, process_state, starved_not_frozen  # noqa: F401
 
@@ -393,7 +389,12 @@ def run_graph(
             signal.signal(sig, handler)
 
 
-if __name__ == "__main__":
-    import sys
+def main(argv: Sequence[str] | None = None) -> int:
+    """``stereo_tracking_launch`` (:mod:`.cli`)."""
+    return cli.main(argv, graph_processes=graph_processes, run_graph=run_graph)
 
+
+_Running = Running  # its former name
+
+if __name__ == "__main__":
     sys.exit(main())
