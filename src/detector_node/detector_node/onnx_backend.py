@@ -88,34 +88,40 @@ def _pads(h: int, w: int, k: tuple[int, int], s: tuple[int, int], d: tuple[int, 
     return [ph[0], pw[0], ph[1], pw[1]], (-(-h // s[0]), -(-w // s[1]))
 
 
-def centernet_to_onnx(model, height: int, width: int, image_input: bool = False) -> bytes:
-    """Serialized ONNX model of ``model``'s dense part at input (1, 3, height, width).
+def _clip6(wr: _Writer, x: str) -> str:
+    """ReLU6 as an ONNX ``Clip`` to [0, 6]."""
+    return wr.op("Clip", [x, wr.const(np.float32(0)), wr.const(np.float32(6))], "relu6")
 
-    Input ``image``: RGB in [0, 1], float32 NCHW; with ``image_input`` the image itself, RGB
-    uint8 (1, height, width, 3) as the resize gives it (transposed and cast inside the graph:
-    no conversion pass in Python, no scaling to [0, 1] and back). Outputs ``feature``
-    (1, 128, H/4, W/4): the graph's head feature; ``dense`` (1, 5, H/4, W/4): heat logit and
-    (l, t, r, b) [input px], as :meth:`CenterNetDetector.dense`. Raises
-    :class:`~detector_node.tfjs_graph.TfjsGraphError` for an op it cannot write."""
-    from onnx import TensorProto, helper
 
-    from .centernet import FEATURE
+class _GraphExport:
+    """Writes the TF.js graph's ops as ONNX nodes, one op at a time.
 
-    g: tg.TfjsGraph = model.graph
-    wr = _Writer()
-    scales = g._resize_scales()
-    # value name -> (onnx name, (H, W))
-    env: dict[str, tuple[str, tuple[int, int]]] = {}
-    if image_input:
-        x = wr.op("Transpose", [INPUT], "nchw", perm=[0, 3, 1, 2])
-        x = wr.op("Cast", [x], "float", to=TensorProto.FLOAT)
-    else:
-        x = wr.op("Mul", [INPUT, wr.const(np.array(255.0, np.float32))], "scaled")
-    env[g.input_name] = (x, (height, width))
+    ``env`` maps a graph value name to its ONNX name and (H, W); ``pending`` holds a scalar
+    factor not yet applied to a value's tensor (the hard-swish scale: see the module
+    docstring)."""
 
-    def val(name: str) -> tuple[str, tuple[int, int] | None]:
-        if name in env:
-            return env[name]
+    def __init__(self, g: tg.TfjsGraph, wr: _Writer) -> None:
+        self.g, self.wr = g, wr
+        self.scales = g._resize_scales()
+        self.env: dict[str, tuple[str, tuple[int, int]]] = {}
+        self.pending: dict[str, float] = {}
+
+    def write_input(self, height: int, width: int, image_input: bool) -> None:
+        """The graph input as RGB float values in [0, 255], NCHW."""
+        from onnx import TensorProto
+
+        wr = self.wr
+        if image_input:
+            x = wr.op("Transpose", [INPUT], "nchw", perm=[0, 3, 1, 2])
+            x = wr.op("Cast", [x], "float", to=TensorProto.FLOAT)
+        else:
+            x = wr.op("Mul", [INPUT, wr.const(np.array(255.0, np.float32))], "scaled")
+        self.env[self.g.input_name] = (x, (height, width))
+
+    def val(self, name: str) -> tuple[str, tuple[int, int] | None]:
+        g, wr = self.g, self.wr
+        if name in self.env:
+            return self.env[name]
         if tg._key(name) in g.params:
             return wr.const(g.params[tg._key(name)].float(), "w"), None
         if name in g.const_names:
@@ -125,199 +131,236 @@ def centernet_to_onnx(model, height: int, width: int, image_input: bool = False)
             return wr.const(t, "k"), None
         raise tg.TfjsGraphError(f"node {name}: value not available")
 
-    def hw_of(inputs: list[str]) -> tuple[int, int]:
-        shapes = [env[i][1] for i in inputs if i in env]
+    def hw_of(self, inputs: list[str]) -> tuple[int, int]:
+        shapes = [self.env[i][1] for i in inputs if i in self.env]
         return max(shapes)
 
-    # value name -> scalar factor not yet applied to env's tensor (see the module docstring)
-    pending: dict[str, float] = {}
-
-    def applied(name: str) -> None:
+    def applied(self, name: str) -> None:
         """Apply a pending factor of ``name`` with a Mul (once: env then holds the product)."""
-        if name in pending:
-            y, hw = env[name]
-            k = wr.const(np.array(pending.pop(name), np.float32))
-            env[name] = (wr.op("Mul", [y, k], "scale"), hw)
+        if name in self.pending:
+            y, hw = self.env[name]
+            k = self.wr.const(np.array(self.pending.pop(name), np.float32))
+            self.env[name] = (self.wr.op("Mul", [y, k], "scale"), hw)
 
-    def common_factor(names: list[str]) -> float:
+    def common_factor(self, names: list[str]) -> float:
         """The factor pending on every one of ``names`` when they share it (constants count
         as unscaled); else applies the factors and returns 1."""
-        factors = {pending.get(i, 1.0) for i in names}
+        factors = {self.pending.get(i, 1.0) for i in names}
         if len(factors) == 1:
             return factors.pop()
         for i in names:
-            applied(i)
+            self.applied(i)
         return 1.0
 
-    def carry(name: str, factor: float) -> None:
+    def carry(self, name: str, factor: float) -> None:
         if factor != 1.0:
-            pending[name] = factor
+            self.pending[name] = factor
 
-    for name, op, inputs, node in g.ops:
+    def write_op(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        """Write one op of the graph (``g.ops``' row)."""
         if op in tg._CONVS:
-            factor = pending.get(inputs[0], 1.0)  # folded into the weights below
-            xin, (h, w) = env[inputs[0]]
-            wt = g._value({}, inputs[1])
-            s = tg._attr(node, "strides", [1, 1, 1, 1])[1:3]
-            d = tg._attr(node, "dilations", [1, 1, 1, 1])[1:3]
-            k = (int(wt.shape[2]), int(wt.shape[3]))
-            padding = tg._attr(node, "padding", "VALID")
-            if padding not in ("SAME", "VALID"):
-                raise tg.TfjsGraphError(f"node {name}: padding {padding} not supported")
-            pads, out_hw = _pads(h, w, k, tuple(s), tuple(d), padding == "SAME")
-            fused = tg._attr(node, "fused_ops", []) if "Fused" in op else []
-            if factor != 1.0:
-                ins = [xin, wr.const(wt.float() * factor, "w")]
-            else:
-                ins = [xin, val(inputs[1])[0]]
-            if fused and fused[0] == "BiasAdd":
-                ins.append(val(inputs[2])[0])
-                fused = fused[1:]
-            groups = int(wt.shape[0]) if "Depthwise" in op else 1
-            y = wr.op(
-                "Conv",
-                ins,
-                "conv",
-                kernel_shape=list(k),
-                strides=list(s),
-                dilations=list(d),
-                pads=pads,
-                group=groups,
-            )
-            for f in fused:
-                if f == "Relu":
-                    y = wr.op("Relu", [y], "relu")
-                elif f == "Relu6":
-                    y = wr.op(
-                        "Clip", [y, wr.const(np.float32(0)), wr.const(np.float32(6))], "relu6"
-                    )
-                else:
-                    raise tg.TfjsGraphError(f"node {name}: fused activation {f} not supported")
-            env[name] = (y, out_hw)
-        elif op == "_HardSwish":
-            applied(inputs[0])
-            xin, hw = env[inputs[0]]
-            if HARD_SWISH == "HardSwish":
-                y = wr.op("HardSwish", [xin], "hswish")
-            else:
-                gate = wr.op("HardSigmoid", [xin], "hsig", alpha=1.0 / 6.0, beta=0.5)
-                y = wr.op("Mul", [xin, gate], "hswish")
-            env[name] = (y, hw)
-            carry(name, float(node["scale"]))
-        elif op == "_HardSigmoid":
-            applied(inputs[0])
-            xin, hw = env[inputs[0]]
-            y = wr.op("HardSigmoid", [xin], "hsig", alpha=1.0 / 6.0, beta=0.5)
-            env[name] = (y, hw)
-            carry(name, float(node["scale"]))
-        elif op in ("Relu", "Identity"):  # commute with a positive factor
-            if pending.get(inputs[0], 1.0) < 0:
-                applied(inputs[0])
-            xin, hw = env[inputs[0]]
-            env[name] = (wr.op(op, [xin], op.lower()), hw)
-            carry(name, pending.get(inputs[0], 1.0))
-        elif op == "Sigmoid":
-            applied(inputs[0])
-            xin, hw = env[inputs[0]]
-            env[name] = (wr.op(op, [xin], op.lower()), hw)
-        elif op == "Relu6":
-            applied(inputs[0])
-            xin, hw = env[inputs[0]]
-            y = wr.op("Clip", [xin, wr.const(np.float32(0)), wr.const(np.float32(6))], "relu6")
-            env[name] = (y, hw)
+            self.conv(name, op, inputs, node)
         elif op in tg._BINARY:
-            onnx_op = {"Add": "Add", "AddV2": "Add", "Sub": "Sub", "Mul": "Mul"}[op]
-            if onnx_op == "Mul":
-                factor = pending.get(inputs[0], 1.0) * pending.get(inputs[1], 1.0)
-            else:
-                factor = common_factor(list(inputs[:2]))
-            a, b = val(inputs[0])[0], val(inputs[1])[0]
-            env[name] = (wr.op(onnx_op, [a, b], onnx_op.lower()), hw_of(inputs))
-            carry(name, factor)
-        elif op == "Mean":
-            axes = sorted(int(a) % 4 for a in np.atleast_1d(g._value({}, inputs[1]).cpu()))
-            if axes != [1, 2]:
-                raise tg.TfjsGraphError(f"node {name}: Mean over axes {axes} not supported")
-            if tg._attr(node, "keep_dims", False):  # (blocked-layout capable)
-                y = wr.op("GlobalAveragePool", [env[inputs[0]][0]], "mean")
-            else:
-                y = wr.op("ReduceMean", [env[inputs[0]][0]], "mean", axes=[2, 3], keepdims=0)
-            env[name] = (y, (1, 1))
-            carry(name, pending.get(inputs[0], 1.0))
-        elif op == "ConcatV2":
-            axis = int(g._value({}, inputs[-1]))
-            if axis not in (3, -1):
-                raise tg.TfjsGraphError(f"node {name}: concat on axis {axis} not supported")
-            factor = common_factor(list(inputs[:-1]))
-            parts = [val(i)[0] for i in inputs[:-1]]
-            env[name] = (wr.op("Concat", parts, "concat", axis=1), hw_of(inputs[:-1]))
-            carry(name, factor)
-        elif op == "MaxPool":
-            if pending.get(inputs[0], 1.0) < 0:
-                applied(inputs[0])
-            xin, (h, w) = env[inputs[0]]
-            k = tg._attr(node, "ksize")[1:3]
-            s = tg._attr(node, "strides")[1:3]
-            pads, out_hw = _pads(
-                h, w, tuple(k), tuple(s), (1, 1), tg._attr(node, "padding") == "SAME"
-            )
-            y = wr.op("MaxPool", [xin], "maxpool", kernel_shape=k, strides=s, pads=pads)
-            env[name] = (y, out_hw)
-            carry(name, pending.get(inputs[0], 1.0))
-        elif op == "ResizeBilinear":
-            if tg._attr(node, "align_corners", False) or tg._attr(
-                node, "half_pixel_centers", False
-            ):
-                raise tg.TfjsGraphError(f"node {name}: only legacy bilinear sampling supported")
-            xin, (h, w) = env[inputs[0]]
-            if name not in scales:
-                raise tg.TfjsGraphError(f"node {name}: constant resize without an input size")
-            sh, sw = scales[name]
-            out_hw = (round(h * sh), round(w * sw))
-            channels = _channels(g, inputs[0])
-            sizes = wr.const(np.array([1, channels, *out_hw], np.int64), "sizes")
-            y = wr.op(
-                "Resize",
-                [xin, "", "", sizes],
-                "resize",
-                mode="linear",
-                coordinate_transformation_mode="asymmetric",
-            )
-            env[name] = (y, out_hw)
-            carry(name, pending.get(inputs[0], 1.0))
+            self.binary(name, op, inputs)
+        elif op in self._BY_OP:
+            getattr(self, self._BY_OP[op])(name, op, inputs, node)
         else:
             raise tg.TfjsGraphError(f"node {name}: op {op} not supported")
 
-    applied(FEATURE)
-    feature, _ = env[FEATURE]
-    for n in wr.nodes:  # the feature is an output under its own name (no copy)
-        n.input[:] = [FEATURE_OUT if i == feature else i for i in n.input]
-        n.output[:] = [FEATURE_OUT if o == feature else o for o in n.output]
-    feature = FEATURE_OUT
-    heads = []
-    for head, scale in ((model.heat, None), (model.box, model.box_scale)):
-        dw = head.depthwise.weight
+    def conv(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        g, wr = self.g, self.wr
+        factor = self.pending.get(inputs[0], 1.0)  # folded into the weights below
+        xin, (h, w) = self.env[inputs[0]]
+        wt = g._value({}, inputs[1])
+        s = tg._attr(node, "strides", [1, 1, 1, 1])[1:3]
+        d = tg._attr(node, "dilations", [1, 1, 1, 1])[1:3]
+        k = (int(wt.shape[2]), int(wt.shape[3]))
+        padding = tg._attr(node, "padding", "VALID")
+        if padding not in ("SAME", "VALID"):
+            raise tg.TfjsGraphError(f"node {name}: padding {padding} not supported")
+        pads, out_hw = _pads(h, w, k, tuple(s), tuple(d), padding == "SAME")
+        fused = tg._attr(node, "fused_ops", []) if "Fused" in op else []
+        if factor != 1.0:
+            ins = [xin, wr.const(wt.float() * factor, "w")]
+        else:
+            ins = [xin, self.val(inputs[1])[0]]
+        if fused and fused[0] == "BiasAdd":
+            ins.append(self.val(inputs[2])[0])
+            fused = fused[1:]
+        groups = int(wt.shape[0]) if "Depthwise" in op else 1
         y = wr.op(
             "Conv",
-            [feature, wr.const(dw.float(), "dw")],
-            "head_dw",
-            kernel_shape=[3, 3],
-            pads=[1, 1, 1, 1],
-            group=int(dw.shape[0]),
+            ins,
+            "conv",
+            kernel_shape=list(k),
+            strides=list(s),
+            dilations=list(d),
+            pads=pads,
+            group=groups,
         )
-        k = scale.float() if scale is not None else 1.0  # folded into the weights and bias
-        y = wr.op(
-            "Conv",
-            [
-                y,
-                wr.const(head.pointwise.weight.float() * k, "pw"),
-                wr.const(head.pointwise.bias.float() * k),
-            ],
-            "head_pw",
-            kernel_shape=[1, 1],
+        for f in fused:
+            if f == "Relu":
+                y = wr.op("Relu", [y], "relu")
+            elif f == "Relu6":
+                y = _clip6(wr, y)
+            else:
+                raise tg.TfjsGraphError(f"node {name}: fused activation {f} not supported")
+        self.env[name] = (y, out_hw)
+
+    def hard_swish(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        self.applied(inputs[0])
+        xin, hw = self.env[inputs[0]]
+        if HARD_SWISH == "HardSwish":
+            y = self.wr.op("HardSwish", [xin], "hswish")
+        else:
+            gate = self.wr.op("HardSigmoid", [xin], "hsig", alpha=1.0 / 6.0, beta=0.5)
+            y = self.wr.op("Mul", [xin, gate], "hswish")
+        self.env[name] = (y, hw)
+        self.carry(name, float(node["scale"]))
+
+    def hard_sigmoid(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        self.applied(inputs[0])
+        xin, hw = self.env[inputs[0]]
+        y = self.wr.op("HardSigmoid", [xin], "hsig", alpha=1.0 / 6.0, beta=0.5)
+        self.env[name] = (y, hw)
+        self.carry(name, float(node["scale"]))
+
+    def positive_homogeneous(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        """Relu, Identity: commute with a positive factor."""
+        if self.pending.get(inputs[0], 1.0) < 0:
+            self.applied(inputs[0])
+        xin, hw = self.env[inputs[0]]
+        self.env[name] = (self.wr.op(op, [xin], op.lower()), hw)
+        self.carry(name, self.pending.get(inputs[0], 1.0))
+
+    def sigmoid(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        self.applied(inputs[0])
+        xin, hw = self.env[inputs[0]]
+        self.env[name] = (self.wr.op(op, [xin], op.lower()), hw)
+
+    def relu6(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        self.applied(inputs[0])
+        xin, hw = self.env[inputs[0]]
+        self.env[name] = (_clip6(self.wr, xin), hw)
+
+    def binary(self, name: str, op: str, inputs: list[str]) -> None:
+        onnx_op = {"Add": "Add", "AddV2": "Add", "Sub": "Sub", "Mul": "Mul"}[op]
+        if onnx_op == "Mul":
+            factor = self.pending.get(inputs[0], 1.0) * self.pending.get(inputs[1], 1.0)
+        else:
+            factor = self.common_factor(list(inputs[:2]))
+        a, b = self.val(inputs[0])[0], self.val(inputs[1])[0]
+        self.env[name] = (self.wr.op(onnx_op, [a, b], onnx_op.lower()), self.hw_of(inputs))
+        self.carry(name, factor)
+
+    def mean(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        axes = sorted(int(a) % 4 for a in np.atleast_1d(self.g._value({}, inputs[1]).cpu()))
+        if axes != [1, 2]:
+            raise tg.TfjsGraphError(f"node {name}: Mean over axes {axes} not supported")
+        xin = self.env[inputs[0]][0]
+        if tg._attr(node, "keep_dims", False):  # (blocked-layout capable)
+            y = self.wr.op("GlobalAveragePool", [xin], "mean")
+        else:
+            y = self.wr.op("ReduceMean", [xin], "mean", axes=[2, 3], keepdims=0)
+        self.env[name] = (y, (1, 1))
+        self.carry(name, self.pending.get(inputs[0], 1.0))
+
+    def concat(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        axis = int(self.g._value({}, inputs[-1]))
+        if axis not in (3, -1):
+            raise tg.TfjsGraphError(f"node {name}: concat on axis {axis} not supported")
+        factor = self.common_factor(list(inputs[:-1]))
+        parts = [self.val(i)[0] for i in inputs[:-1]]
+        y = self.wr.op("Concat", parts, "concat", axis=1)
+        self.env[name] = (y, self.hw_of(inputs[:-1]))
+        self.carry(name, factor)
+
+    def max_pool(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        if self.pending.get(inputs[0], 1.0) < 0:
+            self.applied(inputs[0])
+        xin, (h, w) = self.env[inputs[0]]
+        k = tg._attr(node, "ksize")[1:3]
+        s = tg._attr(node, "strides")[1:3]
+        same = tg._attr(node, "padding") == "SAME"
+        pads, out_hw = _pads(h, w, tuple(k), tuple(s), (1, 1), same)
+        y = self.wr.op("MaxPool", [xin], "maxpool", kernel_shape=k, strides=s, pads=pads)
+        self.env[name] = (y, out_hw)
+        self.carry(name, self.pending.get(inputs[0], 1.0))
+
+    def resize(self, name: str, op: str, inputs: list[str], node: dict) -> None:
+        if tg._attr(node, "align_corners", False) or tg._attr(node, "half_pixel_centers", False):
+            raise tg.TfjsGraphError(f"node {name}: only legacy bilinear sampling supported")
+        xin, (h, w) = self.env[inputs[0]]
+        if name not in self.scales:
+            raise tg.TfjsGraphError(f"node {name}: constant resize without an input size")
+        sh, sw = self.scales[name]
+        out_hw = (round(h * sh), round(w * sw))
+        channels = _channels(self.g, inputs[0])
+        sizes = self.wr.const(np.array([1, channels, *out_hw], np.int64), "sizes")
+        y = self.wr.op(
+            "Resize",
+            [xin, "", "", sizes],
+            "resize",
+            mode="linear",
+            coordinate_transformation_mode="asymmetric",
         )
-        heads.append(y)
-    wr.nodes.append(helper.make_node("Concat", heads, [DENSE_OUT], axis=1))
+        self.env[name] = (y, out_hw)
+        self.carry(name, self.pending.get(inputs[0], 1.0))
+
+    #: op -> method, for the ops other than the convolutions and the binary ops
+    _BY_OP = {
+        "_HardSwish": "hard_swish",
+        "_HardSigmoid": "hard_sigmoid",
+        "Relu": "positive_homogeneous",
+        "Identity": "positive_homogeneous",
+        "Sigmoid": "sigmoid",
+        "Relu6": "relu6",
+        "Mean": "mean",
+        "ConcatV2": "concat",
+        "MaxPool": "max_pool",
+        "ResizeBilinear": "resize",
+    }
+
+    def feature_output(self, value: str) -> str:
+        """Make graph value ``value`` (its pending factor applied) the output FEATURE_OUT, under
+        that name (no copy)."""
+        self.applied(value)
+        feature, _ = self.env[value]
+        for n in self.wr.nodes:
+            n.input[:] = [FEATURE_OUT if i == feature else i for i in n.input]
+            n.output[:] = [FEATURE_OUT if o == feature else o for o in n.output]
+        return FEATURE_OUT
+
+
+def _write_head(wr: _Writer, feature: str, head, scale) -> str:
+    """A separable head (depthwise 3x3, pointwise 1x1) on ``feature``; ``scale`` (or None) is
+    folded into the pointwise weights and bias."""
+    dw = head.depthwise.weight
+    y = wr.op(
+        "Conv",
+        [feature, wr.const(dw.float(), "dw")],
+        "head_dw",
+        kernel_shape=[3, 3],
+        pads=[1, 1, 1, 1],
+        group=int(dw.shape[0]),
+    )
+    k = scale.float() if scale is not None else 1.0
+    return wr.op(
+        "Conv",
+        [
+            y,
+            wr.const(head.pointwise.weight.float() * k, "pw"),
+            wr.const(head.pointwise.bias.float() * k),
+        ],
+        "head_pw",
+        kernel_shape=[1, 1],
+    )
+
+
+def _serialized_model(wr: _Writer, height: int, width: int, image_input: bool) -> bytes:
+    """The ONNX model of ``wr``'s nodes and initializers with the graph's input and outputs."""
+    from onnx import TensorProto, helper
+
     gh, gw = -(-height // 4), -(-width // 4)
     if image_input:
         inp = helper.make_tensor_value_info(INPUT, TensorProto.UINT8, [1, height, width, 3])
@@ -338,6 +381,33 @@ def centernet_to_onnx(model, height: int, width: int, image_input: bool = False)
     )
     m.ir_version = 8
     return m.SerializeToString()
+
+
+def centernet_to_onnx(model, height: int, width: int, image_input: bool = False) -> bytes:
+    """Serialized ONNX model of ``model``'s dense part at input (1, 3, height, width).
+
+    Input ``image``: RGB in [0, 1], float32 NCHW; with ``image_input`` the image itself, RGB
+    uint8 (1, height, width, 3) as the resize gives it (transposed and cast inside the graph:
+    no conversion pass in Python, no scaling to [0, 1] and back). Outputs ``feature``
+    (1, 128, H/4, W/4): the graph's head feature; ``dense`` (1, 5, H/4, W/4): heat logit and
+    (l, t, r, b) [input px], as :meth:`CenterNetDetector.dense`. Raises
+    :class:`~detector_node.tfjs_graph.TfjsGraphError` for an op it cannot write."""
+    from onnx import helper
+
+    from .centernet import FEATURE
+
+    wr = _Writer()
+    export = _GraphExport(model.graph, wr)
+    export.write_input(height, width, image_input)
+    for name, op, inputs, node in model.graph.ops:
+        export.write_op(name, op, inputs, node)
+    feature = export.feature_output(FEATURE)
+    heads = [
+        _write_head(wr, feature, head, scale)
+        for head, scale in ((model.heat, None), (model.box, model.box_scale))
+    ]
+    wr.nodes.append(helper.make_node("Concat", heads, [DENSE_OUT], axis=1))
+    return _serialized_model(wr, height, width, image_input)
 
 
 def _channels(g: tg.TfjsGraph, name: str) -> int:
