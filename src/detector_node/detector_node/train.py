@@ -19,7 +19,7 @@ import json
 import random
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -465,9 +465,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
-def _train(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+def _setup_process(args: argparse.Namespace):
+    """Output folder, threads, allocator, seeds; the device."""
     make_output_dir(args.output)  # before the data is loaded: a bad path fails at once
     torch.set_num_threads(max(1, args.num_threads))
     try:  # large maps freed and allocated every step: keep them in the heap for reuse
@@ -477,8 +476,12 @@ def _train(args: argparse.Namespace) -> int:
     except RuntimeError:  # not glibc
         pass
     seed_everything(args.seed)
-    device = choose_device(args.device)
-    overrides = {
+    return choose_device(args.device)
+
+
+def _config_overrides(args: argparse.Namespace) -> dict:
+    """The model-preset fields set on the command line."""
+    return {
         k: v
         for k, v in {
             "width": args.width,
@@ -490,77 +493,115 @@ def _train(args: argparse.Namespace) -> int:
         }.items()
         if v is not None
     }
-    config = preset(args.size, **overrides)
-    t0 = time.time()
+
+
+def _load_source(spec: str, kind: str, config) -> Source:
+    """One ``SOURCE[@WEIGHT]`` of kind real / partial / synthetic with its samples."""
+    source, weight = parse_weighted_source(spec)
+    refs = frames_from_source(source)
+    if not refs:
+        raise ValueError(f"{source}: no frames found")
     types = config.positive_types
+    if kind == "synthetic":
+        samples = [load_sample(r, config.input_width, config.input_height, types) for r in refs]
+    else:
+        samples = [load_full_sample(r, types) for r in refs]
+    return Source(source, kind, samples, weight)
 
-    def load_source(spec: str, kind: str) -> Source:
-        source, weight = parse_weighted_source(spec)
-        refs = frames_from_source(source)
-        if not refs:
-            raise ValueError(f"{source}: no frames found")
-        if kind == "synthetic":
-            samples = [load_sample(r, config.input_width, config.input_height, types) for r in refs]
-        else:
-            samples = [load_full_sample(r, types) for r in refs]
-        return Source(source, kind, samples, weight)
 
+def _load_data(args: argparse.Namespace, config, device) -> tuple[list[Source], list[Sample]]:
+    """The training sources and the validation samples (one line on what was loaded)."""
+    t0 = time.time()
     sources = (
-        [load_source(x, "real") for x in args.train]
-        + [load_source(x, "partial") for x in args.partial]
-        + [load_source(x, "synthetic") for x in args.synthetic]
+        [_load_source(x, "real", config) for x in args.train]
+        + [_load_source(x, "partial", config) for x in args.partial]
+        + [_load_source(x, "synthetic", config) for x in args.synthetic]
     )
     val_refs = sources_from_args(args.val) if args.val else []
-    val_samples = [_val_sample(r, config, types) for r in val_refs]
+    val_samples = [_val_sample(r, config, config.positive_types) for r in val_refs]
     n_train = sum(len(s.samples) for s in sources)
     print(
         f"data: {n_train} train frames, {len(val_samples)} val frames, "
         f"loaded in {time.time() - t0:.1f} s, device {device}",
         flush=True,
     )
+    return sources, val_samples
 
-    start_epoch, best_ap, history = 0, -1.0, []
-    if args.size == "centernet" and not args.resume:
-        model = _centernet_model(args, config, device)
-    elif args.resume:
-        model, state = load_checkpoint(args.resume, device)
-        config = model.config
-        start_epoch = int(state.get("epoch", -1)) + 1
-        best_ap = float(state.get("best_ap", -1.0))
-        history = json.loads(state.get("history", "[]"))
-    else:
-        if args.anchors:
-            try:
-                anchors = json.loads(args.anchors.read_text())["anchors"]
-            except (OSError, ValueError, KeyError) as exc:
-                raise ValueError(f"{args.anchors}: cannot read anchors ({exc})") from None
-        else:
-            anchors, miou = kmeans_anchors(anchor_box_sizes(sources, config), k=5, seed=args.seed)
-            print(
-                f"k-means anchors (input px): {np.round(anchors, 1).tolist()} mean IoU {miou:.3f}",
-                flush=True,
+
+@dataclass
+class _Start:
+    """Where the epochs start: 0 and no history, or a resumed run's (``state``: its
+    checkpoint)."""
+
+    epoch: int = 0
+    best_ap: float = -1.0
+    history: list = field(default_factory=list)
+    state: dict = field(default_factory=dict)
+
+
+def _anchors(args: argparse.Namespace, sources: list[Source], config) -> list:
+    """``--anchors`` FILE's, else k-means on the training boxes (printed)."""
+    if args.anchors:
+        try:
+            return json.loads(args.anchors.read_text())["anchors"]
+        except (OSError, ValueError, KeyError) as exc:
+            raise ValueError(f"{args.anchors}: cannot read anchors ({exc})") from None
+    anchors, miou = kmeans_anchors(anchor_box_sizes(sources, config), k=5, seed=args.seed)
+    print(
+        f"k-means anchors (input px): {np.round(anchors, 1).tolist()} mean IoU {miou:.3f}",
+        flush=True,
+    )
+    return anchors
+
+
+def _yolo_model(args: argparse.Namespace, config, overrides: dict, sources, device):
+    """The YOLOv2 detector (``config`` with its anchors), from ``--init``'s weights when
+    given."""
+    anchors = _anchors(args, sources, config)
+    config = preset(args.size, **{**overrides, "anchors": tuple(map(tuple, anchors))})
+    model = YoloV2Passthrough(config).to(device)
+    if args.init:
+        init_model, _ = load_checkpoint(args.init, device)
+        ic = init_model.config
+        if (ic.width, ic.depth) != (config.width, config.depth):
+            raise ValueError(
+                f"{args.init}: width/depth {ic.width}/{ic.depth} differ from "
+                f"{config.width}/{config.depth}"
             )
-        config = preset(args.size, **{**overrides, "anchors": tuple(map(tuple, anchors))})
-        model = YoloV2Passthrough(config).to(device)
-        if args.init:
-            init_model, _ = load_checkpoint(args.init, device)
-            ic = init_model.config
-            if (ic.width, ic.depth) != (config.width, config.depth):
-                raise ValueError(
-                    f"{args.init}: width/depth {ic.width}/{ic.depth} differ from "
-                    f"{config.width}/{config.depth}"
-                )
-            model.load_state_dict(init_model.state_dict())
-            print(f"initialised from {args.init}", flush=True)
-    config = model.config
-    centernet = config.size == "centernet"
-    if centernet and (args.freeze_backbone or args.orientation_only):
+        model.load_state_dict(init_model.state_dict())
+        print(f"initialised from {args.init}", flush=True)
+    return model
+
+
+def _start_model(args: argparse.Namespace, config, overrides: dict, sources, device):
+    """(model, start): a new CenterNet or YOLOv2 model of ``config``, or ``--resume``'s."""
+    if args.size == "centernet" and not args.resume:
+        return _centernet_model(args, config, device), _Start()
+    if args.resume:
+        model, state = load_checkpoint(args.resume, device)
+        start = _Start(
+            int(state.get("epoch", -1)) + 1,
+            float(state.get("best_ap", -1.0)),
+            json.loads(state.get("history", "[]")),
+            state,
+        )
+        return model, start
+    return _yolo_model(args, config, overrides, sources, device), _Start()
+
+
+def _freeze_parts(model, args: argparse.Namespace) -> None:
+    """``--freeze-backbone`` / ``--orientation-only`` (CenterNet): fixed parts take no gradient;
+    ``--orientation-only`` implies ``--freeze-backbone``."""
+    if model.config.size == "centernet" and (args.freeze_backbone or args.orientation_only):
         args.freeze_backbone = True
         fixed = [model.graph] + ([model.heat, model.box] if args.orientation_only else [])
         for part in fixed:
             for prm in part.parameters():
                 prm.requires_grad_(False)
-    mix = TrainingMix(
+
+
+def _training_mix(sources: list[Source], config, args: argparse.Namespace) -> TrainingMix:
+    return TrainingMix(
         sources,
         config.input_width,
         config.input_height,
@@ -575,8 +616,10 @@ def _train(args: argparse.Namespace) -> int:
             roi_top=config.roi_top,
         ),
     )
-    print(mix.summary(), flush=True)
-    epoch_samples = args.epoch_samples or n_train
+
+
+def _loss_weights(args: argparse.Namespace, sources: list[Source]) -> LossWeights:
+    """The loss weights; ``--balance-orientation``: bin weights 1 / sqrt(frequency), mean 1."""
     weights = LossWeights(orientation=args.orientation_weight)
     if args.balance_orientation:
         bins = np.concatenate([x.bins for s in sources for x in s.samples])
@@ -588,12 +631,13 @@ def _train(args: argparse.Namespace) -> int:
             f"{np.round(weights.orientation_bin_weights, 3).tolist()}",
             flush=True,
         )
-    bank = None
-    if centernet and args.feature_bank:
-        if not args.freeze_backbone:
-            raise ValueError("--feature-bank needs --freeze-backbone (the features are fixed)")
-        bank = _feature_bank(model, mix, args, device)
-    if centernet:  # the new orientation head at the full rate, the pretrained parts at 1/5
+    return weights
+
+
+def _optimizer(model, args: argparse.Namespace, start: _Start) -> torch.optim.Optimizer:
+    """Adam; for the CenterNet the new orientation head at the full rate, the pretrained parts
+    at 1/5 (a group's ``scale``); a resumed run's state loaded."""
+    if model.config.size == "centernet":
         new = list(model.orientation.parameters())
         ids = {id(q) for q in new}
         old = [q for q in model.parameters() if q.requires_grad and id(q) not in ids]
@@ -601,27 +645,44 @@ def _train(args: argparse.Namespace) -> int:
     else:
         groups = [{"params": [q for q in model.parameters() if q.requires_grad], "scale": 1.0}]
     opt = torch.optim.Adam(groups, lr=args.lr, betas=(0.9, 0.999))
-    if args.resume and "optimizer" in state:
-        opt.load_state_dict(state["optimizer"])
-    ema = None
-    if args.ema:
-        from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+    if args.resume and "optimizer" in start.state:
+        opt.load_state_dict(start.state["optimizer"])
+    return opt
 
-        ema = AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(args.ema), use_buffers=True)
-    eval_model = ema.module if ema is not None else model
-    log_path = args.output / "train_log.jsonl"
-    train_start = time.time()
-    for epoch in range(start_epoch, args.epochs):
+
+@dataclass
+class _Trainer:
+    """The parts of a run the epochs use."""
+
+    args: argparse.Namespace
+    model: torch.nn.Module
+    opt: torch.optim.Optimizer
+    mix: TrainingMix
+    weights: LossWeights
+    bank: list[BankItem] | None
+    epoch_samples: int
+    device: object
+    ema: object = None
+
+    @property
+    def eval_model(self):
+        """What is validated and saved as best / final: the EMA's average when ``--ema``."""
+        return self.ema.module if self.ema is not None else self.model
+
+    def epoch(self, epoch: int) -> tuple[float, dict[str, float]]:
+        """Train one epoch: (its learning rate, the mean of each loss term)."""
+        from tqdm import tqdm
+
+        args = self.args
         lr = learning_rate(epoch, args.epochs, args)
-        for g in opt.param_groups:
+        for g in self.opt.param_groups:
             g["lr"] = lr * g.get("scale", 1.0)
-        model.train()
+        self.model.train()
         rng = np.random.default_rng([args.seed, epoch])
         torch.manual_seed(args.seed * 1000 + epoch)
-        order = mix.draw(epoch_samples, rng)
-        if bank is not None:
-            bank_order = rng.permutation(len(bank))[: min(epoch_samples, len(bank))]
-            order = bank_order
+        order = self.mix.draw(self.epoch_samples, rng)
+        if self.bank is not None:
+            order = rng.permutation(len(self.bank))[: min(self.epoch_samples, len(self.bank))]
         sums: dict[str, float] = {}
         nb = 0
         bar = tqdm(
@@ -631,78 +692,123 @@ def _train(args: argparse.Namespace) -> int:
             leave=False,
         )
         for start in bar:
-            if centernet:
-                opt.zero_grad(set_to_none=True)
-                if bank is not None:
-                    batch = [bank[j] for j in bank_order[start : start + args.batch_size]]
-                else:
-                    pairs = order[start : start + args.batch_size]
-                    batch = [mix.make(k, i, rng) for k, i in pairs]
-                terms = _centernet_step(
-                    model,
-                    batch,
-                    bank is not None,
-                    args,
-                    weights.orientation_bin_weights,
-                    rng,
-                    device,
-                )
-                opt.step()
+            chunk = order[start : start + args.batch_size]
+            if self.model.config.size == "centernet":
+                terms = self._centernet_batch(chunk, rng)
             else:
-                batch = [mix.make(k, i, rng) for k, i in order[start : start + args.batch_size]]
-                raw = model(to_tensor([s.image for s in batch], device))
-                loss, terms = detection_loss(
-                    raw,
-                    [s.boxes for s in batch],
-                    [s.bins for s in batch],
-                    [s.dontcare for s in batch],
-                    config,
-                    weights,
-                )
-                opt.zero_grad(set_to_none=True)
-                loss.backward()
-                opt.step()
-                terms = {"loss": loss.item(), **terms}
-            if ema is not None:
-                ema.update_parameters(model)
+                terms = self._yolo_batch(chunk, rng)
+            if self.ema is not None:
+                self.ema.update_parameters(self.model)
             nb += 1
             for k, v in terms.items():
                 sums[k] = sums.get(k, 0.0) + v
             bar.set_postfix({k: f"{v / nb:.3f}" for k, v in sums.items()})
-        means = {k: round(v / max(nb, 1), 4) for k, v in sums.items()}
-        entry = {
-            "epoch": epoch + 1,
-            "lr": lr,
-            **means,
-            "elapsed_s": round(time.time() - train_start, 1),
-        }
-        if val_samples:
-            r50, r70 = validate(eval_model, val_samples, device)
-            entry.update(
-                ap50=round(r50.ap, 4),
-                ap70=round(r70.ap, 4),
-                orientation_acc=round(r50.orientation_accuracy, 4),
-            )
-        history.append(entry)
-        print(json.dumps(entry), flush=True)
-        with log_path.open("a") as f:
-            f.write(json.dumps(entry) + "\n")
-        score = entry.get("ap50", -means.get("loss", 0.0))
-        extra = {"epoch": epoch, "history": json.dumps(history), "seed": args.seed}
-        if score >= best_ap:
-            best_ap = score
-            save_checkpoint(
-                args.output / "best.pt", eval_model, {**extra, "metrics": json.dumps(entry)}
-            )
-        save_checkpoint(
-            args.output / "last.pt",
-            model,
-            {**extra, "best_ap": best_ap, "optimizer": opt.state_dict()},
+        return lr, {k: round(v / max(nb, 1), 4) for k, v in sums.items()}
+
+    def _centernet_batch(self, chunk, rng) -> dict[str, float]:
+        self.opt.zero_grad(set_to_none=True)
+        if self.bank is not None:
+            batch = [self.bank[j] for j in chunk]
+        else:
+            batch = [self.mix.make(k, i, rng) for k, i in chunk]
+        terms = _centernet_step(
+            self.model,
+            batch,
+            self.bank is not None,
+            self.args,
+            self.weights.orientation_bin_weights,
+            rng,
+            self.device,
         )
+        self.opt.step()
+        return terms
+
+    def _yolo_batch(self, chunk, rng) -> dict[str, float]:
+        batch = [self.mix.make(k, i, rng) for k, i in chunk]
+        raw = self.model(to_tensor([s.image for s in batch], self.device))
+        loss, terms = detection_loss(
+            raw,
+            [s.boxes for s in batch],
+            [s.bins for s in batch],
+            [s.dontcare for s in batch],
+            self.model.config,
+            self.weights,
+        )
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt.step()
+        return {"loss": loss.item(), **terms}
+
+
+def _trainer(args: argparse.Namespace, model, sources, start: _Start, device) -> _Trainer:
+    """The optimizer, mix, loss weights, feature bank and EMA of a run."""
+    _freeze_parts(model, args)
+    mix = _training_mix(sources, model.config, args)
+    print(mix.summary(), flush=True)
+    n_train = sum(len(s.samples) for s in sources)
+    weights = _loss_weights(args, sources)
+    bank = None
+    if model.config.size == "centernet" and args.feature_bank:
+        if not args.freeze_backbone:
+            raise ValueError("--feature-bank needs --freeze-backbone (the features are fixed)")
+        bank = _feature_bank(model, mix, args, device)
+    opt = _optimizer(model, args, start)
+    trainer = _Trainer(args, model, opt, mix, weights, bank, args.epoch_samples or n_train, device)
+    if args.ema:
+        from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+        avg = get_ema_multi_avg_fn(args.ema)
+        trainer.ema = AveragedModel(model, multi_avg_fn=avg, use_buffers=True)
+    return trainer
+
+
+def _end_epoch(
+    trainer: _Trainer, start: _Start, epoch: int, entry: dict, val_samples: list[Sample]
+) -> None:
+    """Validate, log (stdout and ``train_log.jsonl``) and save ``best.pt`` / ``last.pt``."""
+    args, eval_model = trainer.args, trainer.eval_model
+    if val_samples:
+        r50, r70 = validate(eval_model, val_samples, trainer.device)
+        entry.update(
+            ap50=round(r50.ap, 4),
+            ap70=round(r70.ap, 4),
+            orientation_acc=round(r50.orientation_accuracy, 4),
+        )
+    start.history.append(entry)
+    print(json.dumps(entry), flush=True)
+    with (args.output / "train_log.jsonl").open("a") as f:
+        f.write(json.dumps(entry) + "\n")
+    score = entry.get("ap50", -entry.get("loss", 0.0))
+    extra = {"epoch": epoch, "history": json.dumps(start.history), "seed": args.seed}
+    if score >= start.best_ap:
+        start.best_ap = score
+        save_checkpoint(
+            args.output / "best.pt", eval_model, {**extra, "metrics": json.dumps(entry)}
+        )
+    save_checkpoint(
+        args.output / "last.pt",
+        trainer.model,
+        {**extra, "best_ap": start.best_ap, "optimizer": trainer.opt.state_dict()},
+    )
+
+
+def _train(args: argparse.Namespace) -> int:
+    device = _setup_process(args)
+    overrides = _config_overrides(args)
+    config = preset(args.size, **overrides)
+    sources, val_samples = _load_data(args, config, device)
+    model, start = _start_model(args, config, overrides, sources, device)
+    trainer = _trainer(args, model, sources, start, device)
+    train_start = time.time()
+    for epoch in range(start.epoch, args.epochs):
+        lr, means = trainer.epoch(epoch)
+        elapsed = round(time.time() - train_start, 1)
+        entry = {"epoch": epoch + 1, "lr": lr, **means, "elapsed_s": elapsed}
+        _end_epoch(trainer, start, epoch, entry, val_samples)
     final = {"epoch": args.epochs - 1, "seed": args.seed}
-    save_checkpoint(args.output / "final.pt", eval_model, final)
+    save_checkpoint(args.output / "final.pt", trainer.eval_model, final)
     print(
-        f"done: {time.time() - train_start:.1f} s of training, best {best_ap:.4f}, "
+        f"done: {time.time() - train_start:.1f} s of training, best {start.best_ap:.4f}, "
         f"checkpoints in {args.output}",
         flush=True,
     )
