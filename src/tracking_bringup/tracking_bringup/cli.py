@@ -99,9 +99,8 @@ def make_log_dir(log_dir: Path) -> str | None:
     return None
 
 
-def main(argv: Sequence[str] | None, graph_processes: Callable, run_graph: Callable) -> int:
-    """``stereo_tracking_launch``: the graph planned by ``graph_processes`` and run by
-    ``run_graph`` (:func:`tracking_bringup.launcher.main` passes its own)."""
+def build_parser() -> argparse.ArgumentParser:
+    """The options of ``stereo_tracking_launch``."""
     parser = argparse.ArgumentParser(
         prog="stereo_tracking_launch",
         description="Start the stereo tracking graph as separate processes (one per node).",
@@ -159,7 +158,33 @@ def main(argv: Sequence[str] | None, graph_processes: Callable, run_graph: Calla
         "last line: frames tracked, dropped and where, latency",
     )
     hosts.add_arguments(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _summary(args) -> Callable[[dict], str]:
+    """The last line of a ``--camera-hz`` run (frames tracked, dropped, latency), from the
+    nodes' reports and a latency probe subscribed in this process."""
+    latency = LatencyProbe(args.namespace)
+
+    def summary(reports: dict) -> str:
+        latency.close()
+        player = reports.get(graph.PLAYER.name)
+        tracker = reports.get(graph.TRACKER.name)
+        return summary_line(
+            player.counts.published if player else 0,
+            tracker.counts.published if tracker else 0,
+            dropped_by_node(reports),
+            latency.frames.latencies_ms(),
+            args.camera_hz,
+        )
+
+    return summary
+
+
+def main(argv: Sequence[str] | None, graph_processes: Callable, run_graph: Callable) -> int:
+    """``stereo_tracking_launch``: the graph planned by ``graph_processes`` and run by
+    ``run_graph`` (:func:`tracking_bringup.launcher.main` passes its own)."""
+    args = build_parser().parse_args(argv)
     problem = check_arguments(args)
     if problem:
         print(f"error: {problem}", file=sys.stderr)
@@ -191,22 +216,7 @@ def main(argv: Sequence[str] | None, graph_processes: Callable, run_graph: Calla
     except (ValueError, LaunchError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    summary = None
-    if probe:
-        latency = LatencyProbe(args.namespace)
-
-        def summary(reports: dict) -> str:
-            latency.close()
-            player = reports.get(graph.PLAYER.name)
-            tracker = reports.get(graph.TRACKER.name)
-            return summary_line(
-                player.counts.published if player else 0,
-                tracker.counts.published if tracker else 0,
-                dropped_by_node(reports),
-                latency.frames.latencies_ms(),
-                args.camera_hz,
-            )
-
+    summary = _summary(args) if probe else None
     elsewhere = [n.name for n in whole if n not in nodes]
     if elsewhere and any(n.source for n in nodes):
         print(f"expecting on other hosts: {', '.join(elsewhere)} (the player waits for them)")

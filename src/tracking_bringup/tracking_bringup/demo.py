@@ -122,7 +122,7 @@ def _prepare_data(args) -> tuple[Path, str, int]:
     return root, seq.sequence, n
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="stereo_tracking_demo",
         description="Run the whole stereo tracking graph on a sequence and evaluate it.",
@@ -156,18 +156,95 @@ def main(argv: list[str] | None = None) -> int:
         help="play as a camera at this rate, not waiting for the graph (e.g. 30; default: "
         "lockstep, every frame)",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _checked_options(args) -> list[str]:
+    """The ``--camera-hz`` overrides; ValueError (its one line) for a bad option or parameter
+    file."""
     if args.frames < 0:
-        return _error("--frames: must be >= 0")
+        raise ValueError("--frames: must be >= 0")
     problem = parameter_layers(args)  # args.params: the pipeline file, then --params
     if problem:
-        return _error(problem)
+        raise ValueError(problem)
+    camera_rate = camera_overrides(args.camera_hz) if args.camera_hz else []
+    graph.file_parameters(args.params)  # one line for a file the launcher cannot use
+    return camera_rate
+
+
+def _camera_settings(args, checkpoint: str) -> list[str]:
+    """KITTI's camera settings with ``--no-camera-settings`` (else none: the nodes derive them
+    from the CameraInfo); ValueError for a checkpoint that cannot be found, before the graph
+    starts (not the node's death)."""
+    checkpoint_path(checkpoint)
+    return _kitti_settings(checkpoint) if args.no_camera_settings else []
+
+
+def _graph_overrides(args, root, sequence: str, frames: int, bag: Path, camera: list[str]):
+    """The demo's parameter overrides, the user's ``-p`` last."""
+    return [
+        f"kitti_player.dataset_root:={root}",
+        f"kitti_player.sequence:='{sequence}'",
+        f"kitti_player.last_frame:={frames - 1}",
+        "kitti_player.lockstep:=true",
+        "kitti_player.exit_when_done:=true",
+        f"vehicle_detector.backend:={args.detector}",
+        f"bag_recorder.output:={bag}",
+        # the stereo bias model describes KITTI's cameras; the synthetic renderer's are exact
+        *([] if args.kitti_root else SYNTHETIC_CAMERA_OVERRIDES),
+        *camera,
+        *args.param,
+    ]
+
+
+def _run_graph(launcher: GraphLauncher, frames: int) -> tuple[int | None, TrackProgress | None]:
+    """Run the graph until the player is done, showing progress: (an exit code when it failed
+    or was interrupted, else None; the progress display)."""
+    progress = None
     try:
-        camera_rate = camera_overrides(args.camera_hz) if args.camera_hz else []
-    except ValueError as exc:
-        return _error(str(exc))
+        progress = TrackProgress(frames)  # subscribed before the player publishes anything
+        launcher.start()
+        launcher.wait(until_finished=True)
+    except LaunchError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.exit_code, progress  # 2: a node refused its parameters or input (its line)
+    except KeyboardInterrupt:
+        print("[demo] interrupted", file=sys.stderr)
+        return 130, progress
+    finally:
+        launcher.shutdown()  # lets the frames in flight drain first
+        if progress is not None:
+            progress.close()
+    return None, progress
+
+
+def _graph_summary(args, launcher, progress, frames: int, elapsed: float):
+    """Print the frames tracked, the per-node table and the summary line: (summary line,
+    frames tracked, per-node counts)."""
+    processed = progress.count if progress else 0
+    print(
+        f"[demo] graph done: {processed}/{frames} frames tracked in {elapsed:.1f} s "
+        f"({processed / max(elapsed, 1e-9):.2f} frames/s end to end)",
+        flush=True,
+    )
+    nodes = node_frame_counts(launcher)
+    print(frame_counts_table(nodes), flush=True)
+    published = nodes.get(graph.PLAYER.name, {}).get("out", frames)
+    summary = "[demo] " + summary_line(
+        published,
+        processed,
+        dropped_by_node(launcher.reports),
+        progress.probe.frames.latencies_ms() if progress else [],
+        args.camera_hz or None,
+    )
+    print(summary, flush=True)
+    return summary, processed, nodes
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     try:
-        graph.file_parameters(args.params)  # one line for a file the launcher cannot use
+        camera_rate = _checked_options(args)
     except ValueError as exc:
         return _error(str(exc))
 
@@ -184,30 +261,14 @@ def main(argv: list[str] | None = None) -> int:
         root, sequence, frames = _prepare_data(args)
     except (KittiFormatError, OSError, ValueError) as exc:
         return _error(str(exc))
-    camera = []  # the nodes derive the camera's settings from its CameraInfo
     checkpoint = detector_checkpoint(args.params, args.param, synthetic=not args.kitti_root)
     try:
-        checkpoint_path(checkpoint)  # one line before the graph starts, not the node's death
-        if args.no_camera_settings:
-            camera = _kitti_settings(checkpoint)
+        camera = _camera_settings(args, checkpoint)
     except ValueError as exc:  # the checkpoint (CheckpointError)
         return _error(f"vehicle_detector.checkpoint: {exc}")
 
     bag = out / "bag"
-    overrides = [
-        f"kitti_player.dataset_root:={root}",
-        f"kitti_player.sequence:='{sequence}'",
-        f"kitti_player.last_frame:={frames - 1}",
-        "kitti_player.lockstep:=true",
-        "kitti_player.exit_when_done:=true",
-        f"vehicle_detector.backend:={args.detector}",
-        f"bag_recorder.output:={bag}",
-        # the stereo bias model describes KITTI's cameras; the synthetic renderer's are exact
-        *([] if args.kitti_root else SYNTHETIC_CAMERA_OVERRIDES),
-        *camera,
-        *camera_rate,
-        *args.param,
-    ]
+    overrides = _graph_overrides(args, root, sequence, frames, bag, [*camera, *camera_rate])
     apply_graph_environment()
     try:
         # the progress display's subscription is an edge the player waits for too
@@ -227,40 +288,12 @@ def main(argv: list[str] | None = None) -> int:
         flush=True,
     )
     launcher = GraphLauncher(processes, out / "logs", staged=False)  # the player waits itself
-    progress = None
     t0 = time.monotonic()
-    try:
-        progress = TrackProgress(frames)  # subscribed before the player publishes anything
-        launcher.start()
-        launcher.wait(until_finished=True)
-    except LaunchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return exc.exit_code  # 2: a node refused its parameters or input (its one line)
-    except KeyboardInterrupt:
-        print("[demo] interrupted", file=sys.stderr)
-        return 130
-    finally:
-        launcher.shutdown()  # lets the frames in flight drain first
-        if progress is not None:
-            progress.close()
+    code, progress = _run_graph(launcher, frames)
+    if code is not None:
+        return code
     elapsed = time.monotonic() - t0
-    processed = progress.count if progress else 0
-    print(
-        f"[demo] graph done: {processed}/{frames} frames tracked in {elapsed:.1f} s "
-        f"({processed / max(elapsed, 1e-9):.2f} frames/s end to end)",
-        flush=True,
-    )
-    nodes = node_frame_counts(launcher)
-    print(frame_counts_table(nodes), flush=True)
-    published = nodes.get(graph.PLAYER.name, {}).get("out", frames)
-    summary = "[demo] " + summary_line(
-        published,
-        processed,
-        dropped_by_node(launcher.reports),
-        progress.probe.frames.latencies_ms() if progress else [],
-        args.camera_hz or None,
-    )
-    print(summary, flush=True)
+    summary, processed, nodes = _graph_summary(args, launcher, progress, frames, elapsed)
     if args.no_eval:
         return 0
     code = _evaluate(bag, root, sequence, out, processed, elapsed, args.params, nodes)
