@@ -207,25 +207,120 @@ def _footprint_circles(v: Vehicle, times: np.ndarray) -> tuple[np.ndarray, float
     return out, w / 2 + 0.35
 
 
-def random_scene(seed: int, frames: int, n_vehicles: int = 12, sequence_index: int = 0) -> Scene:
-    """A random street scene (deterministic for ``seed`` and ``sequence_index``).
+@dataclass
+class _Street:
+    """The ego car's drive and the junction: what the vehicles are placed around."""
 
-    Roles are mixed so that all viewing angles occur: vehicles ahead in both directions, lane
-    changes (overtaking), oncoming traffic, crossing and turning at a junction, and parked cars
-    (parallel and angled at 45 degrees).
-    """
-    rng = np.random.default_rng([seed, sequence_index, 0x5EED])
-    ego_speed = 0.0 if rng.random() < 0.15 else float(rng.uniform(4.0, 11.0))
-    duration = max(frames - 1, 0) * FRAME_DT
-    ego_end = ego_speed * duration
-    junction_z = ego_speed * duration * 0.55 + float(rng.uniform(28.0, 45.0))
+    ego_speed: float
+    duration: float  # s
+    junction_z: float
 
-    def ego_z(t):
-        return ego_speed * t
+    @property
+    def ego_end(self) -> float:
+        return self.ego_speed * self.duration
 
-    times = np.arange(0.0, duration + 1e-9, 0.05)
+    def ego_z(self, t):
+        return self.ego_speed * t
+
+    def junction_window(self) -> tuple[float, float]:
+        """Times at which the junction is 12..60 m ahead of the ego car."""
+        v, zj = self.ego_speed, self.junction_z
+        t_lo = max(0.0, (zj - 60.0) / v) if v > 0 else 0.0
+        t_hi = min(self.duration, (zj - 12.0) / v) if v > 0 else self.duration
+        return t_lo, t_hi
+
+
+# Each _place_<role>: (path, arc length at time t_m, speed, t_m) of a vehicle of that role;
+# t_m is a random time of the sequence, which some roles replace with their own.
+
+
+def _place_follow(rng: np.random.Generator, street: _Street, t_m: float):
+    lane = LANE_RIGHT if rng.random() < 0.55 else LANE_EGO
+    dz = rng.uniform(-3.0 if lane == LANE_RIGHT else 9.0, 55.0)
+    speed = max(0.0, street.ego_speed + rng.uniform(-3.0, 3.0))
+    path, z_m = _straight(lane, 0.0, 0.0, 1.0), street.ego_z(t_m) + dz
+    return path, z_m + 2000.0, speed, t_m
+
+
+def _place_lane_change(rng: np.random.Generator, street: _Street, t_m: float):
+    lanes = [LANE_EGO, LANE_RIGHT]
+    if rng.random() < 0.5:
+        lanes.reverse()
+    z_m = street.ego_z(t_m) + rng.uniform(12.0, 40.0)
+    speed = street.ego_speed + rng.uniform(1.0, 4.0)
+    path = _lane_change(lanes[0], lanes[1], z_m, rng.uniform(20.0, 30.0))
+    return path, float(np.interp(z_m, path.points[:, 1], path.s)), speed, t_m
+
+
+def _place_oncoming(rng: np.random.Generator, street: _Street, t_m: float):
+    lane = LANE_ONCOMING if rng.random() < 0.6 else LANE_ONCOMING_OUTER
+    z_m = street.ego_z(t_m) + rng.uniform(8.0, 60.0)
+    speed = rng.uniform(6.0, 14.0)
+    return _straight(lane, 0.0, 0.0, -1.0), 2000.0 - z_m, speed, t_m
+
+
+def _place_crossing(rng: np.random.Generator, street: _Street, t_m: float):
+    t_m = float(rng.uniform(*street.junction_window()))
+    east = rng.random() < 0.5
+    z_lane = street.junction_z - 3.0 if east else street.junction_z + 3.0
+    x_m = rng.uniform(-8.0, 5.0)
+    path = _straight(0.0, z_lane, 1.0 if east else -1.0, 0.0)
+    s_m = 2000.0 + (x_m if east else -x_m)
+    return path, s_m, rng.uniform(4.0, 10.0), t_m
+
+
+def _place_turning(rng: np.random.Generator, street: _Street, t_m: float):
+    t_m = float(rng.uniform(*street.junction_window()))
+    kind = int(rng.integers(4))
+    zj = street.junction_z
+    radius = float(rng.uniform(6.0, 9.0))
+    if kind == 0:  # from the right cross street into the oncoming lane
+        path, s_m = _turn((LANE_ONCOMING + radius, zj + 3.0), (-1, 0), (0, -1), radius)
+    elif kind == 1:  # oncoming car turning right into the cross street
+        path, s_m = _turn((LANE_ONCOMING, zj + 3.0 + radius), (0, -1), (-1, 0), radius)
+    elif kind == 2:  # car ahead turning right into the cross street
+        path, s_m = _turn((LANE_RIGHT, zj - 3.0 - radius), (0, 1), (1, 0), radius)
+    else:  # from the left cross street turning left, away from the camera
+        path, s_m = _turn((LANE_RIGHT - radius, zj - 3.0), (1, 0), (0, 1), radius)
+    return path, s_m, rng.uniform(3.5, 7.0), t_m
+
+
+def _place_parked(rng: np.random.Generator, street: _Street, t_m: float):
+    """Parallel or angled (38-52 degrees, nose to the kerb) on the right, parallel on the left;
+    never in the junction."""
+    z = float(rng.uniform(3.0, street.ego_end + 60.0))
+    if abs(z - street.junction_z) < CROSS_HALF_WIDTH + 4.0:
+        z = street.junction_z - CROSS_HALF_WIDTH - 4.0 - rng.uniform(0.0, 10.0)
+    r = rng.random()
+    if r < 0.4:  # parallel on the right
+        x, (hx, hz) = 7.1, (0.0, 1.0 if rng.random() < 0.8 else -1.0)
+    elif r < 0.75:  # angled on the right, nose to the kerb
+        a = math.radians(rng.uniform(38.0, 52.0)) * (1 if rng.random() < 0.5 else -1)
+        x, (hx, hz) = 7.4, (math.sin(abs(a)), math.cos(a))
+    else:  # parallel on the left
+        x, (hx, hz) = -10.1, (0.0, -1.0 if rng.random() < 0.7 else 1.0)
+    return Path([(x, z), (x + hx, z + hz)]), 0.0, 0.0, 0.0
+
+
+_PLACE = {
+    "follow": _place_follow,
+    "lane_change": _place_lane_change,
+    "oncoming": _place_oncoming,
+    "crossing": _place_crossing,
+    "turning": _place_turning,
+    "parked": _place_parked,
+}
+
+
+def _random_vehicles(rng: np.random.Generator, street: _Street, n_vehicles: int) -> list[Vehicle]:
+    """Up to ``n_vehicles`` vehicles whose footprints never overlap each other's or the ego
+    car's (a colliding candidate is dropped; at most 6 n + 10 candidates)."""
+    times = np.arange(0.0, street.duration + 1e-9, 0.05)
     ego_pts = np.stack(
-        [np.stack([np.zeros(3), ego_z(t) + np.array([-1.0, 0.5, 2.0])], axis=1) for t in times]
+        [
+            np.stack([np.zeros(3), street.ego_z(t) + np.array([-1.0, 0.5, 2.0])], axis=1)
+            for t in times
+        ]
     )
     accepted: list[tuple[Vehicle, np.ndarray, float]] = []
     vehicles: list[Vehicle] = []
@@ -238,72 +333,15 @@ def random_scene(seed: int, frames: int, n_vehicles: int = 12, sequence_index: i
         else:
             role = str(rng.choice(ROLES, p=[0.22, 0.1, 0.2, 0.14, 0.14, 0.2]))
         van = rng.random() < 0.2
-        track_id = len(vehicles)
         dims, colour, shape = _random_vehicle_body(rng, van)
-        t_m = float(rng.uniform(0.0, duration)) if duration > 0 else 0.0
-        # times at which the junction is 12..60 m ahead of the ego car
-        t_lo = max(0.0, (junction_z - 60.0) / ego_speed) if ego_speed > 0 else 0.0
-        t_hi = min(duration, (junction_z - 12.0) / ego_speed) if ego_speed > 0 else duration
+        t_m = float(rng.uniform(0.0, street.duration)) if street.duration > 0 else 0.0
+        t_lo, t_hi = street.junction_window()
         if role in ("crossing", "turning") and t_hi < t_lo:
             role = "oncoming"
-        if role == "follow":
-            lane = LANE_RIGHT if rng.random() < 0.55 else LANE_EGO
-            dz = rng.uniform(-3.0 if lane == LANE_RIGHT else 9.0, 55.0)
-            speed = max(0.0, ego_speed + rng.uniform(-3.0, 3.0))
-            path, z_m = _straight(lane, 0.0, 0.0, 1.0), ego_z(t_m) + dz
-            s_m = z_m + 2000.0
-        elif role == "lane_change":
-            lanes = [LANE_EGO, LANE_RIGHT]
-            if rng.random() < 0.5:
-                lanes.reverse()
-            z_m = ego_z(t_m) + rng.uniform(12.0, 40.0)
-            speed = ego_speed + rng.uniform(1.0, 4.0)
-            path = _lane_change(lanes[0], lanes[1], z_m, rng.uniform(20.0, 30.0))
-            s_m = float(np.interp(z_m, path.points[:, 1], path.s))
-        elif role == "oncoming":
-            lane = LANE_ONCOMING if rng.random() < 0.6 else LANE_ONCOMING_OUTER
-            z_m = ego_z(t_m) + rng.uniform(8.0, 60.0)
-            speed = rng.uniform(6.0, 14.0)
-            path, s_m = _straight(lane, 0.0, 0.0, -1.0), 2000.0 - z_m
-        elif role == "crossing":
-            t_m = float(rng.uniform(t_lo, t_hi))
-            east = rng.random() < 0.5
-            z_lane = junction_z - 3.0 if east else junction_z + 3.0
-            x_m = rng.uniform(-8.0, 5.0)
-            path = _straight(0.0, z_lane, 1.0 if east else -1.0, 0.0)
-            s_m = 2000.0 + (x_m if east else -x_m)
-            speed = rng.uniform(4.0, 10.0)
-        elif role == "turning":
-            t_m = float(rng.uniform(t_lo, t_hi))
-            kind = int(rng.integers(4))
-            zj = junction_z
-            radius = float(rng.uniform(6.0, 9.0))
-            if kind == 0:  # from the right cross street into the oncoming lane
-                path, s_m = _turn((LANE_ONCOMING + radius, zj + 3.0), (-1, 0), (0, -1), radius)
-            elif kind == 1:  # oncoming car turning right into the cross street
-                path, s_m = _turn((LANE_ONCOMING, zj + 3.0 + radius), (0, -1), (-1, 0), radius)
-            elif kind == 2:  # car ahead turning right into the cross street
-                path, s_m = _turn((LANE_RIGHT, zj - 3.0 - radius), (0, 1), (1, 0), radius)
-            else:  # from the left cross street turning left, away from the camera
-                path, s_m = _turn((LANE_RIGHT - radius, zj - 3.0), (1, 0), (0, 1), radius)
-            speed = rng.uniform(3.5, 7.0)
-        else:  # parked
-            speed, t_m = 0.0, 0.0
-            z = float(rng.uniform(3.0, ego_end + 60.0))
-            if abs(z - junction_z) < CROSS_HALF_WIDTH + 4.0:
-                z = junction_z - CROSS_HALF_WIDTH - 4.0 - rng.uniform(0.0, 10.0)
-            r = rng.random()
-            if r < 0.4:  # parallel on the right
-                x, (hx, hz) = 7.1, (0.0, 1.0 if rng.random() < 0.8 else -1.0)
-            elif r < 0.75:  # angled on the right, nose to the kerb
-                a = math.radians(rng.uniform(38.0, 52.0)) * (1 if rng.random() < 0.5 else -1)
-                x, (hx, hz) = 7.4, (math.sin(abs(a)), math.cos(a))
-            else:  # parallel on the left
-                x, (hx, hz) = -10.1, (0.0, -1.0 if rng.random() < 0.7 else 1.0)
-            path, s_m = Path([(x, z), (x + hx, z + hz)]), 0.0
+        path, s_m, speed, t_m = _PLACE[role](rng, street, t_m)
         s0 = s_m - speed * t_m
         vtype = "Van" if van else "Car"
-        v = Vehicle(track_id, vtype, dims, colour, shape, path, float(s0), float(speed), role)
+        v = Vehicle(len(vehicles), vtype, dims, colour, shape, path, float(s0), float(speed), role)
         circles, radius = _footprint_circles(v, times)
         if _collides(circles, ego_pts, radius, 1.25):
             continue
@@ -311,7 +349,23 @@ def random_scene(seed: int, frames: int, n_vehicles: int = 12, sequence_index: i
             continue
         accepted.append((v, circles, radius))
         vehicles.append(v)
-    walls = _random_walls(rng, junction_z, ego_end)
+    return vehicles
+
+
+def random_scene(seed: int, frames: int, n_vehicles: int = 12, sequence_index: int = 0) -> Scene:
+    """A random street scene (deterministic for ``seed`` and ``sequence_index``).
+
+    Roles are mixed so that all viewing angles occur: vehicles ahead in both directions, lane
+    changes (overtaking), oncoming traffic, crossing and turning at a junction, and parked cars
+    (parallel and angled at 45 degrees).
+    """
+    rng = np.random.default_rng([seed, sequence_index, 0x5EED])
+    ego_speed = 0.0 if rng.random() < 0.15 else float(rng.uniform(4.0, 11.0))
+    duration = max(frames - 1, 0) * FRAME_DT
+    junction_z = ego_speed * duration * 0.55 + float(rng.uniform(28.0, 45.0))
+    street = _Street(ego_speed, duration, junction_z)
+    vehicles = _random_vehicles(rng, street, n_vehicles)
+    walls = _random_walls(rng, junction_z, street.ego_end)
     azimuth, elevation = rng.uniform(-math.pi, math.pi), rng.uniform(0.5, 1.2)
     sun = (
         math.cos(elevation) * math.sin(azimuth),
