@@ -389,6 +389,160 @@ def observation_angles_of(angles, variances) -> np.ndarray:
     return np.where(np.isfinite(a) & np.isfinite(var) & (var >= 0), a, np.nan)
 
 
+@dataclass(frozen=True)
+class _BorderCut:
+    """Which image borders a box touches (within :data:`TRUNCATION_BORDER` px)."""
+
+    left: bool
+    right: bool
+    bottom: bool
+
+    @classmethod
+    def of(cls, box, width: int, height: int) -> _BorderCut:
+        return cls(
+            box[0] <= TRUNCATION_BORDER,
+            box[2] >= width - 1 - TRUNCATION_BORDER,
+            box[3] >= height - 1 - TRUNCATION_BORDER,
+        )
+
+    @property
+    def side(self) -> bool:
+        """Cut on the left or the right."""
+        return self.left or self.right
+
+
+def _box_disparity(
+    disparity: np.ndarray,
+    box,
+    geometry: StereoGeometry,
+    params: RangingParams,
+    images,
+    visible_part: bool,
+    u: float,
+) -> tuple[float, bool, np.ndarray, float] | None:
+    """(disparity [px] of the box's surface, refined and bias-corrected; whether refined; the
+    visible part's columns; the share of valid pixels), or None when there is none."""
+    d_med, n_valid, n_pix = median_disparity(disparity, box)
+    frac = n_valid / n_pix if n_pix else 0.0
+    enough = n_valid >= params.min_valid_pixels and frac >= params.min_valid_fraction
+    refined, columns = False, np.zeros(0)
+    if visible_part:
+        d, refined, columns = _cut_box_disparity(
+            disparity, box, geometry, params, images, d_med if enough else math.nan
+        )
+    elif not enough:
+        return None
+    elif params.method == "median":
+        d = d_med
+    else:
+        d, _ = robust_disparity(disparity, box, geometry, params)
+        if not np.isfinite(d):
+            d = d_med
+    if np.isfinite(d) and d > 0:
+        if not visible_part:
+            d_coarse = d
+            d = refined_disparity(d, box, images, params)
+            refined = d != d_coarse
+        d -= float(disparity_bias_at(u, geometry, params))
+    if not (np.isfinite(d) and d > 0):
+        return None
+    return d, refined, columns, frac
+
+
+def _centre_offset(setup: RangingSetup, cut: bool, b: int, alpha: float):
+    """(offset [m] along the ray from the visible surface to the car's centre, bin, angle):
+    at the continuous angle ``alpha`` when finite (its bin), else at bin ``b``'s centre angle,
+    else (no or an invalid bin) the mean over all angles with bin 0's ``depth_offset``."""
+    params = setup.params
+    centre = setup.truncated_offsets if cut else setup.centre_offsets
+    if math.isfinite(alpha):  # the continuous angle: the correction at that angle
+        b = alpha_to_bin(alpha)
+        offset = params.depth_offset[b]
+        if params.centre_correction:
+            model = params.truncated_surface_model if cut else params.surface_model
+            offset += float(
+                centre_depth_behind_surface(
+                    alpha, params.car_length, params.car_width, model, params.surface_blend
+                )
+                - params.surface_inset
+            )
+    elif 0 <= b < NUM_BINS:
+        offset = float(centre[b] + params.depth_offset[b])
+        alpha = b * BIN_WIDTH
+    else:  # no bin, or an invalid one: the mean correction over all angles
+        offset = float(centre[NUM_BINS] + params.depth_offset[0])
+    return offset, b, alpha
+
+
+@dataclass(frozen=True, eq=False)
+class _Surface:
+    """A box's visible surface: its disparity [px] (refined, bias-corrected), whether refined,
+    the visible part's columns (cut boxes), the share of valid pixels, the box centre [px] and
+    the borders it touches."""
+
+    d: float
+    refined: bool
+    columns: np.ndarray
+    frac: float
+    u: float
+    v: float
+    cut: _BorderCut
+    one_side: bool  # cut on one side and fitted by its visible part (_fit_cut_centre)
+
+
+def _box_surface(
+    disparity: np.ndarray, box, geometry: StereoGeometry, params: RangingParams, images, size
+) -> _Surface | None:
+    """The surface of one box of a (height, width) ``size`` map, or None when the box is empty
+    or has no usable disparity."""
+    if not np.all(np.isfinite(box)) or box[2] <= box[0] or box[3] <= box[1]:
+        return None
+    cut = _BorderCut.of(box, size[1], size[0])
+    # boxes cut by a border: the visible part's surface (_cut_box_disparity); one side
+    # cut: also the centre of the car from its visible part (_fit_cut_centre)
+    visible_part = params.cut_box_fit and (cut.side or cut.bottom) and params.method == "robust"
+    one_side = visible_part and cut.left != cut.right
+    u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
+    found = _box_disparity(disparity, box, geometry, params, images, visible_part, u)
+    if found is None:
+        return None
+    return _Surface(*found, u, v, cut, one_side)
+
+
+def _box_result(
+    surface: _Surface, box, geometry: StereoGeometry, setup: RangingSetup, b: int, alpha, width
+) -> RangeResult:
+    """The car's centre behind ``surface`` with its bin ``b`` (NUM_BINS: none) and angle
+    ``alpha`` (nan: none), and its covariance."""
+    params = setup.params
+    z_surface = float(geometry.fx * geometry.baseline / surface.d)
+    offset, b, alpha = _centre_offset(setup, surface.cut.side, b, alpha)
+    ray = geometry.backproject(surface.u, surface.v, 1.0)
+    point = ray * z_surface + offset * ray / np.linalg.norm(ray)
+    if params.lateral_fit and math.isfinite(alpha):
+        point = fit_lateral(
+            point,
+            box,
+            alpha,
+            params.car_length,
+            params.car_width,
+            geometry,
+            width,
+            TRUNCATION_BORDER,
+        )
+    if surface.one_side and params.centre_correction and math.isfinite(alpha):
+        if surface.cut.bottom:  # the box's centre row is not the car's: on the road
+            point[1] = params.ground_height - 0.5 * params.prior_height
+        fitted = _fit_cut_centre(
+            z_surface, surface.columns, box, alpha, point, geometry, params, width
+        )
+        if fitted is not None:
+            point = fitted + np.array([0.0, 0.0, params.depth_offset[b]])
+    sd = disparity_std(surface.d, surface.refined, params)
+    cov = position_covariance(surface.u, surface.v, float(point[2]), geometry, params, sd)
+    return RangeResult(point, cov, float(surface.d), float(surface.frac), float(sd))
+
+
 def range_boxes(
     disparity: np.ndarray,
     boxes,
@@ -412,93 +566,18 @@ def range_boxes(
     angle (:func:`observation_angles_of` turns detector outputs with a variance into these).
     """
     setup = params if isinstance(params, RangingSetup) else RangingSetup.from_params(params)
-    params = setup.params
-    width = disparity.shape[1] if np.ndim(disparity) == 2 else 0
+    size = disparity.shape if np.ndim(disparity) == 2 else (0, 0)
     disparity = np.asarray(disparity, np.float32)
     boxes = np.asarray(boxes, dtype=float).reshape(-1, 4)
     results: list[RangeResult | None] = []
-    height = disparity.shape[0] if np.ndim(disparity) == 2 else 0
     for i, box in enumerate(boxes):
-        if not np.all(np.isfinite(box)) or box[2] <= box[0] or box[3] <= box[1]:
+        surface = _box_surface(disparity, box, geometry, setup.params, images, size)
+        if surface is None:
             results.append(None)
             continue
-        cut_left = box[0] <= TRUNCATION_BORDER
-        cut_right = box[2] >= width - 1 - TRUNCATION_BORDER
-        cut = cut_left or cut_right
-        cut_bottom = box[3] >= height - 1 - TRUNCATION_BORDER
-        # boxes cut by a border: the visible part's surface (_cut_box_disparity); one side
-        # cut: also the centre of the car from its visible part (_fit_cut_centre)
-        visible_part = params.cut_box_fit and (cut or cut_bottom) and params.method == "robust"
-        one_side = visible_part and cut_left != cut_right
-        d_med, n_valid, n_pix = median_disparity(disparity, box)
-        frac = n_valid / n_pix if n_pix else 0.0
-        enough = n_valid >= params.min_valid_pixels and frac >= params.min_valid_fraction
-        u, v = 0.5 * (box[0] + box[2]), 0.5 * (box[1] + box[3])
-        refined, columns = False, np.zeros(0)
-        if visible_part:
-            d, refined, columns = _cut_box_disparity(
-                disparity, box, geometry, params, images, d_med if enough else math.nan
-            )
-        elif not enough:
-            results.append(None)
-            continue
-        elif params.method == "median":
-            d = d_med
-        else:
-            d, _ = robust_disparity(disparity, box, geometry, params)
-            if not np.isfinite(d):
-                d = d_med
-        if np.isfinite(d) and d > 0:
-            if not visible_part:
-                d_coarse = d
-                d = refined_disparity(d, box, images, params)
-                refined = d != d_coarse
-            d -= float(disparity_bias_at(u, geometry, params))
-        if not (np.isfinite(d) and d > 0):
-            results.append(None)
-            continue
-        z_surface = float(geometry.fx * geometry.baseline / d)
         b = int(orientation_bins[i]) if orientation_bins is not None else NUM_BINS
         alpha = float(observation_angles[i]) if observation_angles is not None else math.nan
-        centre = setup.truncated_offsets if cut else setup.centre_offsets
-        if math.isfinite(alpha):  # the continuous angle: the correction at that angle
-            b = alpha_to_bin(alpha)
-            offset = params.depth_offset[b]
-            if params.centre_correction:
-                model = params.truncated_surface_model if cut else params.surface_model
-                offset += float(
-                    centre_depth_behind_surface(
-                        alpha, params.car_length, params.car_width, model, params.surface_blend
-                    )
-                    - params.surface_inset
-                )
-        elif 0 <= b < NUM_BINS:
-            offset = float(centre[b] + params.depth_offset[b])
-            alpha = b * BIN_WIDTH
-        else:  # no bin, or an invalid one: the mean correction over all angles
-            offset = float(centre[NUM_BINS] + params.depth_offset[0])
-        ray = geometry.backproject(u, v, 1.0)
-        point = ray * z_surface + offset * ray / np.linalg.norm(ray)
-        if params.lateral_fit and math.isfinite(alpha):
-            point = fit_lateral(
-                point,
-                box,
-                alpha,
-                params.car_length,
-                params.car_width,
-                geometry,
-                width,
-                TRUNCATION_BORDER,
-            )
-        if one_side and params.centre_correction and math.isfinite(alpha):
-            if cut_bottom:  # the box's centre row is not the car's: on the road
-                point[1] = params.ground_height - 0.5 * params.prior_height
-            fitted = _fit_cut_centre(z_surface, columns, box, alpha, point, geometry, params, width)
-            if fitted is not None:
-                point = fitted + np.array([0.0, 0.0, params.depth_offset[b]])
-        sd = disparity_std(d, refined, params)
-        cov = position_covariance(u, v, float(point[2]), geometry, params, sd)
-        results.append(RangeResult(point, cov, float(d), float(frac), float(sd)))
+        results.append(_box_result(surface, box, geometry, setup, b, alpha, size[1]))
     return results
 
 
