@@ -431,6 +431,43 @@ def _normalisers(heat_t, cells, bins, res, bin_weights, residual_overlap) -> dic
     }
 
 
+def _heat_focal_loss(logit, heat_t, negw):
+    """Penalty-reduced focal loss (alpha 2, beta 4) of the heat logits against the target map,
+    negatives weighted by ``negw`` (0 inside DontCare / ignore regions); a sum."""
+    p = torch.sigmoid(logit).clamp(1e-4, 1 - 1e-4)
+    pos = heat_t == 1.0
+    pos_loss = -(torch.log(p) * (1 - p) ** 2)[pos].sum()
+    neg_loss = -(torch.log(1 - p) * p**2 * (1 - heat_t) ** 4 * negw)[~pos].sum()
+    return pos_loss + neg_loss
+
+
+def _bin_loss(v, tb, bins, res, bin_weights, bin_smoothing):
+    """Summed (weighted, optionally smoothed) cross-entropy of the orientation head's bin
+    logits ``v[:, :NUM_BINS]`` against the true bins ``tb`` of the known angles."""
+    bw = None if bin_weights is None else v.new_tensor(bin_weights)
+    if bin_smoothing > 0:
+        soft = smoothed_bin_targets(bins[bins >= 0], res[bins >= 0], bin_smoothing)
+        ce = -(v.new_tensor(soft) * F.log_softmax(v[:, 0:NUM_BINS], dim=1)).sum(1)
+        return (ce if bw is None else ce * bw[tb]).sum()
+    return F.cross_entropy(v[:, 0:NUM_BINS], tb, weight=bw, reduction="sum")
+
+
+def _residual_loss(v, tb, known, bins, res, residual_overlap):
+    """Summed Gaussian negative log-likelihood of the true residual(s) with the predicted log
+    variance: the true bin's, or with ``residual_overlap`` every bin within MAX_RESIDUAL."""
+    res_raw = v[:, NUM_BINS : 2 * NUM_BINS]
+    logvar = v[:, 2 * NUM_BINS].clamp(*LOGVAR_RANGE)
+    if residual_overlap:
+        target, mask = overlap_residual_targets(bins[bins >= 0], res[bins >= 0])
+        target, mask = torch.from_numpy(target).to(v.device), torch.from_numpy(mask).to(v.device)
+        err = MAX_RESIDUAL * torch.tanh(res_raw) - target
+        nll = 0.5 * (err**2 * torch.exp(-logvar)[:, None] + logvar[:, None])
+        return nll[mask].sum()
+    pred_res = MAX_RESIDUAL * torch.tanh(res_raw.gather(1, tb[:, None])[:, 0])
+    err = pred_res - torch.from_numpy(res).to(v.device)[known]
+    return (0.5 * (err**2 * torch.exp(-logvar) + logvar)).sum()
+
+
 def centernet_loss(
     raw,
     samples_boxes,
@@ -470,12 +507,7 @@ def centernet_loss(
     norm = normalisers or _normalisers(heat_t, cells, bins, res, bin_weights, residual_overlap)
     heat_t = torch.from_numpy(heat_t).to(dev)
     negw = torch.from_numpy(negw).to(dev)
-    logit = raw[:, HEAT]
-    p = torch.sigmoid(logit).clamp(1e-4, 1 - 1e-4)
-    pos = heat_t == 1.0
-    pos_loss = -(torch.log(p) * (1 - p) ** 2)[pos].sum()
-    neg_loss = -(torch.log(1 - p) * p**2 * (1 - heat_t) ** 4 * negw)[~pos].sum()
-    l_heat = (pos_loss + neg_loss) / norm["heat"]
+    l_heat = _heat_focal_loss(raw[:, HEAT], heat_t, negw) / norm["heat"]
     zero = raw.sum() * 0.0
     l_l1 = l_iou = l_bin = l_res = zero
     if len(cells):
@@ -492,26 +524,8 @@ def centernet_loss(
             ).to(dev)
             tb = torch.from_numpy(bins).to(dev)[known]
             v = orientation(bi_t[known], gt_boxes[known])
-            bw = None if bin_weights is None else v.new_tensor(bin_weights)
-            if bin_smoothing > 0:
-                soft = smoothed_bin_targets(bins[bins >= 0], res[bins >= 0], bin_smoothing)
-                ce = -(v.new_tensor(soft) * F.log_softmax(v[:, 0:NUM_BINS], dim=1)).sum(1)
-                l_bin = (ce if bw is None else ce * bw[tb]).sum() / norm["bin"]
-            else:
-                ce = F.cross_entropy(v[:, 0:NUM_BINS], tb, weight=bw, reduction="sum")
-                l_bin = ce / norm["bin"]
-            res_raw = v[:, NUM_BINS : 2 * NUM_BINS]
-            logvar = v[:, 2 * NUM_BINS].clamp(*LOGVAR_RANGE)
-            if residual_overlap:
-                target, mask = overlap_residual_targets(bins[bins >= 0], res[bins >= 0])
-                target, mask = torch.from_numpy(target).to(dev), torch.from_numpy(mask).to(dev)
-                err = MAX_RESIDUAL * torch.tanh(res_raw) - target
-                nll = 0.5 * (err**2 * torch.exp(-logvar)[:, None] + logvar[:, None])
-                l_res = nll[mask].sum() / norm["residual"]
-            else:
-                pred_res = MAX_RESIDUAL * torch.tanh(res_raw.gather(1, tb[:, None])[:, 0])
-                err = pred_res - torch.from_numpy(res).to(dev)[known]
-                l_res = (0.5 * (err**2 * torch.exp(-logvar) + logvar)).sum() / norm["residual"]
+            l_bin = _bin_loss(v, tb, bins, res, bin_weights, bin_smoothing) / norm["bin"]
+            l_res = _residual_loss(v, tb, known, bins, res, residual_overlap) / norm["residual"]
     total = (
         w["heat"] * l_heat
         + w["l1"] * l_l1

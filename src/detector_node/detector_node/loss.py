@@ -58,6 +58,51 @@ def build_targets(samples_boxes, samples_bins, config: DetectorConfig):
     return mask, tbox, wscale, tbin
 
 
+@torch.no_grad()
+def _ignored(out, anchors, stride, samples_boxes, samples_dontcare, ignore_iou: float):
+    """(B, A, H, W) True for the anchors whose predicted box overlaps a ground-truth box with
+    IoU > ``ignore_iou`` or whose predicted centre lies in a DontCare region."""
+    dev = out.device
+    pred = decode_raw(out[:, :, :4].detach(), anchors, stride)  # (B, A, H, W, 4)
+    ignore = torch.zeros(pred.shape[:-1], dtype=torch.bool, device=dev)
+    for i in range(out.shape[0]):
+        p = pred[i].reshape(-1, 4)
+        flags = torch.zeros(p.shape[0], dtype=torch.bool, device=dev)
+        if len(samples_boxes[i]):
+            gt = torch.as_tensor(samples_boxes[i], dtype=p.dtype, device=dev)
+            flags |= iou_matrix_torch(p, gt).max(dim=1).values > ignore_iou
+        if len(samples_dontcare[i]):
+            dc = torch.as_tensor(samples_dontcare[i], dtype=p.dtype, device=dev)
+            cx, cy = (p[:, 0] + p[:, 2]) / 2, (p[:, 1] + p[:, 3]) / 2
+            inside = (
+                (cx[:, None] >= dc[None, :, 0])
+                & (cx[:, None] <= dc[None, :, 2])
+                & (cy[:, None] >= dc[None, :, 1])
+                & (cy[:, None] <= dc[None, :, 3])
+            )
+            flags |= inside.any(dim=1)
+        ignore[i] = flags.view(ignore[i].shape)
+    return ignore
+
+
+def _positive_losses(sel, tb, ws, tbin, bin_weights, b: int):
+    """(xy, wh, objectness, orientation) losses of the responsible anchors' outputs ``sel``
+    (N, 9) against their targets, each summed and divided by the batch size ``b``."""
+    l_xy = (((torch.sigmoid(sel[:, :2]) - tb[:, :2]) ** 2).sum(1) * ws).sum() / b
+    l_wh = (((sel[:, 2:4] - tb[:, 2:4]) ** 2).sum(1) * ws).sum() / b
+    l_obj = (
+        F.binary_cross_entropy_with_logits(sel[:, 4], torch.ones_like(sel[:, 4]), reduction="sum")
+        / b
+    )
+    bw = (
+        torch.tensor(bin_weights, dtype=sel.dtype, device=sel.device)
+        if bin_weights is not None
+        else None
+    )
+    l_ori = F.cross_entropy(sel[:, 5:], tbin, weight=bw, ignore_index=-1, reduction="sum") / b
+    return l_xy, l_wh, l_obj, l_ori
+
+
 def detection_loss(
     raw: torch.Tensor,
     samples_boxes: list[np.ndarray],
@@ -85,50 +130,15 @@ def detection_loss(
     anchors = torch.tensor(config.anchors, dtype=raw.dtype, device=dev)
 
     obj_logit = out[:, :, 4]
-    with torch.no_grad():
-        pred = decode_raw(out[:, :, :4].detach(), anchors, stride)  # (B, A, H, W, 4)
-        ignore = torch.zeros_like(mask_t)
-        for i in range(b):
-            p = pred[i].reshape(-1, 4)
-            flags = torch.zeros(p.shape[0], dtype=torch.bool, device=dev)
-            if len(samples_boxes[i]):
-                gt = torch.as_tensor(samples_boxes[i], dtype=p.dtype, device=dev)
-                flags |= iou_matrix_torch(p, gt).max(dim=1).values > w.ignore_iou
-            if len(samples_dontcare[i]):
-                dc = torch.as_tensor(samples_dontcare[i], dtype=p.dtype, device=dev)
-                cx, cy = (p[:, 0] + p[:, 2]) / 2, (p[:, 1] + p[:, 3]) / 2
-                inside = (
-                    (cx[:, None] >= dc[None, :, 0])
-                    & (cx[:, None] <= dc[None, :, 2])
-                    & (cy[:, None] >= dc[None, :, 1])
-                    & (cy[:, None] <= dc[None, :, 3])
-                )
-                flags |= inside.any(dim=1)
-            ignore[i] = flags.view(ignore[i].shape)
+    ignore = _ignored(out, anchors, stride, samples_boxes, samples_dontcare, w.ignore_iou)
     noobj_mask = ~mask_t & ~ignore
     zeros = torch.zeros_like(obj_logit)
     l_noobj = F.binary_cross_entropy_with_logits(obj_logit, zeros, reduction="none")
     l_noobj = (l_noobj * noobj_mask).sum() / b
     if mask_t.any():
         sel = out.permute(0, 1, 3, 4, 2)[mask_t]  # (N, 9)
-        tb = tbox_t[mask_t]
-        ws = wscale_t[mask_t]
-        l_xy = (((torch.sigmoid(sel[:, :2]) - tb[:, :2]) ** 2).sum(1) * ws).sum() / b
-        l_wh = (((sel[:, 2:4] - tb[:, 2:4]) ** 2).sum(1) * ws).sum() / b
-        l_obj = (
-            F.binary_cross_entropy_with_logits(
-                sel[:, 4], torch.ones_like(sel[:, 4]), reduction="sum"
-            )
-            / b
-        )
-        bw = (
-            torch.tensor(w.orientation_bin_weights, dtype=sel.dtype, device=dev)
-            if w.orientation_bin_weights is not None
-            else None
-        )
-        l_ori = (
-            F.cross_entropy(sel[:, 5:], tbin_t[mask_t], weight=bw, ignore_index=-1, reduction="sum")
-            / b
+        l_xy, l_wh, l_obj, l_ori = _positive_losses(
+            sel, tbox_t[mask_t], wscale_t[mask_t], tbin_t[mask_t], w.orientation_bin_weights, b
         )
     else:
         l_xy = l_wh = l_obj = l_ori = raw.sum() * 0.0
