@@ -147,6 +147,29 @@ def _key(name: str) -> str:
     return name.replace(".", "_")
 
 
+def _execution_order(nodes: dict[str, dict], outputs: list[str]) -> list[str]:
+    """Names of the nodes ``outputs`` need, in execution order (depth-first, post-order)."""
+    needed: list[str] = []
+    seen: set[str] = set()
+    for o in outputs:
+        stack = [(o.split(":")[0], False)]
+        while stack:
+            n, done = stack.pop()
+            if done:
+                needed.append(n)
+                continue
+            if n in seen:
+                continue
+            if n not in nodes:
+                raise TfjsGraphError(f"node {n}: referenced but not in the graph")
+            seen.add(n)
+            stack.append((n, True))
+            for i in reversed(nodes[n].get("input", [])):
+                if not i.startswith("^"):
+                    stack.append((i.split(":")[0], False))
+    return needed
+
+
 class TfjsGraph(nn.Module):
     """Executes the part of a TF.js graph that ``outputs`` need, on NCHW tensors.
 
@@ -158,28 +181,7 @@ class TfjsGraph(nn.Module):
     def __init__(self, model: dict, weights: dict[str, np.ndarray], outputs: list[str]) -> None:
         super().__init__()
         nodes = {n["name"]: n for n in model["modelTopology"]["node"]}
-        needed: list[str] = []
-        seen: set[str] = set()
-
-        def visit(name: str) -> None:  # depth-first, post-order = execution order
-            stack = [(name.split(":")[0], False)]
-            while stack:
-                n, done = stack.pop()
-                if done:
-                    needed.append(n)
-                    continue
-                if n in seen:
-                    continue
-                if n not in nodes:
-                    raise TfjsGraphError(f"node {n}: referenced but not in the graph")
-                seen.add(n)
-                stack.append((n, True))
-                for i in reversed(nodes[n].get("input", [])):
-                    if not i.startswith("^"):
-                        stack.append((i.split(":")[0], False))
-
-        for o in outputs:
-            visit(o)
+        needed = _execution_order(nodes, outputs)
         self.outputs = list(outputs)
         #: the graph nodes these outputs need (constants included), in execution order
         self.nodes_used = [nodes[n] for n in needed]
@@ -187,12 +189,26 @@ class TfjsGraph(nn.Module):
         self.params = nn.ParameterDict()
         self.input_name = None
         self.input_hw: tuple[int, int] | None = None
-        consts: dict[str, np.ndarray] = {}
         conv_args: set[str] = set()
         for name in needed:
             n = nodes[name]
             if n["op"] in _CONVS:
                 conv_args.update(i.split(":")[0] for i in n["input"][1:])
+        consts = self._read_nodes(nodes, needed, weights)
+        self.const_names: dict[str, str] = {}
+        self._store_constants(consts, conv_args)
+        if self.input_name is None:
+            raise TfjsGraphError("graph has no input (Placeholder) for these outputs")
+        other = ("Mean", "ConcatV2", "MaxPool", "ResizeBilinear")
+        for name, op, _, _ in self.ops:
+            if op not in _SIMPLE and op not in _BINARY and op not in _CONVS and op not in other:
+                raise TfjsGraphError(f"node {name}: op {op} not supported")
+        self.fuse()
+
+    def _read_nodes(self, nodes: dict, needed: list[str], weights) -> dict[str, np.ndarray]:
+        """Sort the needed nodes: the input (``input_name``, ``input_hw``), the ops (``ops``, in
+        execution order); returns the constants' values."""
+        consts: dict[str, np.ndarray] = {}
         for name in needed:
             n = nodes[name]
             op = n["op"]
@@ -210,10 +226,13 @@ class TfjsGraph(nn.Module):
                     self.input_hw = (int(dims[1]["size"]), int(dims[2]["size"]))
                 continue
             self.ops.append((name, op, [i.split(":")[0] for i in n.get("input", [])], n))
-        # constants: filters/biases -> parameters in torch layout, the rest -> buffers (NCHW)
+        return consts
+
+    def _store_constants(self, consts: dict[str, np.ndarray], conv_args: set[str]) -> None:
+        """Constants: filters/biases -> parameters in torch layout, the rest -> buffers (NCHW)
+        named in ``const_names``."""
         depthwise = ("DepthwiseConv2dNative", "FusedDepthwiseConv2dNative")
         depthwise_filters = {i[2][1] for i in self.ops if i[1] in depthwise}
-        self.const_names: dict[str, str] = {}
         for name, value in consts.items():
             t = torch.from_numpy(np.ascontiguousarray(value))
             if name in conv_args and t.ndim == 4:
@@ -233,13 +252,6 @@ class TfjsGraph(nn.Module):
                 buf = f"const_{len(self.const_names)}"
                 self.register_buffer(buf, t.contiguous(), persistent=True)
                 self.const_names[name] = buf
-        if self.input_name is None:
-            raise TfjsGraphError("graph has no input (Placeholder) for these outputs")
-        other = ("Mean", "ConcatV2", "MaxPool", "ResizeBilinear")
-        for name, op, _, _ in self.ops:
-            if op not in _SIMPLE and op not in _BINARY and op not in _CONVS and op not in other:
-                raise TfjsGraphError(f"node {name}: op {op} not supported")
-        self.fuse()
 
     def fuse(self) -> None:
         """Peephole fusions that read constant values (:meth:`_fuse_hard_swish`,
