@@ -370,20 +370,28 @@ def plan(
         _check_unpaced(value(PLAYER, "rate"), value(PLAYER, "rate_multiplier"), whole)
     window = _lockstep_window(value(PLAYER, "lockstep_window")) if lockstep else None
     player = any(n.name == PLAYER.name for n in nodes)  # started here (else: hosts.py)
-    out = []
-    for n in nodes:
-        extra: dict[str, str | int] = {}
-        overridden = {ov.partition(":=")[0] for ov in overrides.get(n.name, [])}
-        if window is not None and n.latest_frame and "frame_queue" not in overridden:
-            extra["frame_queue"] = window
-        if window is not None and n.name == DETECTOR.name and "downstream_window" not in overridden:
-            extra["downstream_window"] = 0  # lockstep: nothing changes
-        images_in = any(topics.image_topic(t, transport) in n.subscribes for t in IMAGES)
-        if images_in and "image_transport" not in overridden:
-            extra["image_transport"] = subscriber_transport(transport)
-        if player and n.name in IMAGE_CONSUMERS and "camera_reliability" not in overridden:
-            extra["camera_reliability"] = "reliable"
-        if n.source and n.wait_parameter:
-            extra[n.wait_parameter] = wait_for_topics_value(whole, extra_subscriptions)
-        out.append((n, extra))
-    return out
+    return [
+        (n, _launch_parameters(n, overrides, window, transport, player, whole, extra_subscriptions))
+        for n in nodes
+    ]
+
+
+def _launch_parameters(
+    n: NodeSpec, overrides, window, transport: str, player: bool, whole, extra_subscriptions
+) -> dict[str, str | int]:
+    """The parameters :func:`plan` sets on node ``n`` (see there), those in ``overrides``
+    left out."""
+    extra: dict[str, str | int] = {}
+    overridden = {ov.partition(":=")[0] for ov in overrides.get(n.name, [])}
+    if window is not None and n.latest_frame and "frame_queue" not in overridden:
+        extra["frame_queue"] = window
+    if window is not None and n.name == DETECTOR.name and "downstream_window" not in overridden:
+        extra["downstream_window"] = 0  # lockstep: nothing changes
+    images_in = any(topics.image_topic(t, transport) in n.subscribes for t in IMAGES)
+    if images_in and "image_transport" not in overridden:
+        extra["image_transport"] = subscriber_transport(transport)
+    if player and n.name in IMAGE_CONSUMERS and "camera_reliability" not in overridden:
+        extra["camera_reliability"] = "reliable"
+    if n.source and n.wait_parameter:
+        extra[n.wait_parameter] = wait_for_topics_value(whole, extra_subscriptions)
+    return extra
