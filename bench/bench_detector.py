@@ -65,12 +65,9 @@ NODE_SCORE_THRESHOLD = 0.3
 BASELINE = SHIPPED_CHECKPOINT.parent / "tiny_kitti.pt"
 
 
-def evaluate(detector, specs: list[str], label: str) -> dict:
-    """Run the detector over every frame of some data sources and score it."""
-    from eval_node.detection_metrics import detection_ap_2d, orientation_accuracy
-
-    refs = [r for spec in specs for r in frames_from_source(spec)]
-    spec = " + ".join(specs)
+def _detect_frames(detector, refs) -> tuple[dict, dict, list[FrameResult]]:
+    """Run the detector on each frame: (labels, detections as KITTI objects, per frame; the
+    frames for the all-boxes VOC AP)."""
     gt, pred, simple = {}, {}, []
     types = detector.config.positive_types
     for i, ref in enumerate(refs):
@@ -96,14 +93,10 @@ def evaluate(detector, specs: list[str], label: str) -> dict:
                 dontcare=np.array([o.bbox for o in ref.objects if o.is_dontcare]).reshape(-1, 4),
             )
         )
-    kitti = detection_ap_2d(gt, pred)
-    ori = orientation_accuracy(gt, pred, iou=0.5)
-    angle_err = angle_errors(gt, pred)
-    own = {t: evaluate_frames(simple, t) for t in (0.5, 0.7)}
-    by_occl = occlusion_ap(gt, pred)
-    op = precision_at_threshold(gt, pred, NODE_SCORE_THRESHOLD)
-    n_car = sum(1 for objs in gt.values() for o in objs if o.type == "Car")
-    print(f"\n== {label}: {len(refs)} frames, {n_car} Car labels ({spec})")
+    return gt, pred, simple
+
+
+def _print_ap(kitti: dict, by_occl: dict, op: dict, own: dict) -> None:
     for diff in ("easy", "moderate", "hard"):
         row = kitti[diff]
         print(
@@ -125,6 +118,11 @@ def evaluate(detector, specs: list[str], label: str) -> dict:
         f"  all-boxes VOC AP (Car+Van positives): IoU0.5 {100 * own[0.5].ap:5.1f} %   "
         f"IoU0.7 {100 * own[0.7].ap:5.1f} %"
     )
+
+
+def _orientation_scores(ori, angle_err) -> tuple[float, float, float]:
+    """Print the orientation figures: (majority-bin baseline, balanced accuracy, median
+    continuous-angle error [deg])."""
     print(
         f"  orientation accuracy (Car, matched IoU>=0.5): {100 * ori.accuracy:5.1f} % "
         f"over {ori.n_pairs} pairs (paper: 76.8 %)"
@@ -145,6 +143,26 @@ def evaluate(detector, specs: list[str], label: str) -> dict:
     print("  confusion (rows true 0/45/90/135, cols predicted):")
     for r in ori.confusion:
         print("    " + " ".join(f"{v:5d}" for v in r))
+    return majority, balanced, med
+
+
+def evaluate(detector, specs: list[str], label: str) -> dict:
+    """Run the detector over every frame of some data sources and score it."""
+    from eval_node.detection_metrics import detection_ap_2d, orientation_accuracy
+
+    refs = [r for spec in specs for r in frames_from_source(spec)]
+    spec = " + ".join(specs)
+    gt, pred, simple = _detect_frames(detector, refs)
+    kitti = detection_ap_2d(gt, pred)
+    ori = orientation_accuracy(gt, pred, iou=0.5)
+    angle_err = angle_errors(gt, pred)
+    own = {t: evaluate_frames(simple, t) for t in (0.5, 0.7)}
+    by_occl = occlusion_ap(gt, pred)
+    op = precision_at_threshold(gt, pred, NODE_SCORE_THRESHOLD)
+    n_car = sum(1 for objs in gt.values() for o in objs if o.type == "Car")
+    print(f"\n== {label}: {len(refs)} frames, {n_car} Car labels ({spec})")
+    _print_ap(kitti, by_occl, op, own)
+    majority, balanced, med = _orientation_scores(ori, angle_err)
     return {
         "frames": len(refs),
         "kitti_ap_r40": {d: {str(t): kitti[d][t]["ap_r40"] for t in (0.5, 0.7)} for d in kitti},
@@ -262,7 +280,7 @@ def time_models(
     return {k: statistics.median(v) for k, v in times.items()}
 
 
-def main() -> None:
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -313,10 +331,11 @@ def main() -> None:
         action="store_true",
         help="time with glibc's malloc defaults (default: the nodes' keep_freed_memory policy)",
     )
-    args = p.parse_args()
-    if not args.glibc_malloc:
-        keep_freed_memory()  # as the detector node runs (its keep_freed_memory parameter)
-    torch.set_num_threads(args.threads)
+    return p
+
+
+def _load_detectors(args) -> dict:
+    """{"": the checkpoint's detector, "also": ``--also``'s when given}, each described."""
     det = load_detector(
         args.checkpoint,
         "cpu",
@@ -337,73 +356,99 @@ def main() -> None:
             f"{c.size} (width {c.width}, depth {c.depth}), input {c.input_width}x"
             f"{c.input_height}, runtime {d.runtime}, threads {args.threads}"
         )
-    results = {}
-    if args.skip_real:
-        pass
-    elif (SHARED_KITTI / "README.md").is_file():
-        val = report_sources(SHARED_KITTI)
-        for pre, d in dets.items():
-            tag = f"[{args.also}] " if pre else ""
-            results[f"{pre}real_val"] = evaluate(
-                d,
-                val,
-                f"{tag}real reporting split (every frame here of sequences 0001, 0005, 0008, "
-                "0010: tracking, keyframes, object frames)",
-            )
-            if args.parts:
-                for key, spec in zip(("tracking", "keyframes", "object"), val, strict=True):
-                    label = f"{tag}reporting part: {key}"
-                    results[f"{pre}real_val_{key}"] = evaluate(d, [spec], label)
-    else:
-        print(f"\n(real KITTI frames not found at {SHARED_KITTI}; skipped)")
-    if not args.skip_synthetic:
-        with tempfile.TemporaryDirectory() as tmp:
-            spec = args.synthetic
-            if not spec:
-                from kitti_player_node.synthetic import generate_sequence
+    return dets
 
-                generate_sequence(Path(tmp), "0100", args.frames, HELDOUT_SEED)
-                spec = f"{tmp}:0100"
-            label = f"held-out synthetic (seed {HELDOUT_SEED})"
-            results["synthetic"] = evaluate(det, [spec], label)
-    if not args.skip_timing:
-        frames, what = timing_frames(args.timing_frames)
-        print(
-            f"\n== inference time per 1242x375 frame (median of {args.runs}, runs interleaved, "
-            f"threads {args.threads}, on {what}); load average before: "
-            f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}"
+
+def _evaluate_real(args, dets: dict, results: dict) -> None:
+    """AP of each detector on the real reporting split (and its parts with ``--parts``)."""
+    if not (SHARED_KITTI / "README.md").is_file():
+        print(f"\n(real KITTI frames not found at {SHARED_KITTI}; skipped)")
+        return
+    val = report_sources(SHARED_KITTI)
+    for pre, d in dets.items():
+        tag = f"[{args.also}] " if pre else ""
+        results[f"{pre}real_val"] = evaluate(
+            d,
+            val,
+            f"{tag}real reporting split (every frame here of sequences 0001, 0005, 0008, "
+            "0010: tracking, keyframes, object frames)",
         )
-        models = {f"checkpoint ({det.runtime})": det}
-        if args.also:
-            models[f"also {args.also} ({dets['also'].runtime})"] = dets["also"]
-        if det.runtime != "torch" and args.compare_torch:
-            models["checkpoint (torch)"] = load_detector(
-                args.checkpoint,
-                "cpu",
-                0.3,
-                input_width=args.input_width,
-                input_height=args.input_height,
-                runtime="torch",
-            )
-        base, _ = load_checkpoint(BASELINE, "cpu")
-        models["baseline tiny_kitti"] = base
-        if args.with_full:
-            models["full (1152x352, random weights)"] = YoloV2Passthrough(preset("full")).eval()
-        t = time_models(models, runs=args.runs, frames=frames)
-        t["checkpoint"] = t[f"checkpoint ({det.runtime})"]
-        for k, v in t.items():
-            if k == "checkpoint":
-                continue
-            print(f"  {k:34s} {1000 * v:7.1f} ms  {1 / v:5.1f} fps")
-        ratio = t["checkpoint"] / t["baseline tiny_kitti"]
-        print(f"  checkpoint / tiny_kitti time ratio: {ratio:.2f} (same run)")
-        if args.also:
-            also = t[f"also {args.also} ({dets['also'].runtime})"]
-            results["timing_ratio_to_also"] = t["checkpoint"] / also
-            print(f"  checkpoint / {args.also} time ratio: {t['checkpoint'] / also:.2f} (same run)")
-        print(f"  load average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
-        results["timing_s"] = t
-        results["timing_ratio_to_tiny_kitti"] = ratio
+        if args.parts:
+            for key, spec in zip(("tracking", "keyframes", "object"), val, strict=True):
+                label = f"{tag}reporting part: {key}"
+                results[f"{pre}real_val_{key}"] = evaluate(d, [spec], label)
+
+
+def _evaluate_synthetic(args, det, results: dict) -> None:
+    """AP of the checkpoint on held-out synthetic data (``--synthetic`` or generated)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        spec = args.synthetic
+        if not spec:
+            from kitti_player_node.synthetic import generate_sequence
+
+            generate_sequence(Path(tmp), "0100", args.frames, HELDOUT_SEED)
+            spec = f"{tmp}:0100"
+        label = f"held-out synthetic (seed {HELDOUT_SEED})"
+        results["synthetic"] = evaluate(det, [spec], label)
+
+
+def _time_detectors(args, dets: dict, results: dict) -> None:
+    """Inference time per frame of the checkpoint, ``--also``'s, the torch runtime's
+    (``--compare-torch``), the tiny_kitti baseline and the full configuration (``--with-full``),
+    runs interleaved; the ratios in one run."""
+    det = dets[""]
+    frames, what = timing_frames(args.timing_frames)
+    print(
+        f"\n== inference time per 1242x375 frame (median of {args.runs}, runs interleaved, "
+        f"threads {args.threads}, on {what}); load average before: "
+        f"{' '.join(f'{v:.2f}' for v in os.getloadavg())}"
+    )
+    models = {f"checkpoint ({det.runtime})": det}
+    if args.also:
+        models[f"also {args.also} ({dets['also'].runtime})"] = dets["also"]
+    if det.runtime != "torch" and args.compare_torch:
+        models["checkpoint (torch)"] = load_detector(
+            args.checkpoint,
+            "cpu",
+            0.3,
+            input_width=args.input_width,
+            input_height=args.input_height,
+            runtime="torch",
+        )
+    base, _ = load_checkpoint(BASELINE, "cpu")
+    models["baseline tiny_kitti"] = base
+    if args.with_full:
+        models["full (1152x352, random weights)"] = YoloV2Passthrough(preset("full")).eval()
+    t = time_models(models, runs=args.runs, frames=frames)
+    t["checkpoint"] = t[f"checkpoint ({det.runtime})"]
+    for k, v in t.items():
+        if k == "checkpoint":
+            continue
+        print(f"  {k:34s} {1000 * v:7.1f} ms  {1 / v:5.1f} fps")
+    ratio = t["checkpoint"] / t["baseline tiny_kitti"]
+    print(f"  checkpoint / tiny_kitti time ratio: {ratio:.2f} (same run)")
+    if args.also:
+        also = t[f"also {args.also} ({dets['also'].runtime})"]
+        results["timing_ratio_to_also"] = t["checkpoint"] / also
+        print(f"  checkpoint / {args.also} time ratio: {t['checkpoint'] / also:.2f} (same run)")
+    print(f"  load average after: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    results["timing_s"] = t
+    results["timing_ratio_to_tiny_kitti"] = ratio
+
+
+def main() -> None:
+    args = _parser().parse_args()
+    if not args.glibc_malloc:
+        keep_freed_memory()  # as the detector node runs (its keep_freed_memory parameter)
+    torch.set_num_threads(args.threads)
+    dets = _load_detectors(args)
+    results = {}
+    if not args.skip_real:
+        _evaluate_real(args, dets, results)
+    if not args.skip_synthetic:
+        _evaluate_synthetic(args, dets[""], results)
+    if not args.skip_timing:
+        _time_detectors(args, dets, results)
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
 

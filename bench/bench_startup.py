@@ -304,7 +304,7 @@ def print_table(title: str, rows: dict[str, dict[str, list]], trees: tuple[str, 
         print(f"  {figure:<28} {bt:>26} {nt:>26} {ratio}")
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--baseline", required=True, type=Path, help="the other checkout")
     parser.add_argument("--runs", type=int, default=4, help="runs of each tree, alternated")
@@ -318,64 +318,59 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cold-runs", type=int, default=1, help="launches with an empty cache")
     parser.add_argument("--no-launch", action="store_true", help="time the restarts only")
     parser.add_argument("--json", type=Path, help="write every run's figures here")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _problem(args, trees: dict[str, Path], restart: list[str]) -> str | None:
+    """The one line for an unusable option or environment, else None."""
     if "ROS_DOMAIN_ID" not in os.environ:
-        print("error: set ROS_DOMAIN_ID to a free domain", file=sys.stderr)
-        return 2
-    trees = {"baseline": args.baseline.resolve(), "this": REPO}
+        return "set ROS_DOMAIN_ID to a free domain"
     for tree in trees.values():
         if not (tree / ".venv" / "bin" / "stereo_tracking_launch").is_file():
-            print(
-                f"error: {tree}: no .venv/bin/stereo_tracking_launch (make setup)", file=sys.stderr
-            )
-            return 2
-    restart = [n for n in args.restart.split(",") if n]
+            return f"{tree}: no .venv/bin/stereo_tracking_launch (make setup)"
     unknown = [n for n in restart if n not in RESTARTABLE]
     if unknown:
-        print(f"error: --restart: {', '.join(unknown)} not one of {RESTARTABLE}", file=sys.stderr)
-        return 2
+        return f"--restart: {', '.join(unknown)} not one of {RESTARTABLE}"
     if not (args.kitti_root / "image_02" / args.sequence).is_dir():
-        print(f"error: {args.kitti_root}: no sequence {args.sequence}", file=sys.stderr)
-        return 2
+        return f"{args.kitti_root}: no sequence {args.sequence}"
+    return None
 
-    from tracking_bringup.environment import apply_graph_environment, graph_environment
 
-    apply_graph_environment()
-    env = graph_environment()
-    work = Path(tempfile.mkdtemp(prefix="bench_startup_"))
-    order = [t for _ in range(args.runs + 1) for t in trees]  # the first pair: warm-up
-    load0 = _load()
-    print(
-        f"bench_startup {datetime.now():%Y-%m-%d %H:%M}: baseline {trees['baseline']}, this "
-        f"{REPO}; {args.runs} runs each alternated (+1 warm-up each); load average {load0}",
-        flush=True,
-    )
-    runs: list[dict] = []
-    if not args.no_launch:
+def _time_launches(args, trees, order, work: Path, env) -> list[dict]:
+    """The launches of each tree in ``order``, then ``--cold-runs`` with an empty cache."""
+    runs = []
+    for i, name in enumerate(order):
+        r = launch_once(trees[name], args.kitti_root, args.sequence, work / f"l{i}", env)
+        r.update(kind="launch", tree=name, warmup=i < len(trees))
+        runs.append(r)
+        print(f"  launch {name:<8} {_figures(r)}", flush=True)
+    for i in range(args.cold_runs):
+        cold_env = {**env, "VEHICLE_DETECTOR_CACHE": str(work / f"cache{i}")}
+        r = launch_once(REPO, args.kitti_root, args.sequence, work / f"c{i}", cold_env)
+        r.update(kind="launch", tree="this, empty cache", warmup=False)
+        runs.append(r)
+        print(f"  launch cold    {_figures(r)}", flush=True)
+    return runs
+
+
+def _time_restarts(args, trees, order, restart: list[str], work: Path, env) -> list[dict]:
+    """Each node of ``restart`` restarted alone with its inputs fed, each tree in ``order``."""
+    runs = []
+    feeder = Feeder(args.kitti_root, args.sequence)
+    try:
+        time.sleep(1.0)  # the feeder's participant is discovered before the first start
         for i, name in enumerate(order):
-            r = launch_once(trees[name], args.kitti_root, args.sequence, work / f"l{i}", env)
-            r.update(kind="launch", tree=name, warmup=i < len(trees))
-            runs.append(r)
-            print(f"  launch {name:<8} {_figures(r)}", flush=True)
-        for i in range(args.cold_runs):
-            cold_env = {**env, "VEHICLE_DETECTOR_CACHE": str(work / f"cache{i}")}
-            r = launch_once(REPO, args.kitti_root, args.sequence, work / f"c{i}", cold_env)
-            r.update(kind="launch", tree="this, empty cache", warmup=False)
-            runs.append(r)
-            print(f"  launch cold    {_figures(r)}", flush=True)
-    if restart:
-        feeder = Feeder(args.kitti_root, args.sequence)
-        try:
-            time.sleep(1.0)  # the feeder's participant is discovered before the first start
-            for i, name in enumerate(order):
-                for node in restart:
-                    r = feeder.restart_once(trees[name], node, work / f"r{i}", env)
-                    r.update(kind=f"restart {node}", tree=name, warmup=i < len(trees))
-                    runs.append(r)
-                    print(f"  restart {name:<8} {node:<17} {r['first_output_s']}", flush=True)
-        finally:
-            feeder.close()
-    load1 = _load()
+            for node in restart:
+                r = feeder.restart_once(trees[name], node, work / f"r{i}", env)
+                r.update(kind=f"restart {node}", tree=name, warmup=i < len(trees))
+                runs.append(r)
+                print(f"  restart {name:<8} {node:<17} {r['first_output_s']}", flush=True)
+    finally:
+        feeder.close()
+    return runs
+
+
+def _print_tables(args, runs: list[dict], restart: list[str]) -> None:
     counted = [r for r in runs if not r["warmup"]]
 
     def column(kind: str, key: str) -> dict[str, list]:
@@ -407,6 +402,36 @@ def main(argv: list[str] | None = None) -> int:
             | {f"{node} CPU s": column(f"restart {node}", "cpu_s") for node in restart},
             names,
         )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    trees = {"baseline": args.baseline.resolve(), "this": REPO}
+    restart = [n for n in args.restart.split(",") if n]
+    problem = _problem(args, trees, restart)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
+
+    from tracking_bringup.environment import apply_graph_environment, graph_environment
+
+    apply_graph_environment()
+    env = graph_environment()
+    work = Path(tempfile.mkdtemp(prefix="bench_startup_"))
+    order = [t for _ in range(args.runs + 1) for t in trees]  # the first pair: warm-up
+    load0 = _load()
+    print(
+        f"bench_startup {datetime.now():%Y-%m-%d %H:%M}: baseline {trees['baseline']}, this "
+        f"{REPO}; {args.runs} runs each alternated (+1 warm-up each); load average {load0}",
+        flush=True,
+    )
+    runs: list[dict] = []
+    if not args.no_launch:
+        runs += _time_launches(args, trees, order, work, env)
+    if restart:
+        runs += _time_restarts(args, trees, order, restart, work, env)
+    load1 = _load()
+    _print_tables(args, runs, restart)
     print(f"\nload average before {load0}, after {load1} (2 cores: nproc {os.cpu_count()})")
     if args.json:
         args.json.write_text(
