@@ -992,6 +992,114 @@ def compare_trees(args, argv: list[str]) -> int:
     return 0
 
 
+def _datasets(args) -> list[tuple[str, Path, str]]:
+    """(label, KITTI root, sequence) of each data set to run: real 0005 (and its ping-pong
+    extension), the synthetic sequence."""
+    datasets = []
+    if not args.no_real:
+        if (REAL_ROOT / "image_02" / "0005").is_dir():
+            datasets.append(("real 0005", REAL_ROOT, "0005"))
+            if args.real_frames > 0:
+                root, seq = _prepare_real_pingpong(args.real_frames)
+                datasets.append((f"real 0005 x{args.real_frames}", root, seq))
+        else:
+            print(f"[bench] {REAL_ROOT}: no KITTI 0005, real data skipped", file=sys.stderr)
+    if not args.no_synthetic:
+        root, seq = _prepare_synthetic(args.synthetic_frames)
+        datasets.append((f"synthetic {args.synthetic_frames}", root, seq))
+    return datasets
+
+
+def _run_modes(args, label, root, seq, modes, overrides, stamp, camera_hz, results) -> None:
+    """Run the graph on one data set in each mode; ``results``: (rows, quality, profiles) to
+    add to."""
+    rows, quality, profiles = results
+    capacity_fps = float("nan")
+    for mode, lockstep, window in modes:
+        logs = OUT / "runs" / stamp / f"{label.replace(' ', '_')}_{mode.replace(' ', '')}"
+        prof = logs / "profile" if args.profile and not lockstep else None
+        rate = [] if lockstep else [f"kitti_player.rate_multiplier:={args.rate_multiplier}"]
+        hz = camera_hz
+        if mode.startswith("camera"):  # window: the factor of the capacity
+            if not capacity_fps > 0:
+                print(f"[bench] {label}: no capacity measured, {mode} skipped", file=sys.stderr)
+                continue
+            hz = window * capacity_fps
+            rate = [f"kitti_player.rate:={hz:.3f}", "kitti_player.rate_multiplier:=1.0"]
+            window = 1
+        print(f"[bench] {label}, {mode} ...", file=sys.stderr, flush=True)
+        figures = run_case(root, seq, lockstep, window, rate + overrides, logs, prof)
+        figures["camera_hz"] = None if lockstep else hz
+        if mode == "lockstep 1":
+            capacity_fps = figures["throughput_fps"]
+        rows.append((label, mode, figures))
+        if not args.no_quality:
+            q = tracked_quality(logs / "bag")
+            if q is not None:
+                quality[(label, mode)] = q
+        if prof is not None:
+            profiles.append((label, mode, prof))
+
+
+def _print_stage_comparisons(rows, offline: dict) -> None:
+    """Each stage in the graph against alone, the cores' bound and the nodes' own work."""
+    print("in graph (p50) / alone, per stage (1.0 = no overhead beyond the work itself):")
+    for data, mode, f in rows:
+        ratios = stage_ratios(f, offline[data])
+        cells = ", ".join(
+            f"{k} {g:.0f} / {a:.0f} ms = {g / a:.2f}x" for k, (g, a) in ratios.items()
+        )
+        print(f"  {data:<16} {mode:<11} {cells}")
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    for label, times in offline.items():
+        bound = cores_bound_3d(times, cores)
+        path = path_alone(times)
+        print(
+            f"  {label}: on {cores} cores image -> 3D cannot come sooner than {bound:.0f} ms "
+            f"= {bound / path:.2f}x its time alone (the CPU work of a frame up to its 3D "
+            "array spread perfectly over the cores, no graph overhead)"
+        )
+    print(
+        "each compute node's own work per frame in the graph (its /diagnostics report: "
+        "median wall / CPU ms of its worker thread) against the same work alone:"
+    )
+    for data, mode, f in rows:
+        cells = ", ".join(
+            f"{k} {w:.0f} / {c:.0f} ms vs {a:.0f} = {w / a:.2f}x wall, {c / a:.2f}x CPU"
+            for k, (w, c, a) in node_work(f, offline[data]).items()
+        )
+        print(f"  {data:<16} {mode:<11} {cells}")
+
+
+def _print_report(args, rows, offline: dict, summary: dict, profiles) -> None:
+    """The per-stage times alone, the runs' table, the summary and where the time goes."""
+    if args.param:
+        print("parameters: " + " ".join(args.param))
+    for label, times in offline.items():
+        print(
+            f"each stage alone, {label} (median ms over {times.get('frames', 0):.0f} frames): "
+            + ", ".join(f"{k} {v:.1f}" for k, v in times.items() if k != "frames")
+        )
+    print(_table(rows))
+    for line in summary_lines(summary):
+        print(line)
+    print(
+        "where a frame's time goes (the nodes' trace points, VEHICLE_TRACE_DIR; median ms "
+        "after the player's clock event):"
+    )
+    for data, mode, f in rows:
+        tr = f.get("trace") or {}
+        if tr.get("frames"):
+            print(f"  {data}, {mode} ({tr['frames']} frames):")
+            for line in breakdown_lines(tr, offline.get(data)):
+                print(line)
+    if offline:
+        _print_stage_comparisons(rows, offline)
+    for data, mode, folder in profiles:
+        print(f"where each process's CPU time goes ({data}, {mode}; py-spy, {folder}):")
+        print(profile_summary(folder))
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
@@ -1006,18 +1114,7 @@ def main(argv=None) -> int:
     if args.compare_tree:
         return compare_trees(args, list(sys.argv[1:] if argv is None else argv))
     apply_graph_environment()
-    datasets = []
-    if not args.no_real:
-        if (REAL_ROOT / "image_02" / "0005").is_dir():
-            datasets.append(("real 0005", REAL_ROOT, "0005"))
-            if args.real_frames > 0:
-                root, seq = _prepare_real_pingpong(args.real_frames)
-                datasets.append((f"real 0005 x{args.real_frames}", root, seq))
-        else:
-            print(f"[bench] {REAL_ROOT}: no KITTI 0005, real data skipped", file=sys.stderr)
-    if not args.no_synthetic:
-        root, seq = _prepare_synthetic(args.synthetic_frames)
-        datasets.append((f"synthetic {args.synthetic_frames}", root, seq))
+    datasets = _datasets(args)
     windows = [int(w) for w in args.windows.split(",") if w]
     modes = ([] if args.no_realtime or factors else [("realtime", False, 1)]) + [
         (f"lockstep {w}", True, w) for w in windows
@@ -1040,31 +1137,8 @@ def main(argv=None) -> int:
     quality: dict[tuple[str, str], dict] = {}
     load_before = Path("/proc/loadavg").read_text().split()[:3]
     for label, root, seq in datasets:
-        capacity_fps = float("nan")
-        for mode, lockstep, window in modes:
-            logs = OUT / "runs" / stamp / f"{label.replace(' ', '_')}_{mode.replace(' ', '')}"
-            prof = logs / "profile" if args.profile and not lockstep else None
-            rate = [] if lockstep else [f"kitti_player.rate_multiplier:={args.rate_multiplier}"]
-            hz = camera_hz
-            if mode.startswith("camera"):  # window: the factor of the capacity
-                if not capacity_fps > 0:
-                    print(f"[bench] {label}: no capacity measured, {mode} skipped", file=sys.stderr)
-                    continue
-                hz = window * capacity_fps
-                rate = [f"kitti_player.rate:={hz:.3f}", "kitti_player.rate_multiplier:=1.0"]
-                window = 1
-            print(f"[bench] {label}, {mode} ...", file=sys.stderr, flush=True)
-            figures = run_case(root, seq, lockstep, window, rate + overrides, logs, prof)
-            figures["camera_hz"] = None if lockstep else hz
-            if mode == "lockstep 1":
-                capacity_fps = figures["throughput_fps"]
-            rows.append((label, mode, figures))
-            if not args.no_quality:
-                q = tracked_quality(logs / "bag")
-                if q is not None:
-                    quality[(label, mode)] = q
-            if prof is not None:
-                profiles.append((label, mode, prof))
+        results = (rows, quality, profiles)
+        _run_modes(args, label, root, seq, modes, overrides, stamp, camera_hz, results)
         if do_cpu:
             logs = OUT / "runs" / stamp / f"{label.replace(' ', '_')}_short"
             print(f"[bench] {label}, lockstep 1, {SHORT_RUN} frames ...", file=sys.stderr)
@@ -1083,57 +1157,8 @@ def main(argv=None) -> int:
             f"overload: camera at {', '.join(rates)}"
             + (f", every node on CPUs {args.cpus}" if args.cpus else "")
         )
-    if args.param:
-        print("parameters: " + " ".join(args.param))
-    for label, times in offline.items():
-        print(
-            f"each stage alone, {label} (median ms over {times.get('frames', 0):.0f} frames): "
-            + ", ".join(f"{k} {v:.1f}" for k, v in times.items() if k != "frames")
-        )
-    print(_table(rows))
     summary = summarise(rows, short_runs, references, camera_hz, quality)
-    for line in summary_lines(summary):
-        print(line)
-    print(
-        "where a frame's time goes (the nodes' trace points, VEHICLE_TRACE_DIR; median ms "
-        "after the player's clock event):"
-    )
-    for data, mode, f in rows:
-        tr = f.get("trace") or {}
-        if tr.get("frames"):
-            print(f"  {data}, {mode} ({tr['frames']} frames):")
-            for line in breakdown_lines(tr, offline.get(data)):
-                print(line)
-    if offline:
-        print("in graph (p50) / alone, per stage (1.0 = no overhead beyond the work itself):")
-        for data, mode, f in rows:
-            ratios = stage_ratios(f, offline[data])
-            cells = ", ".join(
-                f"{k} {g:.0f} / {a:.0f} ms = {g / a:.2f}x" for k, (g, a) in ratios.items()
-            )
-            print(f"  {data:<16} {mode:<11} {cells}")
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-        for label, times in offline.items():
-            bound = cores_bound_3d(times, cores)
-            path = path_alone(times)
-            print(
-                f"  {label}: on {cores} cores image -> 3D cannot come sooner than {bound:.0f} ms "
-                f"= {bound / path:.2f}x its time alone (the CPU work of a frame up to its 3D "
-                "array spread perfectly over the cores, no graph overhead)"
-            )
-        print(
-            "each compute node's own work per frame in the graph (its /diagnostics report: "
-            "median wall / CPU ms of its worker thread) against the same work alone:"
-        )
-        for data, mode, f in rows:
-            cells = ", ".join(
-                f"{k} {w:.0f} / {c:.0f} ms vs {a:.0f} = {w / a:.2f}x wall, {c / a:.2f}x CPU"
-                for k, (w, c, a) in node_work(f, offline[data]).items()
-            )
-            print(f"  {data:<16} {mode:<11} {cells}")
-    for data, mode, folder in profiles:
-        print(f"where each process's CPU time goes ({data}, {mode}; py-spy, {folder}):")
-        print(profile_summary(folder))
+    _print_report(args, rows, offline, summary, profiles)
     if args.json:
         out = {"offline_ms": offline, "load": load, "load_before": load_before}
         out["parameters"] = args.param

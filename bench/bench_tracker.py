@@ -433,13 +433,65 @@ def cmd_real(args) -> None:
             print(f"  ({time.perf_counter() - t0:.0f} s)")
 
 
+_VEHICLES = ("Car", "Van", "Truck", "Tram")
+
+
+def _sort_track_rows(f, right: float, labelled_near: dict, false_rows: list, leaving: list) -> int:
+    """Sort frame ``f``'s track rows away from every labelled vehicle into ``false_rows`` and
+    ``leaving`` (at the image border, on a labelled car 1-2 frames before; ``labelled_near``:
+    track id -> last frame near a label, updated); returns the rows projected outside the
+    image."""
+    anything = [o for o in f.gt if o.type in _VEHICLES]
+    boxes = [o.bbox for o in f.gt if o.type in _VEHICLES or o.is_dontcare]
+    centres = np.array([o.centre_of_mass for o in anything]).reshape(-1, 3)
+    out_of_view = 0
+    for o in f.tracks:
+        if o.bbox[2] <= o.bbox[0]:  # projected outside the image: a car that left the view
+            out_of_view += 1
+            continue
+        near = len(centres) and np.linalg.norm(centres - o.centre_of_mass, axis=1).min() < 3.0
+        overlap = any(_iou2d(o.bbox, b) >= 0.1 for b in boxes)
+        row = (f.frame, o.track_id, [round(float(v), 1) for v in o.location])
+        at_border = o.bbox[0] <= 1.0 or o.bbox[2] >= right - 1.0
+        if near:
+            labelled_near[o.track_id] = f.frame
+        elif not overlap and at_border and f.frame - labelled_near.get(o.track_id, -99) <= 2:
+            # a labelled car leaving the view: KITTI stops labelling it while a sliver of
+            # it is still in the image
+            leaving.append(row)
+        elif not overlap:
+            false_rows.append(row)
+    return out_of_view
+
+
+def _add_ground_errors(f, v_ground: dict, ground_err: dict) -> None:
+    """The velocity-over-the-ground errors [m/s] (x-z) of frame ``f``'s tracks matched within
+    3 m to a labelled car, against each pose source's ground truth."""
+    from scipy.optimize import linear_sum_assignment
+
+    cars = [o for o in f.gt if o.type == "Car" and o.location[2] > 0]
+    if not cars or not f.tracks:
+        return
+    g = np.array([o.centre_of_mass for o in cars])
+    t = np.array([o.centre_of_mass for o in f.tracks])
+    dist = np.linalg.norm(t[:, None] - g[None], axis=-1)
+    r, c = linear_sum_assignment(np.where(dist < 3.0, dist, 1e6))
+    for i, j in zip(r, c, strict=True):
+        if dist[i, j] >= 3.0:
+            continue
+        vg = f.track_ground_velocities[i]
+        for name, table in v_ground.items():
+            vw = table.get((f.frame, cars[j].track_id))
+            if vw is not None and np.isfinite(vg).all():
+                ground_err[name].append(float(np.linalg.norm((vg - vw)[[0, 2]])))
+
+
 def cmd_graph(args) -> None:
     """A recorded whole-graph run (``make demo`` output) on a real sequence: velocity over the
     ground against the labels (taken to the world with ``poses_orbslam3``, as the real-motion
     benchmark does), and the confirmed / coasting track rows where no vehicle is."""
     import real_motion as rm
     from eval_node.bag_reader import read_run
-    from scipy.optimize import linear_sum_assignment
     from vehicle_common.bag_files import BagError
 
     bag = Path(args.bag)
@@ -462,46 +514,13 @@ def cmd_graph(args) -> None:
     }
     ground_err = {name: [] for name in v_ground}
     false_rows, rows, out_of_view, leaving = [], 0, 0, []
-    vehicles = ("Car", "Van", "Truck", "Tram")
     # the image's right border (labels are clipped to the image): the widest labelled box edge
     right = max((o.bbox[2] for f in run.frames for o in f.gt), default=1241.0)
     labelled_near: dict[int, int] = {}  # track id -> last frame it was within 3 m of a label
     for f in run.frames:
-        cars = [o for o in f.gt if o.type == "Car" and o.location[2] > 0]
-        anything = [o for o in f.gt if o.type in vehicles]
-        boxes = [o.bbox for o in f.gt if o.type in vehicles or o.is_dontcare]
-        centres = np.array([o.centre_of_mass for o in anything]).reshape(-1, 3)
-        for o in f.tracks:
-            rows += 1
-            if o.bbox[2] <= o.bbox[0]:  # projected outside the image: a car that left the view
-                out_of_view += 1
-                continue
-            near = len(centres) and np.linalg.norm(centres - o.centre_of_mass, axis=1).min() < 3.0
-            overlap = any(_iou2d(o.bbox, b) >= 0.1 for b in boxes)
-            row = (f.frame, o.track_id, [round(float(v), 1) for v in o.location])
-            at_border = o.bbox[0] <= 1.0 or o.bbox[2] >= right - 1.0
-            if near:
-                labelled_near[o.track_id] = f.frame
-            elif not overlap and at_border and f.frame - labelled_near.get(o.track_id, -99) <= 2:
-                # a labelled car leaving the view: KITTI stops labelling it while a sliver of
-                # it is still in the image
-                leaving.append(row)
-            elif not overlap:
-                false_rows.append(row)
-        if not cars or not f.tracks:
-            continue
-        g = np.array([o.centre_of_mass for o in cars])
-        t = np.array([o.centre_of_mass for o in f.tracks])
-        dist = np.linalg.norm(t[:, None] - g[None], axis=-1)
-        r, c = linear_sum_assignment(np.where(dist < 3.0, dist, 1e6))
-        for i, j in zip(r, c, strict=True):
-            if dist[i, j] >= 3.0:
-                continue
-            vg = f.track_ground_velocities[i]
-            for name, table in v_ground.items():
-                vw = table.get((f.frame, cars[j].track_id))
-                if vw is not None and np.isfinite(vg).all():
-                    ground_err[name].append(float(np.linalg.norm((vg - vw)[[0, 2]])))
+        rows += len(f.tracks)
+        out_of_view += _sort_track_rows(f, right, labelled_near, false_rows, leaving)
+        _add_ground_errors(f, v_ground, ground_err)
     print(f"{run.path}: sequence {seq}, {len(run.frames)} frames, {rows} output track rows")
     for name, errs in ground_err.items():
         ge = np.array(errs)

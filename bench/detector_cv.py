@@ -114,7 +114,7 @@ def score(checkpoint: Path, specs: list[str], label: str) -> dict:
     }
 
 
-def main() -> int:
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--name", required=True, help="recipe name (output folder)")
     p.add_argument("--stage1", default=STAGE1, help="detector_train options of stage 1")
@@ -136,38 +136,37 @@ def main() -> int:
     p.add_argument("--parallel", type=int, default=1, help="folds trained at once")
     p.add_argument("--score-only", action="store_true", help="score existing fold checkpoints")
     p.add_argument("--final", action="store_true", help="train on all training frames instead")
-    args = p.parse_args()
-    if not (K / "README.md").is_file():
-        print(f"detector_cv: real KITTI frames not found at {K}", file=sys.stderr)
-        return 2
-    base = args.work / args.name
-    folds = [None] if args.final else [int(f) - 1 for f in args.folds.split(",")]
-    outs = {f: base / ("final" if f is None else f"fold{f + 1}") for f in folds}
-    cmds = {f: stage_commands(f, args, outs[f]) for f in folds}
-    base.mkdir(parents=True, exist_ok=True)
-    if not args.score_only:
-        with open(base / "commands.sh", "w") as fh:
-            for f in folds:
-                fh.write(f"# {outs[f].name}\n" + "".join(shlex.join(c) + "\n" for c in cmds[f]))
-        t0, cpu0 = time.time(), os.times()
-        pending, running = list(folds), []
-        while pending or running:
-            while pending and len(running) < args.parallel:
-                f = pending.pop(0)
-                outs[f].mkdir(parents=True, exist_ok=True)
-                running.append((f, run_fold(cmds[f], outs[f] / "train.out")))
-            time.sleep(2)
-            for item in list(running):
-                if item[1].poll() is not None:
-                    running.remove(item)
-                    if item[1].returncode:
-                        print(f"detector_cv: {outs[item[0]]}/train.out: failed", file=sys.stderr)
-                        return 1
-        cpu = os.times()
-        used = cpu.children_user + cpu.children_system - cpu0.children_user - cpu0.children_system
-        print(f"trained {len(folds)} run(s) in {time.time() - t0:.0f} s wall, {used:.0f} s CPU")
-    if args.final:
-        return 0
+    return p
+
+
+def _train_folds(args, base: Path, folds, outs: dict, cmds: dict) -> int:
+    """Write the commands to ``commands.sh`` and run the folds, ``--parallel`` at once: 0, or
+    1 (one line) when a fold failed."""
+    with open(base / "commands.sh", "w") as fh:
+        for f in folds:
+            fh.write(f"# {outs[f].name}\n" + "".join(shlex.join(c) + "\n" for c in cmds[f]))
+    t0, cpu0 = time.time(), os.times()
+    pending, running = list(folds), []
+    while pending or running:
+        while pending and len(running) < args.parallel:
+            f = pending.pop(0)
+            outs[f].mkdir(parents=True, exist_ok=True)
+            running.append((f, run_fold(cmds[f], outs[f] / "train.out")))
+        time.sleep(2)
+        for item in list(running):
+            if item[1].poll() is not None:
+                running.remove(item)
+                if item[1].returncode:
+                    print(f"detector_cv: {outs[item[0]]}/train.out: failed", file=sys.stderr)
+                    return 1
+    cpu = os.times()
+    used = cpu.children_user + cpu.children_system - cpu0.children_user - cpu0.children_system
+    print(f"trained {len(folds)} run(s) in {time.time() - t0:.0f} s wall, {used:.0f} s CPU")
+    return 0
+
+
+def _score_folds(args, base: Path, folds, outs: dict) -> dict:
+    """Score each fold's last stage on its scored part; the pooled figures, printed."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     summary: dict = {"name": args.name, "commands": str(base / "commands.sh"), "folds": {}}
     last = "stage2" if args.stage2 else "stage1"
@@ -193,6 +192,24 @@ def main() -> int:
             f"{100 * x['ap70_moderate']:.1f}, AP@0.5 mod {100 * x['ap50_moderate']:.1f}, "
             f"confusion {x['confusion']}"
         )
+    return summary
+
+
+def main() -> int:
+    args = _parser().parse_args()
+    if not (K / "README.md").is_file():
+        print(f"detector_cv: real KITTI frames not found at {K}", file=sys.stderr)
+        return 2
+    base = args.work / args.name
+    folds = [None] if args.final else [int(f) - 1 for f in args.folds.split(",")]
+    outs = {f: base / ("final" if f is None else f"fold{f + 1}") for f in folds}
+    cmds = {f: stage_commands(f, args, outs[f]) for f in folds}
+    base.mkdir(parents=True, exist_ok=True)
+    if not args.score_only and _train_folds(args, base, folds, outs, cmds):
+        return 1
+    if args.final:
+        return 0
+    summary = _score_folds(args, base, folds, outs)
     (base / "cv.json").write_text(json.dumps(summary, indent=1))
     return 0
 
