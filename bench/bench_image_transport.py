@@ -70,58 +70,36 @@ def orientation_bin(alpha: float) -> int:
     return int(round((alpha % math.pi) / (math.pi / 4))) % 4
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sequence", default="0005")
-    ap.add_argument("--repeats", type=int, default=3, help="timing: best of N")
-    args = ap.parse_args(argv)
-    if not (TRACKING / "image_03" / args.sequence).is_dir():
-        print(f"error: {TRACKING / 'image_03' / args.sequence}: no right images", file=sys.stderr)
-        return 2
-    cv2.setNumThreads(1)
-    import torch
-
-    torch.set_num_threads(1)
-    seq = TrackingSequence.open(TRACKING, args.sequence)
-    geo = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
-    pairs = [seq.read_stereo(f) for f in seq.frame_ids]
-    cars = [[o for o in seq.objects(f) if o.type == "Car"] for f in seq.frame_ids]
+def _measure_setting(transport, quality, repeats, seq, geo, pairs, cars, detector) -> dict:
+    """One transport setting: mean bytes per image, encode and decode s per image, the
+    labelled cars ranged on the decoded pairs ((z, z_gt) or None each), the detections."""
     dparams, ranging = DisparityParams(), RangingSetup.from_params()
-    detector = load_detector("", "cpu")
-    print(
-        f"KITTI tracking {args.sequence}: {len(pairs)} stereo pairs {pairs[0][0].shape[1]}x"
-        f"{pairs[0][0].shape[0]}, {sum(map(len, cars))} labelled Car boxes; "
-        f"load average {os.getloadavg()[0]:.2f}"
-    )
+    sizes, t_enc, t_dec, decoded = [], 0.0, 0.0, []
+    for left, right in pairs:
+        out = []
+        for img in (left, right):
+            te, msg = timed(lambda i=img, t=transport, q=quality: encode(i, t, q), repeats)
+            td, rgb = timed(lambda msg=msg: image_to_rgb(msg), repeats)
+            t_enc, t_dec = t_enc + te, t_dec + td
+            sizes.append(len(msg.data))
+            out.append(rgb)
+        decoded.append(out)
+    n = 2 * len(pairs)
+    rows, dets = [], []
+    for (left, right), boxes in zip(decoded, cars, strict=True):
+        disp = compute_disparity(left, right, dparams)
+        if boxes:
+            bins = [orientation_bin(o.alpha) for o in boxes]
+            images = (to_gray(left), to_gray(right))
+            res = range_boxes(disp, [o.bbox for o in boxes], geo, ranging, bins, images)
+            for o, r in zip(boxes, res, strict=True):
+                gt = seq.calib.cam0_to_left(o.centre_of_mass)[2]
+                rows.append(None if r is None else (float(r.position[2]), float(gt)))
+        dets.append(detector.detect(left))
+    return dict(bytes=float(np.mean(sizes)), enc=t_enc / n, dec=t_dec / n, rows=rows, dets=dets)
 
-    results = {}
-    for name, (transport, quality) in SETTINGS.items():
-        sizes, t_enc, t_dec, decoded = [], 0.0, 0.0, []
-        for left, right in pairs:
-            out = []
-            for img in (left, right):
-                te, msg = timed(lambda i=img, t=transport, q=quality: encode(i, t, q), args.repeats)
-                td, rgb = timed(lambda msg=msg: image_to_rgb(msg), args.repeats)
-                t_enc, t_dec = t_enc + te, t_dec + td
-                sizes.append(len(msg.data))
-                out.append(rgb)
-            decoded.append(out)
-        n = 2 * len(pairs)
-        rows, dets = [], []
-        for (left, right), boxes in zip(decoded, cars, strict=True):
-            disp = compute_disparity(left, right, dparams)
-            if boxes:
-                bins = [orientation_bin(o.alpha) for o in boxes]
-                images = (to_gray(left), to_gray(right))
-                res = range_boxes(disp, [o.bbox for o in boxes], geo, ranging, bins, images)
-                for o, r in zip(boxes, res, strict=True):
-                    gt = seq.calib.cam0_to_left(o.centre_of_mass)[2]
-                    rows.append(None if r is None else (float(r.position[2]), float(gt)))
-            dets.append(detector.detect(left))
-        results[name] = dict(
-            bytes=float(np.mean(sizes)), enc=t_enc / n, dec=t_dec / n, rows=rows, dets=dets
-        )
 
+def _print_size_table(results: dict) -> None:
     raw = results["raw"]
     base = raw["enc"] + raw["dec"]
     print(
@@ -137,6 +115,9 @@ def main(argv: list[str] | None = None) -> int:
             f"| {(r['enc'] + r['dec']) / base:.1f} |"
         )
 
+
+def _print_quality_table(results: dict) -> None:
+    raw = results["raw"]
     print(
         "\n| setting | cars ranged | median abs(z - z_gt) [m] | median abs(z - z_raw) [m] "
         "| max abs(z - z_raw) [m] | detections | matched to raw (IoU>=0.5) | mean IoU | "
@@ -164,6 +145,37 @@ def main(argv: list[str] | None = None) -> int:
             f"{np.median(dz):.3f} | {np.max(dz):.2f} | {n_det} | {matched}/{n_det} | "
             f"{np.mean(ious):.3f} | {max(dscore):.3f} |"
         )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sequence", default="0005")
+    ap.add_argument("--repeats", type=int, default=3, help="timing: best of N")
+    args = ap.parse_args(argv)
+    if not (TRACKING / "image_03" / args.sequence).is_dir():
+        print(f"error: {TRACKING / 'image_03' / args.sequence}: no right images", file=sys.stderr)
+        return 2
+    cv2.setNumThreads(1)
+    import torch
+
+    torch.set_num_threads(1)
+    seq = TrackingSequence.open(TRACKING, args.sequence)
+    geo = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
+    pairs = [seq.read_stereo(f) for f in seq.frame_ids]
+    cars = [[o for o in seq.objects(f) if o.type == "Car"] for f in seq.frame_ids]
+    detector = load_detector("", "cpu")
+    print(
+        f"KITTI tracking {args.sequence}: {len(pairs)} stereo pairs {pairs[0][0].shape[1]}x"
+        f"{pairs[0][0].shape[0]}, {sum(map(len, cars))} labelled Car boxes; "
+        f"load average {os.getloadavg()[0]:.2f}"
+    )
+
+    results = {
+        name: _measure_setting(transport, quality, args.repeats, seq, geo, pairs, cars, detector)
+        for name, (transport, quality) in SETTINGS.items()
+    }
+    _print_size_table(results)
+    _print_quality_table(results)
     print(f"load average at the end {os.getloadavg()[0]:.2f}")
     return 0
 
