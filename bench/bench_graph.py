@@ -446,6 +446,7 @@ def offline_stage_times(
     from stereo_depth_node.parameters import stereo_config_from_values
     from stereo_depth_node.pipeline import FrameBoxes, StereoPipeline
     from stereo_depth_node.region_matching import to_gray
+    from tracking_bringup.parameters import default
     from vehicle_common.image_conversion import image_to_rgb, numpy_to_image
     from vehicle_common.kitti import TrackingSequence
     from vehicle_common.malloc_policy import keep_freed_memory
@@ -469,7 +470,7 @@ def offline_stage_times(
     # keeps freed memory for reuse: keep_freed_memory)
     pairs = [seq.read_stereo(f) for f in frames]
     left0, right0 = pairs[0]
-    if values.get("keep_freed_memory", True):
+    if values.get("keep_freed_memory", default(graph.STEREO.name, "keep_freed_memory")):
         keep_freed_memory()
     points: dict[str, tuple[float, float]] = {}  # trace point -> (wall, CPU) [s], this frame
 
