@@ -4,9 +4,8 @@
 own value from :data:`tracking_bringup.parameters.GRAPH_VALUES` with its reason) and
 ``docs/parameters.md`` (one table per node: default, graph value, allowed values, meaning) are
 written from the parameter dataclasses that :data:`tracking_bringup.parameters.NODE_PARAMETERS`
-lists. A parameter's meaning is the comment of its field in the dataclass: the comment on the
-field's line(s), continued on the comment lines below it, or, for a field without one, the
-comment lines right above it (:func:`field_meanings`).
+lists. A parameter's meaning is the comment of its field in the dataclass: on the field's
+line(s) and the comment lines below them, or right above the field (:func:`field_meanings`).
 
     python -m tracking_bringup.parameter_docs           # write both files
     python -m tracking_bringup.parameter_docs --check   # exit 1 naming a file not up to date
@@ -71,9 +70,10 @@ def _comments(source: str) -> dict[int, str]:
 @cache
 def field_meanings(cls) -> dict[str, str]:
     """Field name -> meaning of every field of the dataclass ``cls``, from its source comments:
-    the comment on the field's own line(s) continued on the comment lines right below it (up to
-    the next field that has its own); a field without one takes the comment lines right above
-    it (back to a blank line, code or the previous field's continuation)."""
+    the comment lines right above the field, then the comment on its own line(s), continued on
+    the comment lines right below them. One block of comment lines between two fields that both
+    have a comment of their own continues the first one; otherwise it belongs to the field
+    below (a blank line sets a group comment apart from the field before it)."""
     source = Path(inspect.getsourcefile(cls)).read_text()
     lines = source.splitlines()
     comments = _comments(source)
@@ -112,7 +112,8 @@ def field_meanings(cls) -> dict[str, str]:
         above[name] = [comments[n] for n in upward]
     if fields and has_own[fields[-1].target.id]:  # the last field's continuation
         last = fields[-1]
-        own[last.target.id] += [comments[n] for n in run(range(last.end_lineno + 1, len(lines)))]
+        below = run(range(last.end_lineno + 1, len(lines) + 1))
+        own[last.target.id] += [comments[n] for n in below]
 
     def joined(name: str) -> str:
         first, second = " ".join(above[name]), " ".join(own[name])
