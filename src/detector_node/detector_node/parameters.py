@@ -47,6 +47,10 @@ class DetectorParameters:
     # [s] a detected frame whose 3D array never comes leaves the window after this, or after
     # twice the longest of the last 8 frames' times from the CNN's start to their 3D array
     downstream_timeout: float = param(1.0, low=0.0, low_open=True)
+    # with back-pressure: when there is room downstream and the camera's next image is due
+    # within this share of its period, wait for it (a fresher frame; vehicle_common.
+    # flow_control.CameraCadence; chosen on real 0005, docs/RESULTS.md section 19). 0: off
+    next_frame_wait: float = param(0.5, low=0.0, high=1.0)
     vehicle_types: list = param(["Car", "Van"])  # oracle: label types republished
     oracle_box_noise_px: float = param(0.0, low=0.0)  # oracle: [px] std of noise on each box edge
     oracle_score: float = param(1.0, low=0.0, high=1.0)  # oracle: score of every box
