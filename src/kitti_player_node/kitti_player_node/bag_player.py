@@ -5,7 +5,7 @@ The stored CDR bytes of a ROS 2 bag are published as they are (no deserialisatio
 of a ROS 1 bag (e.g. from ``kitti2bag``) are converted to CDR first, and a type that cannot be
 converted is refused with one line. Original timing scaled by ``--rate`` (0 = as fast as
 possible), optional topic selection, remapping (kitti2bag's topics onto the graph's: docs/bags.md)
-and looping. Reading, conversion and pacing live in :mod:`.bag_replay`.
+and looping. Reading, conversion and pacing live in :mod:`vehicle_common.bags.replay`.
 
 By default the replay starts once every topic's subscribers are matched, so that a subscriber
 already running gets every message: at once when every topic has a matched subscriber, else
@@ -32,14 +32,8 @@ from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from vehicle_common.bag_files import BagError
-from vehicle_common.graph_readiness import NodeReport, parse_topic_counts, unready_topics
-from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
-from vehicle_common.option_checks import first_problem, number_problem
-
-from vehicle_common import topics
-
-from .bag_replay import (
+from vehicle_common.bags.reader import BagError
+from vehicle_common.bags.replay import (
     BagMessage,
     bag_types,
     check_stamped,
@@ -53,6 +47,11 @@ from .bag_replay import (
     required_counts,
     stamp_sync,
 )
+from vehicle_common.graph_readiness import NodeReport, parse_topic_counts, unready_topics
+from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
+from vehicle_common.option_checks import first_problem, number_problem
+
+from vehicle_common import topics
 
 QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,

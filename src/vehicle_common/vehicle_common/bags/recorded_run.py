@@ -19,16 +19,16 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from vehicle_common.bag_files import BagError, bag_messages, open_reader
-from vehicle_common.camera_frames import kitti_row_from_centre
-from vehicle_common.frame_messages import bbox_to_xyxy, kitti_objects_from_message, stamp_ns
-from vehicle_common.kitti import KittiObject
-from vehicle_common.odometry import Pose
-from vehicle_common.odometry_messages import TransformTree
-from vehicle_common.orientation_bins import bin_to_alpha
 
-from eval_node.repeated_stamps import mixed_runs_hint
-from vehicle_common import topics
+from .. import topics
+from ..camera_frames import kitti_row_from_centre
+from ..frame_messages import bbox_to_xyxy, kitti_objects_from_message, stamp_ns
+from ..kitti import KittiObject
+from ..odometry import Pose
+from ..odometry_messages import TransformTree
+from ..orientation_bins import bin_to_alpha
+from .reader import BagError, bag_messages, open_reader
+from .repeated_stamps import mixed_runs_hint
 
 #: the graph's topics as recorded without a namespace (see :func:`bag_namespace`)
 GT_TOPIC = topics.resolve(topics.GROUND_TRUTH)
@@ -370,7 +370,7 @@ def read_left_images(
 ) -> dict[int, np.ndarray]:
     """Left images of a bag as RGB arrays, keyed by stamp [ns] (only ``stamps`` when given;
     ``namespace`` as in :func:`read_run`)."""
-    from vehicle_common.image_conversion import image_to_rgb
+    from ..image_conversion import image_to_rgb
 
     reader = open_reader(path)
     out: dict[int, np.ndarray] = {}
