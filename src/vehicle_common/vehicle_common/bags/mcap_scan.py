@@ -187,112 +187,149 @@ def scan_mcap(
                 scan.stop_reason = "file cut inside its magic"
                 return scan
             raise McapRecoveryError(f"{path}: cannot read bag (not an MCAP file: bad magic)")
-        pos = 8
-        scan.valid_end = pos
-        t_min, t_max = None, None
-        bad: DamagedChunk | None = None  # the damaged chunk just passed (its indexes follow)
-        while True:
-            head = f.read(9)
-            if len(head) < 9:
-                scan.stop_reason = "" if not head else "incomplete record"
-                break
-            opcode, length = _RECORD_HEAD.unpack(head)
-            if pos + 9 + length > size:
-                if scan.complete and past_damage:  # a complete file: its framing is damaged
-                    exc = ValueError(f"record length {length} runs past the end of the file")
-                    if _go_on(scan, f, pos, exc, resume):
-                        pos, bad = scan.valid_end, None
-                        continue
-                    break
-                scan.stop_reason = "incomplete record"
-                break
-            content = f.read(length)
-            stream = ReadDataStream(BytesIO(content))
-            rec_len = 9 + length
-            if opcode != Opcode.MESSAGE_INDEX:
-                bad = None
-            try:
-                if bad is not None:  # an index of the damaged chunk: what it held
-                    mi = MessageIndex.read(stream)
-                    bad.lost[mi.channel_id] = bad.lost.get(mi.channel_id, 0) + len(mi.records)
-                    pos += rec_len
-                    scan.valid_end = pos
-                    continue
-                if opcode == Opcode.HEADER and pos == 8:
-                    Header.read(stream)
-                    scan.has_header = True
-                elif opcode == Opcode.SCHEMA:
-                    s = _checked_schema(Schema.read(stream))
-                    scan.schemas[s.id] = s
-                elif opcode == Opcode.CHANNEL:
-                    c = Channel.read(stream)
-                    scan.channels[c.id] = c
-                elif opcode == Opcode.CHUNK:
-                    chunk = Chunk.read(stream)
-                    index, data = _chunk_index(chunk)
-                    _inner_schemas_channels(data, scan)
-                    scan.chunks.append(
-                        ChunkInfo(
-                            start=pos,
-                            length=rec_len,
-                            message_start_time=chunk.message_start_time,
-                            message_end_time=chunk.message_end_time,
-                            compression=chunk.compression,
-                            compressed_size=len(chunk.data),
-                            uncompressed_size=chunk.uncompressed_size,
-                            index=index,
-                        )
-                    )
-                    scan.chunks[-1].index_end = pos + rec_len
-                    for channel, entries in index.items():
-                        scan.message_counts[channel] = scan.message_counts.get(channel, 0) + len(
-                            entries
-                        )
-                        times = [t for t, _ in entries]
-                        t_min = min(times) if t_min is None else min(t_min, *times)
-                        t_max = max(times) if t_max is None else max(t_max, *times)
-                    if not scan.first_message and index:
-                        off = min(o for entries in index.values() for _, o in entries)
-                        scan.first_message = data[off + 9 + _MESSAGE_HEAD.size :][:4]
-                elif opcode == Opcode.MESSAGE_INDEX:
-                    mi = MessageIndex.read(stream)
-                    if not scan.chunks:
-                        raise ValueError("message index before any chunk")
-                    scan.chunks[-1].index_records[mi.channel_id] = pos
-                    scan.chunks[-1].index_end = pos + rec_len
-                elif opcode == Opcode.METADATA:
-                    scan.metadata.append((pos, rec_len, Metadata.read(stream)))
-                elif opcode == Opcode.DATA_END:
-                    scan.stop_reason = "end of data section"
-                    break
-                elif opcode in (Opcode.HEADER, Opcode.FOOTER) or opcode == 0:
-                    raise ValueError(f"unexpected record 0x{opcode:02x}")
-                # attachments, top-level messages and unknown records are kept as they are
-            except Exception as exc:  # damaged record: the data ends before it
-                if past_damage and opcode == Opcode.CHUNK:
-                    bad = _damaged_chunk(content, pos, rec_len, exc)
-                    scan.damaged.append(bad)
-                    pos += rec_len
-                    scan.valid_end = pos
-                    continue
-                if past_damage and opcode in _REBUILT:  # the summary's copy stands in
-                    scan.skipped.append(f"record at byte {pos} ({exc or type(exc).__name__})")
-                    pos += rec_len
-                    scan.valid_end = pos
-                    continue
-                if _go_on(scan, f, pos, exc, resume):
-                    pos, bad = scan.valid_end, None
-                    continue
-                break
-            scan.records.append((pos, rec_len, opcode))
-            pos += rec_len
-            scan.valid_end = pos
-    if t_min is not None:
-        scan.start_time, scan.end_time = t_min, t_max
+        _RecordWalk(f, scan, past_damage, resume).run()
+    times = [t for c in scan.chunks for entries in c.index.values() for t, _ in entries]
+    if times:
+        scan.start_time, scan.end_time = min(times), max(times)
     if scan.chunks:
         last = scan.chunks[-1]
         scan.reindex_last = set(last.index_records) != set(last.index)
     return scan
+
+
+class _RecordWalk:
+    """:func:`scan_mcap`'s walk over the top-level records after the magic: ``pos`` is the
+    offset of the next record, ``bad`` the damaged chunk just passed (its message indexes
+    follow it and say what it held)."""
+
+    def __init__(self, f, scan: McapScan, past_damage: bool, resume: list[int] | None) -> None:
+        self.f, self.scan = f, scan
+        self.past_damage, self.resume = past_damage, resume
+        self.pos = scan.valid_end = 8
+        self.bad: DamagedChunk | None = None
+
+    def run(self) -> None:
+        """Read records until the end of the data section, an incomplete record or damage
+        that cannot be passed (``scan.stop_reason`` says which)."""
+        scan = self.scan
+        while True:
+            head = self.f.read(9)
+            if len(head) < 9:
+                scan.stop_reason = "" if not head else "incomplete record"
+                return
+            opcode, length = _RECORD_HEAD.unpack(head)
+            if self.pos + 9 + length > scan.size:
+                if not (scan.complete and self.past_damage):
+                    scan.stop_reason = "incomplete record"
+                    return
+                # a complete file: its framing is damaged
+                exc = ValueError(f"record length {length} runs past the end of the file")
+                if not self._resume(exc):
+                    return
+                continue
+            content = self.f.read(length)
+            rec_len = 9 + length
+            if opcode != Opcode.MESSAGE_INDEX:
+                self.bad = None
+            try:
+                if self.bad is not None:  # an index of the damaged chunk: what it held
+                    mi = MessageIndex.read(ReadDataStream(BytesIO(content)))
+                    lost = self.bad.lost
+                    lost[mi.channel_id] = lost.get(mi.channel_id, 0) + len(mi.records)
+                    self._advance(rec_len)
+                    continue
+                if _read_record(scan, opcode, content, self.pos, rec_len):
+                    return  # the end of the data section
+            except Exception as exc:  # damaged record: the data ends before it
+                if not self._pass_damage(opcode, content, rec_len, exc):
+                    return
+                continue
+            scan.records.append((self.pos, rec_len, opcode))
+            self._advance(rec_len)
+
+    def _advance(self, rec_len: int) -> None:
+        self.pos += rec_len
+        self.scan.valid_end = self.pos
+
+    def _resume(self, exc: Exception) -> bool:
+        """Go on at the next offset of ``resume`` after a record whose framing is damaged
+        (:func:`_go_on`); False: the walk stops."""
+        if not _go_on(self.scan, self.f, self.pos, exc, self.resume):
+            return False
+        self.pos, self.bad = self.scan.valid_end, None
+        return True
+
+    def _pass_damage(self, opcode: int, content: bytes, rec_len: int, exc: Exception) -> bool:
+        """After a record that failed to read: with ``past_damage`` a damaged chunk is noted
+        and a schema, channel or index left out (the summary's copy or a rebuilt one stands
+        in); else go on at ``resume``. False: the walk stops."""
+        if self.past_damage and opcode == Opcode.CHUNK:
+            self.bad = _damaged_chunk(content, self.pos, rec_len, exc)
+            self.scan.damaged.append(self.bad)
+            self._advance(rec_len)
+            return True
+        if self.past_damage and opcode in _REBUILT:
+            self.scan.skipped.append(f"record at byte {self.pos} ({exc or type(exc).__name__})")
+            self._advance(rec_len)
+            return True
+        return self._resume(exc)
+
+
+def _read_record(scan: McapScan, opcode: int, content: bytes, pos: int, rec_len: int) -> bool:
+    """Note one complete top-level record at ``pos`` in ``scan``; True at the data end.
+    Raises (ValueError, or mcap's and the decompressors' errors) when it is damaged."""
+    stream = ReadDataStream(BytesIO(content))
+    if opcode == Opcode.HEADER and pos == 8:
+        Header.read(stream)
+        scan.has_header = True
+    elif opcode == Opcode.SCHEMA:
+        s = _checked_schema(Schema.read(stream))
+        scan.schemas[s.id] = s
+    elif opcode == Opcode.CHANNEL:
+        c = Channel.read(stream)
+        scan.channels[c.id] = c
+    elif opcode == Opcode.CHUNK:
+        _read_chunk(scan, Chunk.read(stream), pos, rec_len)
+    elif opcode == Opcode.MESSAGE_INDEX:
+        mi = MessageIndex.read(stream)
+        if not scan.chunks:
+            raise ValueError("message index before any chunk")
+        scan.chunks[-1].index_records[mi.channel_id] = pos
+        scan.chunks[-1].index_end = pos + rec_len
+    elif opcode == Opcode.METADATA:
+        scan.metadata.append((pos, rec_len, Metadata.read(stream)))
+    elif opcode == Opcode.DATA_END:
+        scan.stop_reason = "end of data section"
+        return True
+    elif opcode in (Opcode.HEADER, Opcode.FOOTER) or opcode == 0:
+        raise ValueError(f"unexpected record 0x{opcode:02x}")
+    # attachments, top-level messages and unknown records are kept as they are
+    return False
+
+
+def _read_chunk(scan: McapScan, chunk: Chunk, pos: int, rec_len: int) -> None:
+    """A complete chunk at ``pos``: decompressed and CRC-checked (ValueError when damaged),
+    its schemas, channels, message index and counts noted."""
+    index, data = _chunk_index(chunk)
+    _inner_schemas_channels(data, scan)
+    scan.chunks.append(
+        ChunkInfo(
+            start=pos,
+            length=rec_len,
+            message_start_time=chunk.message_start_time,
+            message_end_time=chunk.message_end_time,
+            compression=chunk.compression,
+            compressed_size=len(chunk.data),
+            uncompressed_size=chunk.uncompressed_size,
+            index=index,
+        )
+    )
+    scan.chunks[-1].index_end = pos + rec_len
+    for channel, entries in index.items():
+        scan.message_counts[channel] = scan.message_counts.get(channel, 0) + len(entries)
+    if not scan.first_message and index:
+        off = min(o for entries in index.values() for _, o in entries)
+        scan.first_message = data[off + 9 + _MESSAGE_HEAD.size :][:4]
 
 
 #: top-level records a rewrite can do without: a schema or channel (also in the summary), a
