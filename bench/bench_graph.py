@@ -774,7 +774,7 @@ def tracked_quality(bag: Path) -> dict[str, float] | None:
     ground truth from the bag): tracks 3D AP @1.5 m (moderate, AP|R40), MOTA (2D IoU 0.5) and
     HOTA (2D IoU). None when the bag cannot be read or holds no ground truth."""
     from eval_node.bag_evaluation import evaluate_bag
-    from eval_node.bag_reader import TRACKS_TOPIC, read_run
+    from vehicle_common.bags.recorded_run import TRACKS_TOPIC, read_run
 
     try:
         run = read_run(bag)

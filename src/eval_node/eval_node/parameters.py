@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from vehicle_common.bags.writer import COMPRESSION_MODES, FLUSH_MESSAGES
 from vehicle_common.image_transport import SUBSCRIBER_TRANSPORTS
 from vehicle_common.node_parameters import param
 
-from eval_node.bag_writer import COMPRESSION_MODES, FLUSH_MESSAGES
 from vehicle_common import topics as graph_topics
 
 #: The pipeline's topics (docs/ARCHITECTURE.md) recorded by default. Their types are given so
