@@ -87,6 +87,8 @@ class TrackerConfig:
     # corrections after which a track keeps its most probable hypothesis (before: the
     # mixture's moments)
     birth_resolve_updates: int = param(10, low=1)
+    # tracks seen once when the camera's motion first arrives take the hypotheses too
+    world_entry_hypotheses: bool = param(False)
     # world frame: probability that a new track is a parked car, for the stationary model
     # beside the motion filter (stationary.py, issue #41; the reported position is the two
     # models' mixture); 0: off
@@ -97,6 +99,9 @@ class TrackerConfig:
     stationary_process_noise: float = param(0.01, low=0, low_open=True)
     # the two models interact (IMM mixing; Kalman filter, tracks without birth hypotheses)
     stationary_mixing: bool = param(True)
+    # detections a parked estimate must have taken before it is blended into the reported
+    # position (before, mu is mostly the prior: a young moving car is taken for parked)
+    stationary_min_updates: int = param(0, low=0)
     max_staleness: int = param(2, low=0)  # [frames] a track unmatched for more is deleted
     decay_rate: float = param(0.8, low=0.0, high=1.0)  # confidence factor per unmatched frame
     # coasting tracks are reported while conf >= this
