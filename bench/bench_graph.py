@@ -446,6 +446,7 @@ def offline_stage_times(
     from stereo_depth_node.parameters import stereo_config_from_values
     from stereo_depth_node.pipeline import FrameBoxes, StereoPipeline
     from stereo_depth_node.region_matching import to_gray
+    from tracking_bringup.parameters import default
     from vehicle_common.image_conversion import image_to_rgb, numpy_to_image
     from vehicle_common.kitti import TrackingSequence
     from vehicle_common.malloc_policy import keep_freed_memory
@@ -469,7 +470,7 @@ def offline_stage_times(
     # keeps freed memory for reuse: keep_freed_memory)
     pairs = [seq.read_stereo(f) for f in frames]
     left0, right0 = pairs[0]
-    if values.get("keep_freed_memory", True):
+    if values.get("keep_freed_memory", default(graph.STEREO.name, "keep_freed_memory")):
         keep_freed_memory()
     points: dict[str, tuple[float, float]] = {}  # trace point -> (wall, CPU) [s], this frame
 
@@ -773,7 +774,7 @@ def tracked_quality(bag: Path) -> dict[str, float] | None:
     ground truth from the bag): tracks 3D AP @1.5 m (moderate, AP|R40), MOTA (2D IoU 0.5) and
     HOTA (2D IoU). None when the bag cannot be read or holds no ground truth."""
     from eval_node.bag_evaluation import evaluate_bag
-    from eval_node.bag_reader import TRACKS_TOPIC, read_run
+    from vehicle_common.bags.recorded_run import TRACKS_TOPIC, read_run
 
     try:
         run = read_run(bag)

@@ -491,8 +491,8 @@ def cmd_graph(args) -> None:
     ground against the labels (taken to the world with ``poses_orbslam3``, as the real-motion
     benchmark does), and the confirmed / coasting track rows where no vehicle is."""
     import real_motion as rm
-    from eval_node.bag_reader import read_run
-    from vehicle_common.bag_files import BagError
+    from vehicle_common.bags.reader import BagError
+    from vehicle_common.bags.recorded_run import read_run
 
     bag = Path(args.bag)
     if (bag / "bag").is_dir() and not (bag / "metadata.yaml").exists():

@@ -31,7 +31,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from eval_node.bag_reader import OUTPUT_STATES, RANKED_STATES
 from eval_node.detection_metrics import precision_recall
 from eval_node.lost_cars import false_tracks
 from eval_node.motion_metrics import track_velocities
@@ -41,6 +40,7 @@ from tracker_node.config import TrackerConfig
 from tracker_node.detection_files import detection_batch, read_detection_file
 from tracker_node.offline import result_rows
 from tracker_node.tracker import DetectionBatch, Tracker
+from vehicle_common.bags.recorded_run import OUTPUT_STATES, RANKED_STATES
 from vehicle_common.kitti import (
     KittiObject,
     alpha_from_rotation_y,

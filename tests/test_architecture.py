@@ -40,11 +40,21 @@ NODE_MODULES = {
 
 
 def _modules(package: str) -> list[tuple[str, Path]]:
+    """(dotted module name, file) of every module of ``package``, its subpackages' included
+    (``vehicle_common.bags.reader``)."""
     root = SRC / package / package
-    return [
-        (f"{package}.{p.stem}" if p.stem != "__init__" else package, p)
-        for p in sorted(root.glob("*.py"))
-    ]
+    out = []
+    for p in sorted(root.rglob("*.py")):
+        parts = p.relative_to(root).with_suffix("").parts
+        out.append((".".join((package, *parts[: -1 if parts[-1] == "__init__" else None])), p))
+    return out
+
+
+def _relative_base(path: Path, package: str, level: int) -> str:
+    """The package a relative import of ``level`` dots in ``path`` starts from (``package``:
+    the top-level package the file belongs to)."""
+    parts = path.parent.relative_to(SRC / package / package).parts
+    return ".".join((package, *parts[: len(parts) - (level - 1)]))
 
 
 def _imports(path: Path, package: str) -> list[tuple[str, int, bool]]:
@@ -57,7 +67,7 @@ def _imports(path: Path, package: str) -> list[tuple[str, int, bool]]:
             out += [(a.name, node.lineno, id(node) in top) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level:  # relative: inside the same package
-                base = package
+                base = _relative_base(path, package, node.level)
                 out.append((f"{base}.{node.module}" if node.module else base, node.lineno, True))
             else:
                 mods = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
@@ -165,7 +175,7 @@ def _module_graph(packages) -> dict[str, set[str]]:
             if isinstance(node, ast.Import):
                 names = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom):
-                base = package if node.level else ""
+                base = _relative_base(path, package, node.level) if node.level else ""
                 target = ".".join(x for x in (base, node.module) if x)
                 names = [target] + [f"{target}.{a.name}" for a in node.names]
             for name in names:
@@ -214,6 +224,14 @@ def test_no_package_imports_itself_in_a_circle():
     onnx_backend <-> onnx_detector."""
     cycles = import_cycles(_module_graph((COMMON, *NODE_PACKAGES, BRINGUP)))
     assert not cycles, "import circles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def test_subpackages_are_checked_with_their_relative_imports():
+    """A subpackage (vehicle_common.bags) is under the same rules: its modules are listed and
+    its relative imports resolved (``..kitti`` from bags/reader.py is vehicle_common.kitti)."""
+    graph = _module_graph((COMMON,))
+    assert "vehicle_common.bags.mcap_scan" in graph["vehicle_common.bags.recovery"]
+    assert "vehicle_common.kitti" in graph["vehicle_common.bags.reader"]
 
 
 def test_the_circle_checker_sees_a_circle():

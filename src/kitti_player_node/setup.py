@@ -23,7 +23,7 @@ setup(
             "kitti_player = kitti_player_node.node:main",
             "kitti_synth = kitti_player_node.synthetic:main",
             "bag_player = kitti_player_node.bag_player:main",
-            "bag_recover = vehicle_common.bag_recovery:main",
+            "bag_recover = vehicle_common.bags.recovery:main",
         ],
     },
 )

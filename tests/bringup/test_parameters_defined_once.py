@@ -5,6 +5,7 @@ graph's parameter file holds only parameters the nodes have, with values they ac
 from __future__ import annotations
 
 import ast
+import dataclasses
 import inspect
 import sys
 from pathlib import Path
@@ -12,7 +13,7 @@ from pathlib import Path
 import yaml
 from tracking_bringup.environment import PARAMS_FILE
 from tracking_bringup.parameters import NODE_PARAMETERS, default, node_defaults
-from vehicle_common.node_parameters import PROCESS_PARAMETERS, check_value
+from vehicle_common.node_parameters import check_value
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -88,11 +89,14 @@ def test_the_parameter_file_holds_only_the_nodes_parameters_with_accepted_values
     data = yaml.safe_load(Path(PARAMS_FILE).read_text())
     for node in NODE_PARAMETERS:
         section = data[node]["ros__parameters"]
+        rules = {
+            rename.get(f.name, f.name): dict(f.metadata)
+            for cls, _, rename in NODE_PARAMETERS[node]
+            for f in dataclasses.fields(cls)
+        }
         for name, value in section.items():
-            if name in PROCESS_PARAMETERS:
-                continue
             assert name in node_defaults(node), f"{node}: {name} is no parameter of the node"
-            check_value(f"{node}.{name}", value, default(node, name))
+            check_value(f"{node}.{name}", value, default(node, name), rules[name])
 
 
 def test_graph_plan_reads_the_nodes_defaults():

@@ -188,3 +188,51 @@ def test_window_learns_a_stage_slower_than_the_timeout_from_an_expired_frame():
     assert w.finish(1) == 0 and w.timeout == pytest.approx(10.0)  # 5 s in flight, learnt
     clock.t += 5.0
     assert w.admit(3) is not None and w.expired == 1  # frame 2 is still in flight
+
+
+def test_cadence_waits_for_a_next_image_due_soon_and_never_for_an_overdue_one():
+    """Issue #39: at a camera twice the graph's capacity the newest image had waited half a
+    period when the window freed; an image due within half a period is waited for instead."""
+    from vehicle_common.flow_control import CameraCadence
+
+    clock = FakeClock()
+    cam = CameraCadence(clock)
+    assert cam.wait_for_next(0.5) is None  # no period yet
+    for _ in range(4):  # 10 Hz
+        cam.arrived()
+        clock.t += 0.1
+    clock.t -= 0.1  # now: the 4th image has just arrived
+    assert cam.period == pytest.approx(0.1)
+    assert cam.wait_for_next(0.5) is None  # the next is a whole period away: take this one
+    clock.t += 0.07  # the next is due in 0.03 s (within half a period): wait for it
+    assert cam.wait_for_next(0.5) == pytest.approx(0.03 + 0.025)
+    assert cam.wait_for_next(0.0) is None  # off
+    clock.t += 0.05  # overdue by 0.02 s, within LATE: still worth the wait
+    assert cam.wait_for_next(0.5) == pytest.approx(0.005)
+    clock.t += 0.5  # the camera stopped: never wait again
+    assert cam.wait_for_next(0.5) is None
+
+
+def test_admission_takes_the_next_image_when_it_is_due_soon():
+    """The detector's admission (a worker in front of a free window): the frame that waited
+    past half a period is superseded by the next image instead of being detected stale."""
+    from types import SimpleNamespace
+
+    from detector_node.admission import DownstreamAdmission
+
+    adm = DownstreamAdmission(1, 1.0, lambda: 1, lambda line: None, next_frame_wait=0.5)
+    clock = FakeClock()
+    adm.cadence._clock = clock
+    for _ in range(4):
+        adm.arrived()
+        clock.t += 0.05
+    msg = SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=1, nanosec=0)))
+    clock.t += 0.0  # the newest image is 0.05 s old: the next is due now (within LATE)
+    wait = adm.admit(msg)
+    assert wait is not None and adm.waited_for_next == 1 and adm.flow.in_flight == 0
+    clock.t -= 0.04  # the newest image is 0.01 s old: detect it
+    assert adm.admit(msg) is None and adm.flow.in_flight == 1
+    off = DownstreamAdmission(1, 1.0, lambda: 1, lambda line: None, next_frame_wait=0.0)
+    for _ in range(4):
+        off.arrived()
+    assert off.admit(msg) is None

@@ -1,6 +1,6 @@
 """Relative topic names, resolved in a namespace; the namespace of a recorded bag."""
 
-from eval_node.bag_reader import bag_namespace
+from vehicle_common.bags.recorded_run import bag_namespace
 
 from vehicle_common import topics
 

@@ -44,7 +44,7 @@ def _crashed_bag(tmp_path: Path, flushes: list[int], total: int, **options):
     """Write ``total`` message pairs, flushing after the pair indexes in ``flushes``, and copy
     the bag directory before closing: what a killed recorder leaves. Returns (copy, messages
     on disk: flushed or in a finished split file, all messages)."""
-    from eval_node.bag_writer import BagWriter
+    from vehicle_common.bags.writer import BagWriter
 
     writer = BagWriter(tmp_path / "live", **options)
     for topic, msgtype in TOPICS.items():
@@ -85,8 +85,9 @@ def _read_mcap(path: Path) -> list[tuple[str, bytes, int]]:
 
 
 def test_killed_writer_keeps_flushed_chunks(tmp_path, capsys):
-    from kitti_player_node.bag_replay import iter_bag, open_reader
-    from vehicle_common.bag_recovery import recover_bag
+    from vehicle_common.bags.reader import open_reader
+    from vehicle_common.bags.recovery import recover_bag
+    from vehicle_common.bags.replay import iter_bag
 
     crashed, flushed, msgs = _crashed_bag(tmp_path, flushes=[9, 19, 29], total=35)
     files = sorted(p.name for p in crashed.iterdir())
@@ -127,10 +128,9 @@ def test_cut_anywhere_keeps_every_complete_chunk(tmp_path, options):
     """The last file cut at 40 offsets, 38 of them random (a kill during a write): the reader
     keeps the messages of every chunk that lies wholly before the cut (a cut before the first
     complete chunk leaves nothing to read: one error line naming the bag); bag_recover agrees."""
-    from kitti_player_node.bag_replay import open_reader
-    from vehicle_common.bag_files import BagError
-    from vehicle_common.bag_recovery import recover_bag
-    from vehicle_common.mcap_recovery import scan_mcap
+    from vehicle_common.bags.mcap_scan import scan_mcap
+    from vehicle_common.bags.reader import BagError, open_reader
+    from vehicle_common.bags.recovery import recover_bag
 
     crashed, flushed, _ = _crashed_bag(tmp_path, list(range(2, 40, 3)), 40, **options)
     src = crashed / "crashed_0.mcap"
@@ -169,8 +169,8 @@ def test_cut_anywhere_keeps_every_complete_chunk(tmp_path, options):
 
 
 def test_split_bag_interrupted_in_second_file(tmp_path):
-    from kitti_player_node.bag_replay import iter_bag
-    from vehicle_common.bag_recovery import recover_bag
+    from vehicle_common.bags.recovery import recover_bag
+    from vehicle_common.bags.replay import iter_bag
 
     crashed, flushed, _ = _crashed_bag(tmp_path, [5, 25], 30, max_bag_size=1500, compression="zstd")
     names = sorted(p.name for p in crashed.iterdir())
@@ -182,10 +182,10 @@ def test_split_bag_interrupted_in_second_file(tmp_path):
 
 
 def test_embedded_rosbag2_metadata_names_the_file(tmp_path):
-    from eval_node.bag_writer import write_bag
     from mcap.reader import make_reader
     from ruamel.yaml import YAML
     from std_msgs.msg import String
+    from vehicle_common.bags.writer import write_bag
 
     bag = tmp_path / "run"
     write_bag(bag, [("/chatter", String(data=str(i)), T0 + i) for i in range(5)])
@@ -201,7 +201,7 @@ def test_embedded_rosbag2_metadata_names_the_file(tmp_path):
 def test_bag_recover_cli(tmp_path):
     crashed, flushed, _ = _crashed_bag(tmp_path, [3], 6)
     exe = Path(sys.executable).with_name("bag_recover")
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "vehicle_common.bag_recovery"]
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "vehicle_common.bags.recovery"]
     out = subprocess.run([*cmd, str(crashed)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert f"{len(flushed)} messages" in out.stdout and "metadata.yaml written" in out.stdout
@@ -215,11 +215,11 @@ def test_bag_recover_cli(tmp_path):
 def test_evaluate_cli_reads_interrupted_run(tmp_path, capsys):
     """`evaluate bag` on a run whose recorder died after frame 11's flush: one warning line,
     the 12 flushed frames evaluated."""
-    from eval_node.bag_writer import BagWriter, ros_type_name
     from eval_node.cli import main
     from rclpy.serialization import serialize_message
     from test_evaluate_cli_bag import T0 as T0_RUN
     from test_evaluate_cli_bag import make_messages
+    from vehicle_common.bags.writer import BagWriter, ros_type_name
 
     writer = BagWriter(tmp_path / "live")
     flushed_frames = 12
@@ -237,7 +237,7 @@ def test_evaluate_cli_reads_interrupted_run(tmp_path, capsys):
     out, err = capsys.readouterr()
     warnings = [line for line in err.splitlines() if line.startswith("warning:")]
     assert len(warnings) == 1 and "recording was interrupted" in warnings[0]
-    from eval_node.bag_reader import read_run
+    from vehicle_common.bags.recorded_run import read_run
 
     run = read_run(bag)
     assert [f.frame for f in run.frames] == list(range(flushed_frames))
@@ -259,9 +259,9 @@ def test_bag_player_replays_interrupted_bag(tmp_path, capfd):
 def test_cut_file_listed_in_metadata_is_read(tmp_path):
     """A bag whose metadata.yaml exists but whose file lost its end (a writer that writes the
     metadata first, as rosbag2 may): read up to the last complete chunk, then repaired."""
-    from kitti_player_node.bag_replay import open_reader
-    from vehicle_common.bag_recovery import recover_bag
-    from vehicle_common.mcap_recovery import scan_mcap
+    from vehicle_common.bags.mcap_scan import scan_mcap
+    from vehicle_common.bags.reader import open_reader
+    from vehicle_common.bags.recovery import recover_bag
 
     crashed, flushed, _ = _crashed_bag(tmp_path, [3, 7], 10)
     bag = tmp_path / "closed"
@@ -283,9 +283,9 @@ def test_cut_file_listed_in_metadata_is_read(tmp_path):
 
 @pytest.mark.parametrize("mode", ["file", "message"])
 def test_interrupted_bag_with_file_or_message_compression(tmp_path, mode):
-    from kitti_player_node.bag_replay import iter_bag
     from ruamel.yaml import YAML
-    from vehicle_common.bag_recovery import recover_bag
+    from vehicle_common.bags.recovery import recover_bag
+    from vehicle_common.bags.replay import iter_bag
 
     options = {"compression": "zstd", "compression_mode": mode, "max_bag_size": 1500}
     crashed, flushed, _ = _crashed_bag(tmp_path, [20], 25, **options)
@@ -309,8 +309,8 @@ def test_autoflush_thread_puts_everything_on_disk(tmp_path):
     one period holds every message written before it."""
     import time
 
-    from eval_node.bag_writer import BagWriter, BagWriterError
-    from kitti_player_node.bag_replay import iter_bag
+    from vehicle_common.bags.replay import iter_bag
+    from vehicle_common.bags.writer import BagWriter, BagWriterError
 
     with pytest.raises(BagWriterError, match="flush_period"):
         BagWriter(tmp_path / "bad", flush_period=float("nan"))
@@ -339,8 +339,8 @@ def test_a_chunk_is_written_out_every_flush_messages(tmp_path):
     whose first message is flush_period old is written out by the next write."""
     import time
 
-    from eval_node.bag_writer import BagWriter, BagWriterError
-    from kitti_player_node.bag_replay import iter_bag
+    from vehicle_common.bags.replay import iter_bag
+    from vehicle_common.bags.writer import BagWriter, BagWriterError
 
     with pytest.raises(BagWriterError, match="flush_messages"):
         BagWriter(tmp_path / "bad", flush_messages=-1)
@@ -379,7 +379,7 @@ def _flipped(path: Path, offset: int, n: int = 64) -> None:
 
 def _closed_bag(tmp_path: Path, pairs: int = 24, flush_every: int = 3) -> tuple[Path, list]:
     """A bag closed normally with a chunk every ``flush_every`` message pairs."""
-    from eval_node.bag_writer import BagWriter
+    from vehicle_common.bags.writer import BagWriter
 
     writer = BagWriter(tmp_path / "bag")
     for topic, msgtype in TOPICS.items():
@@ -401,7 +401,7 @@ def test_damaged_chunk_is_one_line_and_bag_recover_drops_it(tmp_path, capfd):
     repair`, exit 0, and the bag still unreadable)."""
     from eval_node.cli import main as evaluate
     from kitti_player_node.bag_player import main as bag_player
-    from vehicle_common.bag_recovery import main as bag_recover
+    from vehicle_common.bags.recovery import main as bag_recover
 
     bag, msgs = _closed_bag(tmp_path)
     mcap = next(bag.glob("*.mcap"))
@@ -433,7 +433,7 @@ def test_damage_anywhere_is_repaired_or_reported(tmp_path):
     all messages but those of the one chunk hit (as many as it says; a damaged record length
     is passed using the summary's chunk offsets, a damaged schema or summary rebuilt). Every
     29th offset of this file was tried by hand: 638 lost one chunk, 217 nothing."""
-    from vehicle_common.bag_recovery import recover_bag
+    from vehicle_common.bags.recovery import recover_bag
 
     original, msgs = _closed_bag(tmp_path / "orig")
     size = next(original.glob("*.mcap")).stat().st_size

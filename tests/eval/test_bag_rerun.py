@@ -4,7 +4,7 @@ the same output; a bag that holds messages, or anything else in the folder, is n
 from __future__ import annotations
 
 import pytest
-from eval_node.bag_writer import BagWriter, BagWriterError, empty_bag_files
+from vehicle_common.bags.writer import BagWriter, BagWriterError, empty_bag_files
 
 TOPIC, TYPE = "/chatter", "std_msgs/msg/String"
 

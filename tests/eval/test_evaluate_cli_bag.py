@@ -1,4 +1,4 @@
-"""evaluate_bag / bag_reader / the `evaluate` CLI on bags written here from synthetic messages."""
+"""evaluate_bag / read_run / the `evaluate` CLI on bags written here from synthetic messages."""
 
 from __future__ import annotations
 
@@ -126,14 +126,14 @@ def make_messages(track_offset_x: float = 0.0, images: bool = False):
 
 
 def make_bag(path, track_offset_x: float = 0.0, images: bool = False):
-    from eval_node.bag_writer import write_bag
+    from vehicle_common.bags.writer import write_bag
 
     write_bag(path, make_messages(track_offset_x, images))
     return path
 
 
 def test_read_run_converts_to_camera0(tmp_path):
-    from eval_node.bag_reader import read_run
+    from vehicle_common.bags.recorded_run import read_run
 
     run = read_run(make_bag(tmp_path / "bag"))
     assert run.sequence == "0003"
@@ -179,7 +179,7 @@ def test_evaluate_bag_offset_tracks_fail_tight_threshold(tmp_path):
 
 def test_evaluate_bag_velocity_error(tmp_path):
     from eval_node.bag_evaluation import evaluate_bag
-    from eval_node.bag_writer import write_bag
+    from vehicle_common.bags.writer import write_bag
 
     msgs = make_messages()
     for topic, m, _t in msgs:
@@ -251,7 +251,7 @@ def test_evaluate_refuses_a_bag_that_mixes_two_runs(tmp_path):
     9.8, without a word). One line naming the topic, exit 2; a bag of one run is read."""
     run = make_messages()
     second = make_messages(track_offset_x=3.0)
-    from eval_node.bag_writer import write_bag
+    from vehicle_common.bags.writer import write_bag
 
     write_bag(tmp_path / "mixed", sorted(run + second, key=lambda m: m[2]))
     p = subprocess.run(
@@ -265,15 +265,15 @@ def test_evaluate_refuses_a_bag_that_mixes_two_runs(tmp_path):
     assert lines[0].startswith(f"error: {tmp_path / 'mixed'}: mixes more than one run: ")
     assert f"holds {N_FRAMES} stamp(s) more than once" in lines[0]
     assert "--namespace" in lines[0]
-    from eval_node.bag_reader import read_run
+    from vehicle_common.bags.recorded_run import read_run
 
     assert len(read_run(make_bag(tmp_path / "one")).frames) == N_FRAMES
 
 
 def test_repeated_stamps_of_serialized_headers():
-    from eval_node.repeated_stamps import RepeatedStamps, header_stamp
     from rclpy.serialization import serialize_message
     from stereo_vehicle_msgs.msg import TrackedVehicleArray
+    from vehicle_common.bags.repeated_stamps import RepeatedStamps, header_stamp
 
     msg = TrackedVehicleArray()
     msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 300_000_000
@@ -291,8 +291,8 @@ def test_run_without_ground_truth_is_scored_by_stamp(tmp_path, capsys):
     ``--labels --sequence``: each stamp is its frame on the player's grid (``--start-time``),
     frame 0 counts as missed, every other frame matches its labels (before: stamps in order
     numbered frame 1 as 0, and every frame was shifted against its labels)."""
-    from eval_node.bag_writer import write_bag
     from eval_node.cli import main
+    from vehicle_common.bags.writer import write_bag
     from vehicle_common.kitti import write_tracking_labels
 
     labels = tmp_path / "label_02"

@@ -35,7 +35,7 @@ def test_full_disk_is_one_line_exit_1_and_a_readable_bag(tmp_path, rclpy_context
     import numpy as np
     import rclpy
     from sensor_msgs.msg import Image
-    from vehicle_common.bag_files import open_reader
+    from vehicle_common.bags.reader import open_reader
 
     with _small_disk(tmp_path / "disk", "3m") as disk:
         bag = disk / "bag"

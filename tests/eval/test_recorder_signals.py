@@ -25,7 +25,7 @@ def _wait(cond, timeout: float) -> bool:
 
 def _flushed_messages(bag) -> int:
     """Messages in the complete records of a bag's first file while it is being written."""
-    from vehicle_common.mcap_recovery import McapRecoveryError, scan_mcap
+    from vehicle_common.bags.mcap_scan import McapRecoveryError, scan_mcap
 
     path = bag / f"{bag.name}_0.mcap"
     try:
@@ -151,11 +151,11 @@ def test_recorder_killed_keeps_flushed_messages(tmp_path, rclpy_context, capsys)
     import random
 
     import rclpy
-    from kitti_player_node.bag_replay import open_reader
     from mcap.reader import make_reader
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from stereo_vehicle_msgs.msg import TrackedVehicle, TrackedVehicleArray
-    from vehicle_common.bag_recovery import recover_bag
+    from vehicle_common.bags.reader import open_reader
+    from vehicle_common.bags.recovery import recover_bag
 
     rng = random.Random()
     node = rclpy.create_node("recorder_kill_pub", context=rclpy_context)

@@ -235,7 +235,7 @@ def test_failed_start_then_a_rerun_with_the_same_output(kitti_tracking_root, tmp
         "(did you mean lockstep_timeout?)"
     ]
     if not bag.is_dir():  # the recorder was stopped before it opened the bag
-        from eval_node.bag_writer import BagWriter
+        from vehicle_common.bags.writer import BagWriter
 
         BagWriter(bag).close()
     assert bag.is_dir()  # an empty bag, as a failed start leaves it

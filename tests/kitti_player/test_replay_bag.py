@@ -7,7 +7,8 @@ import time
 from pathlib import Path
 
 import pytest
-from kitti_player_node.bag_replay import (
+from vehicle_common.bags.reader import BagError, open_reader
+from vehicle_common.bags.replay import (
     BagMessage,
     iter_bag,
     output_types,
@@ -15,7 +16,6 @@ from kitti_player_node.bag_replay import (
     parse_remaps,
     parse_topics,
 )
-from vehicle_common.bag_files import BagError, open_reader
 from vehicle_common.kitti import KittiFormatError
 
 from tests.ros_helpers import spin_until as _spin_until
@@ -191,9 +191,9 @@ def test_paced_keeps_recorded_spacing():
 
 
 def _raw_subscriber(context, topics: dict[str, str]):
-    from kitti_player_node.bag_replay import message_class
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from vehicle_common.bags.replay import message_class
 
     node = Node("replay_test_sub", context=context)
     got: list[tuple[str, bytes]] = []
@@ -298,7 +298,7 @@ def test_readme_remap_command_line(rclpy_context, tmp_path):
 
 
 def test_ready_to_play_policy():
-    from kitti_player_node.bag_replay import ready_to_play
+    from vehicle_common.bags.replay import ready_to_play
 
     # a subscriber the graph knows of but not yet matched holds the start back, always
     assert not ready_to_play({"/a": 0, "/b": 1}, {"/a": 1, "/b": 1}, 9.0, 3.0)
@@ -314,7 +314,7 @@ def test_ready_to_play_policy():
 
 
 def test_required_counts_never_below_the_known_subscribers():
-    from kitti_player_node.bag_replay import required_counts
+    from vehicle_common.bags.replay import required_counts
 
     known = {"/a": 2, "/b": 0}
     # --wait-for-subscribers 1: one on every replayed topic, and every known one

@@ -248,8 +248,8 @@ def test_damaged_bag_one_line_error(tmp_path, fmt, how):
 
 def _mcap_without_a_message(folder: Path, how: str) -> Path:
     """An ``.mcap`` (or a bag folder) from which nothing can be read or played."""
-    from eval_node.bag_writer import BagWriter
-    from vehicle_common.mcap_recovery import MAGIC
+    from vehicle_common.bags.mcap_scan import MAGIC
+    from vehicle_common.bags.writer import BagWriter
 
     folder.mkdir(parents=True, exist_ok=True)
     if how == "zero bytes":

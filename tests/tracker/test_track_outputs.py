@@ -116,8 +116,8 @@ def test_tracks_markers_and_vision_tracks_in_odom():
 
 
 def test_the_evaluator_reads_tracks_in_odom_back_into_the_camera_frame():
-    from eval_node.bag_reader import tracks_in_camera_frame
     from tracker_node.conversions import tracks_to_msg
+    from vehicle_common.bags.recorded_run import tracks_in_camera_frame
 
     pose = Pose(rpy_rotation(0.01, -0.02, 0.7) @ CameraMount().pose.rotation, [5.0, -2.0, 1.0])
     tracks = _tracks((1, 2))

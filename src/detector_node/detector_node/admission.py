@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable
 
 from vehicle_common.camera_settings import CameraModel, detector_framing
-from vehicle_common.flow_control import InFlightWindow
+from vehicle_common.flow_control import CameraCadence, InFlightWindow
 from vehicle_common.frame_messages import stamp_ns
 
 from vehicle_common import topics
@@ -26,7 +26,10 @@ DOWNSTREAM_CHECK_S = 0.5
 class DownstreamAdmission:
     """Back-pressure: an image waits while the stereo node has no room for it (``window``
     frames in flight, each freed after ``timeout`` s). ``publishers()``: how many publish the
-    3D arrays; ``warn``: a warning line (a frame's place freed by its timeout)."""
+    3D arrays; ``warn``: a warning line (a frame's place freed by its timeout). When there is
+    room and the camera's next image is due within ``next_frame_wait`` of its period, the
+    worker waits for that image (:class:`vehicle_common.flow_control.CameraCadence`; the images'
+    arrivals are given with :meth:`arrived`)."""
 
     def __init__(
         self,
@@ -34,8 +37,12 @@ class DownstreamAdmission:
         timeout: float,
         publishers: Callable[[], int],
         warn: Callable[[str], object],
+        next_frame_wait: float = 0.0,
     ) -> None:
         self.flow = InFlightWindow(window, timeout)
+        self.cadence = CameraCadence()
+        self.next_frame_wait = float(next_frame_wait)
+        self.waited_for_next = 0  # times a fresher image was waited for
         self._downstream = (False, float("-inf"))  # (publisher seen, checked at)
         self._expired_seen = 0
         self._publishers = publishers
@@ -54,6 +61,11 @@ class DownstreamAdmission:
             self._downstream = (seen, now)
         if not seen:
             return None
+        if self.next_frame_wait > 0 and self.flow.has_room:
+            fresher = self.cadence.wait_for_next(self.next_frame_wait)
+            if fresher is not None:
+                self.waited_for_next += 1
+                return fresher
         wait = self.flow.admit(stamp_ns(msg.header))
         if self.flow.expired > self._expired_seen:
             self._expired_seen = self.flow.expired
@@ -63,6 +75,10 @@ class DownstreamAdmission:
                 "window is freed"
             )
         return wait
+
+    def arrived(self) -> None:
+        """An image arrived (the camera's cadence)."""
+        self.cadence.arrived()
 
     def finish(self, msg, wake: Callable[[], object]) -> None:
         """A 3D array: the frames detected up to its stamp are done downstream (``wake``: the

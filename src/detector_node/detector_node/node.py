@@ -66,6 +66,7 @@ class VehicleDetectorNode(Node):
         self.backend = p.backend
         self.frames = FrameCounter()  # images in, detection arrays out, images skipped
         self.worker: LatestFrameWorker | None = None
+        self.flow: DownstreamAdmission | None = None  # back-pressure (the CNN, a live camera)
         self.pub = self.create_publisher(VehicleDetection2DArray, DETECTIONS_TOPIC, 10)
         self.vision_pub = self.create_publisher(Detection2DArray, topics.VISION_DETECTIONS_2D, 10)
         if self.backend == "cnn":
@@ -87,13 +88,13 @@ class VehicleDetectorNode(Node):
             # latest-frame policy: the newest image is detected, an image still waiting when a
             # newer one arrives is skipped and counted (never a growing queue); with
             # back-pressure an image also waits while the stereo node has no room for it
-            self.flow = None
             if p.downstream_window > 0:
                 self.flow = DownstreamAdmission(
                     max(p.downstream_window, p.frame_queue),
                     p.downstream_timeout,
                     lambda: self.count_publishers(DOWNSTREAM_TOPIC),
                     lambda line: self.get_logger().warning(line, throttle_duration_sec=5.0),
+                    p.next_frame_wait,
                 )
             self.worker = LatestFrameWorker(
                 self._work,
@@ -140,6 +141,8 @@ class VehicleDetectorNode(Node):
     def _on_image(self, msg: Image) -> None:
         self.trace("image_received", stamp_ns(msg.header))
         self.frames.received()
+        if self.flow is not None:
+            self.flow.arrived()  # the camera's cadence
         if self.backend == "oracle":
             for image, labels in self.pairing.add_image(stamp_ns(msg.header), msg):
                 self._publish_oracle(image, labels)

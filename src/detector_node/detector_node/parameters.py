@@ -13,15 +13,17 @@ from vehicle_common.node_parameters import param
 class DetectorParameters:
     """The node's parameters (ROS names and defaults) with their allowed values."""
 
+    # "cnn" (the network) or "oracle" (the ground-truth boxes, for ablations only)
     backend: str = param("cnn", choices=("cnn", "oracle"))
     checkpoint: str = ""  # "" = the shipped CenterNet checkpoint
     device: str = "auto"  # auto | cpu | cuda | cuda:N
-    score_threshold: float = param(0.3, low=0.0, high=1.0)
+    score_threshold: float = param(0.3, low=0.0, high=1.0)  # minimum score of a published box
+    # IoU above which non-maximum suppression drops the lower-scored box
     nms_iou: float = param(0.45, low=0.0, high=1.0, low_open=True)
     # [px] network input; 0 = derived from the left CameraInfo (the image at the training's
     # pixels per metre; KITTI's camera: the checkpoint's); the network's stride is 32
     input_width: int = param(0, low=0, multiple_of=32)
-    input_height: int = param(0, low=0, multiple_of=32)
+    input_height: int = param(0, low=0, multiple_of=32)  # [px] the same for the height
     num_threads: int = param(2, low=1)  # torch / ONNX Runtime CPU threads
     # inference runtime: auto (ONNX Runtime for a CenterNet checkpoint on the CPU when the
     # onnx / onnxruntime packages are installed, else PyTorch) | torch | onnxruntime
@@ -45,9 +47,14 @@ class DetectorParameters:
     # [s] a detected frame whose 3D array never comes leaves the window after this, or after
     # twice the longest of the last 8 frames' times from the CNN's start to their 3D array
     downstream_timeout: float = param(1.0, low=0.0, low_open=True)
+    # with back-pressure: when there is room downstream and the camera's next image is due
+    # within this share of its period, wait for it (a fresher frame; vehicle_common.
+    # flow_control.CameraCadence; chosen on real 0005, docs/RESULTS.md section 19). 0: off
+    next_frame_wait: float = param(0.5, low=0.0, high=1.0)
     vehicle_types: list = param(["Car", "Van"])  # oracle: label types republished
-    oracle_box_noise_px: float = param(0.0, low=0.0)
-    oracle_score: float = param(1.0, low=0.0, high=1.0)
-    oracle_drop_probability: float = param(0.0, low=0.0, high=1.0)
-    oracle_seed: int = param(0, low=0)
+    oracle_box_noise_px: float = param(0.0, low=0.0)  # oracle: [px] std of noise on each box edge
+    oracle_score: float = param(1.0, low=0.0, high=1.0)  # oracle: score of every box
+    oracle_drop_probability: float = param(0.0, low=0.0, high=1.0)  # oracle: box dropped
+    oracle_seed: int = param(0, low=0)  # oracle: seed of the noise and the drops
+    # oracle: images waiting for their ground truth before they are released without boxes
     oracle_max_pending: int = param(10, low=1)

@@ -1,8 +1,8 @@
 """Offline evaluation of a recorded run (a bag of the pipeline's topics) by KITTI rules.
 
-:func:`evaluate_bag` reads the bag (:mod:`eval_node.bag_reader`), takes the ground truth from
-the recorded ``/kitti/ground_truth`` or from KITTI label files, and computes, in one dict that is
-also the JSON output:
+:func:`evaluate_bag` reads the bag (:mod:`vehicle_common.bags.recorded_run`), takes the ground
+truth from the recorded ``/kitti/ground_truth`` or from KITTI label files, and computes, in one
+dict that is also the JSON output:
 
 - ``detections_3d`` / ``tracks_3d``: 3D localisation AP (centre distance 1.5/3/5/10 m) per
   difficulty of the unfiltered 3D detections and of the tracks (KITTI's AP|R40 with the
@@ -27,9 +27,7 @@ import math
 from pathlib import Path
 
 import numpy as np
-from vehicle_common.kitti import KittiObject, read_calib, read_tracking_labels
-
-from eval_node.bag_reader import (
+from vehicle_common.bags.recorded_run import (
     DET3D_TOPIC,
     GT_TOPIC,
     TRACKS_TOPIC,
@@ -37,6 +35,8 @@ from eval_node.bag_reader import (
     RecordedRun,
     read_run,
 )
+from vehicle_common.kitti import KittiObject, read_calib, read_tracking_labels
+
 from eval_node.detection_metrics import LEVELS, ap_table, orientation_accuracy, voc07_ap
 from eval_node.tracking_metrics import evaluate_tracking
 
@@ -166,7 +166,7 @@ def evaluate_bag(
     det2d = {f.frame: f.det2d for f in run.frames}
     det3d = {f.frame: f.det3d for f in run.frames}
     tracks = {f.frame: f.tracks for f in run.frames}
-    # AP ranks tentative tracks too, at their lowered score (bag_reader.RANKED_STATES)
+    # AP ranks tentative tracks too, at their lowered score (recorded_run.RANKED_STATES)
     ranked = {f.frame: f.tracks + f.tentative for f in run.frames}
 
     curves: dict = {"detections_3d": {}, "tracks_3d": {}, "detections_2d": {}}

@@ -175,8 +175,9 @@ def _run_detection(args) -> int:
 
 
 def _run_bag(args) -> int:
+    from vehicle_common.bags.recorded_run import FrameGrid, read_run
+
     from eval_node.bag_evaluation import evaluate_bag
-    from eval_node.bag_reader import FrameGrid, read_run
     from eval_node.report import results_table, write_report
 
     config = None

@@ -11,9 +11,9 @@ from dataclasses import replace
 
 import numpy as np
 from tracker_node.offline import result_rows
+from vehicle_common.bags.recorded_run import RANKED_STATES, RecordedRun
 from vehicle_common.kitti import KittiObject
 
-from eval_node.bag_reader import RANKED_STATES, RecordedRun
 from eval_node.detection_metrics import LEVELS, precision_recall
 
 FILTER_NAMES = ("none", "kalman", "particle")

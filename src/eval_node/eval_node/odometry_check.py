@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from vehicle_common.bag_files import bag_messages, open_reader
+from vehicle_common.bags.reader import bag_messages, open_reader
 from vehicle_common.camera_frames import centre_from_kitti
 from vehicle_common.camera_motion import CameraMotion
 from vehicle_common.frame_messages import kitti_objects_from_message, read_transform, stamp_ns

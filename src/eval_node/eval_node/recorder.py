@@ -3,7 +3,8 @@
 Subscriptions are raw (CDR bytes, no deserialisation) and RELIABLE with a deep queue; topic
 types are discovered from the ROS graph every ``discovery_period`` seconds (a topic whose
 publisher appears late is picked up) unless given as ``topic:pkg/msg/Type``. Every message is
-written with its receive time (ns, as rosbag2 does) through :class:`eval_node.bag_writer.BagWriter`.
+written with its receive time (ns, as rosbag2 does) through
+:class:`vehicle_common.bags.writer.BagWriter`.
 SIGINT/SIGTERM stop the node cleanly: pending messages are taken and written, the bag is closed
 and the message count of each topic is logged. Topic names are relative: they are resolved in
 the node's namespace and recorded under their resolved names (``/rig2/vehicles/tracks``).
@@ -22,6 +23,13 @@ import rclpy
 import rclpy.executors
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from vehicle_common.bags.repeated_stamps import (
+    FRAME_TOPICS,
+    RepeatedStamps,
+    header_stamp,
+    mixed_runs_hint,
+)
+from vehicle_common.bags.writer import BagWriter, BagWriterError
 from vehicle_common.node_parameters import (
     EXIT_BAD_PARAMETER,
     ParameterError,
@@ -31,14 +39,7 @@ from vehicle_common.node_parameters import (
 )
 from vehicle_common.node_runtime import apply_process_settings, init_rclpy
 
-from eval_node.bag_writer import BagWriter, BagWriterError
 from eval_node.parameters import RecorderParameters
-from eval_node.repeated_stamps import (
-    FRAME_TOPICS,
-    RepeatedStamps,
-    header_stamp,
-    mixed_runs_hint,
-)
 from vehicle_common import topics as graph_topics
 
 NODE_NAME = "bag_recorder"
@@ -171,7 +172,7 @@ class BagRecorderNode(Node):
 
     def _check_stamp(self, topic: str, data: bytes) -> None:
         """Warn (once per topic) when a frame's stamp arrives twice: another graph publishes
-        on this topic (:mod:`eval_node.repeated_stamps`)."""
+        on this topic (:mod:`vehicle_common.bags.repeated_stamps`)."""
         stamp = header_stamp(bytes(data[:12]))
         if stamp is None or not self.stamps.add(topic, stamp) or self.stamps.repeats[topic] > 1:
             return

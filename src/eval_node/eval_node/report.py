@@ -279,9 +279,8 @@ def write_gif(frames: list[np.ndarray], path: Path, fps: float = 5.0, max_width:
 
 
 def _overlay_frames(res: dict, run, images_dir, max_frames: int) -> list[np.ndarray]:
+    from vehicle_common.bags.recorded_run import read_left_images
     from vehicle_common.kitti import read_calib, read_png
-
-    from eval_node.bag_reader import read_left_images
 
     frames = run.frames[:max_frames]
     P = run.P_left
@@ -316,7 +315,7 @@ def write_report(
 ) -> dict[str, Path]:
     """Write the report files into ``out_dir``; returns ``{name: path}`` of what was written.
     ``run``: the RecordedRun (re-read from ``results["bag"]`` when None) for the GIF."""
-    from eval_node.bag_reader import read_run
+    from vehicle_common.bags.recorded_run import read_run
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

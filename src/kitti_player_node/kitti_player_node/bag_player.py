@@ -5,7 +5,7 @@ The stored CDR bytes of a ROS 2 bag are published as they are (no deserialisatio
 of a ROS 1 bag (e.g. from ``kitti2bag``) are converted to CDR first, and a type that cannot be
 converted is refused with one line. Original timing scaled by ``--rate`` (0 = as fast as
 possible), optional topic selection, remapping (kitti2bag's topics onto the graph's: docs/bags.md)
-and looping. Reading, conversion and pacing live in :mod:`.bag_replay`.
+and looping. Reading, conversion and pacing live in :mod:`vehicle_common.bags.replay`.
 
 By default the replay starts once every topic's subscribers are matched, so that a subscriber
 already running gets every message: at once when every topic has a matched subscriber, else
@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import dataclass
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -32,15 +33,10 @@ from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from vehicle_common.bag_files import BagError
-from vehicle_common.graph_readiness import NodeReport, parse_topic_counts, unready_topics
-from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
-from vehicle_common.option_checks import first_problem, number_problem
-
-from vehicle_common import topics
-
-from .bag_replay import (
+from vehicle_common.bags.reader import BagError
+from vehicle_common.bags.replay import (
     BagMessage,
+    StampSync,
     bag_types,
     check_stamped,
     iter_bag,
@@ -53,6 +49,11 @@ from .bag_replay import (
     required_counts,
     stamp_sync,
 )
+from vehicle_common.graph_readiness import NodeReport, parse_topic_counts, unready_topics
+from vehicle_common.node_runtime import DIAGNOSTICS_TOPIC, reports_from_message
+from vehicle_common.option_checks import first_problem, number_problem
+
+from vehicle_common import topics
 
 QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE,
@@ -242,6 +243,91 @@ def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
     return own, ros
 
 
+@dataclass
+class ReplayPlan:
+    """What ``bag_player`` plays, checked before rclpy starts: the subscriptions to wait for
+    (``--wait-for-topics``), remapping, topic selection, the output types, the stamp sync."""
+
+    declared: dict[str, int]
+    remap: dict[str, str]
+    topics: list[str] | None
+    types: dict[str, str]
+    sync: StampSync | None
+
+
+def plan_replay(args) -> ReplayPlan:
+    """The :class:`ReplayPlan` of the parsed options; BagError (one line) for an option or a
+    bag that cannot be played."""
+    try:
+        declared = parse_topic_counts(args.wait_for_topics)
+    except ValueError as exc:
+        raise BagError(f"--wait-for-topics: {exc}") from None
+    remap = parse_remaps(args.remap)
+    topics = parse_topics(args.topics)
+    types = output_types(args.bag, topics, remap)
+    for type_name in types.values():
+        message_class(type_name)
+    sync = None
+    if args.sync_stamps:
+        sync_topics = parse_topics(args.sync_stamps)
+        check_stamped(bag_types(args.bag), sync_topics)
+        sync = stamp_sync(args.bag, sync_topics, remap, args.sync_tolerance)
+    return ReplayPlan(declared, remap, topics, types, sync)
+
+
+def wait_before_playing(node: BagPlayerNode, args, plan: ReplayPlan) -> None:
+    """Wait for the subscribers as the options say (none with ``--immediate``), logging who
+    was matched and who was not."""
+    log = node.get_logger()
+    if args.wait_for_subscribers > 0 or plan.declared:
+        unready = node.wait_for_subscribers(
+            args.wait_for_subscribers, args.wait_timeout, plan.declared
+        )
+        if unready:
+            log.warning(
+                f"not matched after {args.wait_timeout} s: {', '.join(unready)}; playing anyway"
+            )
+    elif not args.immediate:
+        log.info(
+            f"waiting up to {args.discovery_time} s for a subscriber on each of "
+            f"{len(plan.types)} topics (--immediate: start at once)"
+        )
+        start = time.monotonic()
+        limit = max(args.wait_timeout, args.discovery_time)
+        matched = node.wait_for_matching(args.discovery_time, limit)
+        waited = time.monotonic() - start
+        heard = [f"{t} ({n})" for t, n in sorted(matched.items()) if n]
+        if heard:
+            log.info(f"subscribers matched after {waited:.1f} s: {', '.join(heard)}")
+        unheard = sorted(t for t, n in matched.items() if n == 0)
+        if unheard:
+            log.info(f"no subscriber on {', '.join(unheard)}; playing anyway")
+
+
+def play(node: BagPlayerNode, args, plan: ReplayPlan) -> None:
+    """Publish the bag (again and again with ``--loop``) at ``--rate``, then wait for the
+    subscribers' acknowledgements and log what was done."""
+    log = node.get_logger()
+    sync = plan.sync
+    log.info(f"playing {args.bag}: {len(plan.types)} topics at rate {args.rate}")
+    while True:
+        messages = iter_bag(args.bag, plan.topics, plan.remap)
+        for msg in paced(sync(messages) if sync else messages, args.rate):
+            if not rclpy.ok():
+                break
+            node.publish(msg)
+        if not args.loop or not rclpy.ok():
+            break
+    if not node.wait_for_acks(args.ack_timeout):
+        log.warning(f"not all messages acknowledged within {args.ack_timeout} s")
+    if sync is not None:
+        log.info(
+            f"--sync-stamps: {sync.restamped} messages restamped, {sync.unmatched} without a "
+            f"reference stamp within {args.sync_tolerance} s"
+        )
+    log.info(f"done: {node.published} messages published")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console script ``bag_player``; returns the exit code (2 on bad input)."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -252,68 +338,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {problem}", file=sys.stderr)
         return 2
     try:
-        try:
-            declared = parse_topic_counts(args.wait_for_topics)
-        except ValueError as exc:
-            raise BagError(f"--wait-for-topics: {exc}") from None
-        remap = parse_remaps(args.remap)
-        topics = parse_topics(args.topics)
-        types = output_types(args.bag, topics, remap)
-        for type_name in types.values():
-            message_class(type_name)
-        sync = None
-        if args.sync_stamps:
-            sync_topics = parse_topics(args.sync_stamps)
-            check_stamped(bag_types(args.bag), sync_topics)
-            sync = stamp_sync(args.bag, sync_topics, remap, args.sync_tolerance)
+        plan = plan_replay(args)
     except BagError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     rclpy.init(args=["bag_player", *ros_args])
     node = None
     try:
-        node = BagPlayerNode(types)
-        log = node.get_logger()
-        if args.wait_for_subscribers > 0 or declared:
-            unready = node.wait_for_subscribers(
-                args.wait_for_subscribers, args.wait_timeout, declared
-            )
-            if unready:
-                log.warning(
-                    f"not matched after {args.wait_timeout} s: {', '.join(unready)}; playing anyway"
-                )
-        elif not args.immediate:
-            log.info(
-                f"waiting up to {args.discovery_time} s for a subscriber on each of "
-                f"{len(types)} topics (--immediate: start at once)"
-            )
-            start = time.monotonic()
-            limit = max(args.wait_timeout, args.discovery_time)
-            matched = node.wait_for_matching(args.discovery_time, limit)
-            waited = time.monotonic() - start
-            heard = [f"{t} ({n})" for t, n in sorted(matched.items()) if n]
-            if heard:
-                log.info(f"subscribers matched after {waited:.1f} s: {', '.join(heard)}")
-            unheard = sorted(t for t, n in matched.items() if n == 0)
-            if unheard:
-                log.info(f"no subscriber on {', '.join(unheard)}; playing anyway")
-        log.info(f"playing {args.bag}: {len(types)} topics at rate {args.rate}")
-        while True:
-            messages = iter_bag(args.bag, topics, remap)
-            for msg in paced(sync(messages) if sync else messages, args.rate):
-                if not rclpy.ok():
-                    break
-                node.publish(msg)
-            if not args.loop or not rclpy.ok():
-                break
-        if not node.wait_for_acks(args.ack_timeout):
-            log.warning(f"not all messages acknowledged within {args.ack_timeout} s")
-        if sync is not None:
-            log.info(
-                f"--sync-stamps: {sync.restamped} messages restamped, {sync.unmatched} without a "
-                f"reference stamp within {args.sync_tolerance} s"
-            )
-        log.info(f"done: {node.published} messages published")
+        node = BagPlayerNode(plan.types)
+        wait_before_playing(node, args, plan)
+        play(node, args, plan)
         return 0
     except BagError as exc:
         print(f"error: {exc}", file=sys.stderr)

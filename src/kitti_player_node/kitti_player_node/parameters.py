@@ -17,20 +17,21 @@ class PlayerParameters:
     """The node's parameters (ROS names and defaults) with their allowed values."""
 
     dataset_root: str = ""  # KITTI tracking root (image_02, image_03, calib, label_02)
-    sequence: str = "0000"
-    first_frame: int = param(0, low=0)
+    sequence: str = "0000"  # KITTI sequence (4 digits) under dataset_root
+    first_frame: int = param(0, low=0)  # first frame published
     last_frame: int = param(-1, low=-1)  # -1: to the end
     rate: float = param(10.0, low=0.0)  # [Hz] of dataset time; 0: as fast as the graph allows
     rate_multiplier: float = 1.0  # <= 0: as fast as the graph allows
-    loop: bool = False
-    lockstep: bool = False
+    loop: bool = False  # start again at first_frame after the last
+    lockstep: bool = False  # publish frame k+1 only once the tracks of frame k came back
+    # lockstep: the topic whose messages acknowledge a frame (relative: in the node's namespace)
     lockstep_topic: str = topics.TRACKS
     lockstep_timeout: float = param(10.0, low=0.0, low_open=True)  # [s]
     # published frames that may be unacknowledged at a time (1: one frame in the graph at a time)
     lockstep_window: int = param(1, low=1)
     snr_db: float = 0.0  # additive Gaussian pixel noise; <= 0 disables
-    drop_probability: float = param(0.0, low=0.0, high=1.0)
-    seed: int = param(0, low=0)
+    drop_probability: float = param(0.0, low=0.0, high=1.0)  # probability of not publishing a frame
+    seed: int = param(0, low=0)  # seed of the noise and the drops
     start_time: float = param(1.0, low=0.0)  # [s] stamp of frame 0
     wait_for_subscribers: int = param(0, low=0)  # subscriptions on the left image to wait for
     # "topic:N,topic:N": before the first frame, wait until each topic of the graph has N
@@ -48,12 +49,12 @@ class PlayerParameters:
     # a remote reader may match the player's writer later than the writer matched it, and a
     # volatile reader drops what arrived before (README, "Across machines"); 0 on one host
     match_settle_time: float = param(0.0, low=0.0)
-    exit_when_done: bool = True
+    exit_when_done: bool = True  # the node exits after the last frame
     # images on the wire: "raw" (sensor_msgs/Image, rgb8) or sensor_msgs/CompressedImage on
     # <image topic>/compressed, "png" (lossless) or "jpeg" (jpeg_quality); the launchers set the
     # detector's and stereo depth's image_transport to match (docs/bags_and_cameras.md)
     image_transport: str = param("raw", choices=PLAYER_TRANSPORTS)
-    jpeg_quality: int = param(90, low=1, high=100)
+    jpeg_quality: int = param(90, low=1, high=100)  # JPEG quality of image_transport "jpeg"
     # [MiB] decode the selected frames into memory before the first one is published, when
     # they fit in this much (a camera hands over decoded frames: PNG decoding, ~20 ms per KITTI
     # pair, then takes no CPU from the graph while it runs); larger sequences, or 0, read each

@@ -38,21 +38,21 @@ class DisparityParams:
     full-resolution left image) brings the result back to full resolution.
     """
 
-    min_disparity: int = 0
+    min_disparity: int = 0  # [px] smallest disparity searched
     num_disparities: int = 96  # full-resolution pixels (z >= f*B/96 = 4.0 m on KITTI)
-    block_size: int = 3
+    block_size: int = 3  # SGBM matching block size (odd)
     p1_factor: float = 8.0  # P1 = p1_factor * channels * block_size^2
     p2_factor: float = 32.0  # P2 = p2_factor * channels * block_size^2
-    disp12_max_diff: int = 1
-    pre_filter_cap: int = 63
-    uniqueness_ratio: int = 10
-    speckle_window_size: int = 100
-    speckle_range: int = 2
+    disp12_max_diff: int = 1  # [px] SGBM left-right check
+    pre_filter_cap: int = 63  # SGBM prefilter cap
+    uniqueness_ratio: int = 10  # [%] SGBM uniqueness margin of the best match
+    speckle_window_size: int = 100  # [px] SGBM speckle filter: largest blob removed
+    speckle_range: int = 2  # SGBM speckle filter: disparity variation within a blob
     mode: str = "sgbm_3way"  # sgbm | hh | sgbm_3way | hh4
     use_color: bool = False  # match on RGB (3 channels) instead of grayscale
-    use_wls: bool = True
-    wls_lambda: float = 8000.0
-    wls_sigma: float = 1.5
+    use_wls: bool = True  # right matcher + WLS filter (false: plain left SGBM)
+    wls_lambda: float = 8000.0  # WLS filter smoothness
+    wls_sigma: float = 1.5  # WLS filter colour sensitivity of the guide image
     wls_lrc_thresh: int = 24  # left-right consistency threshold of the filter (1/16 px units)
     wls_min_confidence: float = 0.0  # filtered pixels with a lower confidence (0..255) -> invalid
     downscale: int = 2  # 1 = full resolution, 2 = match at half resolution

@@ -26,21 +26,25 @@ from vehicle_common.odometry_messages import (
 class OdometryOutputParameters:
     """The node's odometry and TF parameters (docs/stereo_depth.md, "Odometry and TF")."""
 
-    odom_frame: str = "odom"
+    odom_frame: str = "odom"  # the odometry's fixed frame (REP-105)
     # child of the odometry and of odom -> child on /tf; "" = the left camera's optical frame
     base_frame: str = ""
     # the left camera's body frame (x forward, y left, z up) in base_frame: [x, y, z] m,
     # [roll, pitch, yaw] rad (URDF rpy); only with a base_frame
     camera_mount_xyz: list = param([0.0, 0.0, 0.0], length=3)
-    camera_mount_rpy: list = param([0.0, 0.0, 0.0], length=3)
+    camera_mount_rpy: list = param([0.0, 0.0, 0.0], length=3)  # [rad] see camera_mount_xyz
     publish_odometry: bool = True  # nav_msgs/Odometry on stereo/odometry (visual_odometry on)
     publish_tf: bool = True  # odom -> child on /tf (false: another node owns odom -> base)
     publish_static_tf: bool = True  # base -> left -> right optical frames on /tf_static
+
     # noise of the integration (vehicle_common.odometry: measured on real KITTI, 10 Hz)
     odometry_translation_noise: float = param(0.02, low=0)  # std per axis / step length
     odometry_translation_noise_floor: float = param(0.005, low=0)  # [m] per axis and step
     odometry_rotation_noise: float = param(0.0003, low=0)  # [rad] per axis and step
-    odometry_extrapolation_accel: list = param([1.5, 0.7, 2.6], low=0, length=3)  # [m/s^2]
+    # [m/s^2] a step without a motion: the extrapolation's std grows with these accelerations
+    # (x, y, z; ORB-SLAM3 steps of 15 KITTI sequences)
+    odometry_extrapolation_accel: list = param([1.5, 0.7, 2.6], low=0, length=3)
+    # [rad/s^2] the same for the rotation
     odometry_extrapolation_angular_accel: list = param([0.15, 0.1, 0.16], low=0, length=3)
 
     def validate(self) -> None:

@@ -71,12 +71,12 @@ PLAUSIBILITY_RULES = {
 class StereoNodeParameters:
     """The node's own parameters (the core's are DisparityParams' and RangingParams' fields)."""
 
-    publish_disparity: bool = True
-    publish_points: bool = False
-    points_decimation: int = param(4, low=1)
-    points_max_depth: float = param(80.0, low=0, low_open=True)
-    points_rgb: bool = False
-    sync_cache_size: int = param(10, low=1)
+    publish_disparity: bool = True  # stereo/disparity (the band's map, built while subscribed)
+    publish_points: bool = False  # stereo/points, the point cloud (built while subscribed)
+    points_decimation: int = param(4, low=1)  # point cloud: every n-th pixel in each direction
+    points_max_depth: float = param(80.0, low=0, low_open=True)  # [m] point cloud: farther left out
+    points_rgb: bool = False  # point cloud: with the left image's colour
+    sync_cache_size: int = param(10, low=1)  # stamps of incomplete frames kept
     # [s] how far apart a left and a right image's stamps may be to pair (two drivers not
     # hardware synced); -1: a quarter of the camera's frame period (measured on the left
     # stamps; stamp_sync.StereoPairing); 0: equal stamps only. Equal stamps always pair.

@@ -284,19 +284,21 @@ class StereoPipeline:
         params: DisparityParams,
         dets: FrameBoxes,
         full_map: bool = False,
+        disparity: np.ndarray | None = None,
     ) -> FrameResult:
         """One frame (RGB pair, its :meth:`camera` and :meth:`disparity_params_for`): its
         disparity map where the ranging reads it (``full_map``: the whole band's, whatever
-        ``map_area``), its odometry and road plane's map in the executor meanwhile, the ranging
-        and check, and the camera motion (waited for). Call :meth:`frame_done` once its output
-        is out."""
+        ``map_area``; ``disparity``: that map, computed already, e.g. beside the CNN), its
+        odometry and road plane's map in the executor meanwhile, the ranging and check, and
+        the camera motion (waited for). Call :meth:`frame_done` once its output is out."""
         boxes = dets.boxes
         gray, gray_right = to_gray(left), to_gray(right)
-        full_map = self.map_area == "band" or full_map
+        full_map = self.map_area == "band" or full_map or disparity is not None
         if full_map:
             # the band's map for the ranging, the road plane and the odometry
             self.trace("disparity_start", stamp)
-            disparity = compute_disparity(left, right, params)
+            if disparity is None:
+                disparity = compute_disparity(left, right, params)
             self.trace("disparity_end", stamp)
             odometry = self._start_odometry(stamp, gray, disparity, geometry)
             road = _Ready(disparity)

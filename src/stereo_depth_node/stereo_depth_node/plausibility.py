@@ -66,12 +66,13 @@ class PlausibilityParams:
     min_bottom_height: float = -0.6  # [m] bottom edge lower: sunk into the road
     max_bottom_height: float = 0.4  # [m] bottom edge higher: floating
     max_ground_fraction: float = 0.3  # more of the box's pixels on the road: flat on the road
+
     # scale of the plausibility score beyond the limits: the spread (1.4826 MAD) of the measure
     # on real cars (tuning); the road share's is degenerate (most cars 0): 0.1 by hand
-    height_softness: float = 0.2  # [m]
-    bottom_softness: float = 0.2  # [m]
-    width_softness: float = 0.7  # [m]
-    ground_softness: float = 0.1
+    height_softness: float = 0.2  # [m] of the height
+    bottom_softness: float = 0.2  # [m] of the bottom edge's height
+    width_softness: float = 0.7  # [m] of the width
+    ground_softness: float = 0.1  # of the road share
     # depth-scaled limits (issue #34): every interval is widened by noise_sigmas x the measure's
     # std at the box's depth: the stereo depth std (the ranging's disparity std) and the box's
     # edges (box_edge_std px each, in metres at the depth; 0: exact boxes) propagated to height,
@@ -79,8 +80,8 @@ class PlausibilityParams:
     # x depth (the growth of the labelled cars' bottom spread with range); chosen on the tuning
     # keyframes (docs section 9); noise_sigmas 0 = fixed limits (before issue #34)
     noise_sigmas: float = 1.0
-    road_tilt_std: float = 0.003
-    box_edge_std: float = 0.0
+    road_tilt_std: float = 0.003  # [rad] the road plane's extrapolation: bottom std per metre
+    box_edge_std: float = 0.0  # [px] std of a box edge (0: exact boxes)
     ground_fit: bool = True  # fit the road plane per frame (false: the prior plane)
     ground_max_depth: float = 30.0  # [m] road pixels farther than this are not used
     ground_tolerance: float = 0.1  # [m] a pixel this near the plane is road (inlier)

@@ -106,7 +106,7 @@ def bin_centre_offsets(
 class RangingParams:
     """Settings of :func:`range_boxes` (defaults chosen on KITTI tracking 0005, see docs)."""
 
-    method: str = "robust"
+    method: str = "robust"  # robust (mode of the box's disparities) | median (the paper's)
     sigma_d: float = 0.3  # [px] disparity std of the stereo error model (measured, see docs)
     # [px] the same for boxes refined at full resolution (``refine``) with a disparity below
     # ``far_disparity``: region spread 0.18 px on the KITTI 2015 pairs (60 regions < 20 px;
@@ -118,7 +118,7 @@ class RangingParams:
     min_valid_pixels: int = 20  # fewer valid pixels -> no estimate
     min_valid_fraction: float = 0.02  # smaller share of valid pixels in the box -> no estimate
     core_fraction: float = 0.6  # robust: central share of box width and height used
-    reject_ground: bool = True
+    reject_ground: bool = True  # robust: road pixels (ground_margin) left out of the box
     ground_height: float = 1.65  # [m] camera height above the road
     ground_margin: float = 0.3  # [m] pixels lower than ground_height - margin are ground
     mode_bin: float = 0.04  # robust: histogram bin width in log-disparity

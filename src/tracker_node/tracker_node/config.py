@@ -76,7 +76,7 @@ class TrackerConfig:
     # Kalman, world frame: a new track starts with a bank of velocity hypotheses over the
     # ground (birth_hypotheses.py, docs/tracker.md): parked, and moving both ways along its
     # heading at birth_max_speed j / birth_speed_steps, j = 1..steps; 0: off (one prior, the
-    # parked one). [m/s] (graph: 15; chosen on the camera benchmark's tuning sequences)
+    # parked one). [m/s]
     birth_max_speed: float = param(0.0, low=0.0)
     birth_speed_steps: int = param(3, low=1)  # moving speeds per direction
     # prior probability of moving (shared equally by the moving hypotheses): the fraction of
@@ -87,9 +87,11 @@ class TrackerConfig:
     # corrections after which a track keeps its most probable hypothesis (before: the
     # mixture's moments)
     birth_resolve_updates: int = param(10, low=1)
+    # tracks seen once when the camera's motion first arrives take the hypotheses too
+    world_entry_hypotheses: bool = param(False)
     # world frame: probability that a new track is a parked car, for the stationary model
     # beside the motion filter (stationary.py, issue #41; the reported position is the two
-    # models' mixture); 0: off (graph: 0.8, chosen on the camera benchmark's tuning sequences)
+    # models' mixture); 0: off
     stationary_prior: float = param(0.0, low=0.0, high=1.0, high_open=True)
     # probability per frame that a car switches between parked and moving (tuning: 0.003)
     stationary_switch: float = param(0.003, low=0.0, high=0.5, low_open=True)
@@ -97,6 +99,9 @@ class TrackerConfig:
     stationary_process_noise: float = param(0.01, low=0, low_open=True)
     # the two models interact (IMM mixing; Kalman filter, tracks without birth hypotheses)
     stationary_mixing: bool = param(True)
+    # detections a parked estimate must have taken before it is blended into the reported
+    # position (before, mu is mostly the prior: a young moving car is taken for parked)
+    stationary_min_updates: int = param(0, low=0)
     max_staleness: int = param(2, low=0)  # [frames] a track unmatched for more is deleted
     decay_rate: float = param(0.8, low=0.0, high=1.0)  # confidence factor per unmatched frame
     # coasting tracks are reported while conf >= this
@@ -111,11 +116,11 @@ class TrackerConfig:
     # a track's direction of travel is known within this std [deg] (0: never), its reported yaw
     # is the inverse-variance mean of it and the detector's yaw, whose std is bin_yaw_std [deg]
     motion_heading_max_std: float = param(0.0, low=0.0, high=180.0)
-    bin_yaw_std: float = param(20.0, low=0.0, low_open=True)
+    bin_yaw_std: float = param(20.0, low=0.0, low_open=True)  # [deg] std of the detector's yaw
     # [m] car size used when detections have none (KITTI means)
     mean_length: float = param(MEAN_CAR_DIMENSIONS[2], low=0, low_open=True)
-    mean_width: float = param(MEAN_CAR_DIMENSIONS[1], low=0, low_open=True)
-    mean_height: float = param(MEAN_CAR_DIMENSIONS[0], low=0, low_open=True)
+    mean_width: float = param(MEAN_CAR_DIMENSIONS[1], low=0, low_open=True)  # [m]
+    mean_height: float = param(MEAN_CAR_DIMENSIONS[0], low=0, low_open=True)  # [m]
     # particle filter: particles per track (the paper's 100 are too few for the 6D state on real
     # trajectories: AP easy @1.5 m 58.6 with 100, 83.2 with 1000, 86.3 with 2000 on the real-motion
     # tuning sequences against 86.7 for Kalman, docs/tracker.md)
@@ -144,6 +149,7 @@ class TrackerConfig:
     image_width: int = param(1242, low=1)
     image_height: int = param(375, low=1)  # [px]
     output_tentative: bool = False  # offline CLI: also write tentative tracks
+
     # Score-aware lifecycle and two-stage association (docs/tracker.md; the defaults leave it
     # off for detections scoring in [0, 1], i.e. the stereo graph's):
     birth_score: float = param(

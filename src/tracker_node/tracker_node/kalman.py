@@ -184,6 +184,24 @@ class BatchedKalmanFilter:
         self.x[rows, 3:], v_var = prior
         reset_velocity_covariance(self.P, rows, v_var)
 
+    def start_hypotheses(
+        self, rows: np.ndarray, static_velocity: np.ndarray, heading: np.ndarray | None
+    ) -> None:
+        """Tracks ``rows`` (sorted), seen once before the camera's motion was known, take the
+        velocity hypotheses a track born in the world frame gets (parked = ``static_velocity``
+        (M, 3), moving both ways along ``heading`` (M,) yaws), as if born now; without them
+        their velocity prior is one narrow Gaussian about the static world's, and a car
+        driving ahead at the camera's speed (real 0005's lead car, 18 m/s) was followed
+        1.3-1.5 m behind for its first frames (:mod:`.birth_hypotheses`). Nothing without
+        ``birth_max_speed``."""
+        if self.hypotheses is None or not len(rows):
+            return
+        self.hypotheses.drop(rows)
+        x = self.x[rows].copy()
+        x[:, 3:] = static_velocity
+        self.hypotheses.start(rows, x, self.P[rows], heading_axis(heading, len(rows)))
+        self._take_mixture()
+
     def keep(self, mask: np.ndarray) -> None:
         """Keep only the rows where ``mask`` is true."""
         if self.hypotheses is not None:

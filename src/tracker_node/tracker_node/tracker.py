@@ -192,6 +192,7 @@ class Tracker:
                 self.cfg.stationary_prior,
                 self.cfg.stationary_switch,
                 self.cfg.stationary_process_noise,
+                self.cfg.stationary_min_updates,
             )
             if self.cfg.stationary_prior > 0
             else None
@@ -284,6 +285,8 @@ class Tracker:
         rows = np.nonzero(self.tracks.hits == 1)[0]
         if len(rows):
             self.filter.restart_velocity(rows, np.zeros((len(rows), 3)))
+            if self.cfg.world_entry_hypotheses and hasattr(self.filter, "start_hypotheses"):
+                self.filter.start_hypotheses(rows, np.zeros((len(rows), 3)), self.tracks.yaw[rows])
 
     def _predict(self, dt: float) -> None:
         """Constant velocity over ``dt``, then (world frame) into this frame's camera axes."""

@@ -328,10 +328,10 @@ def _evaluate(
     nodes: dict[str, dict[str, int]],
 ):
     from eval_node.bag_evaluation import evaluate_bag
-    from eval_node.bag_reader import read_run
     from eval_node.cli import write_json
     from eval_node.report import results_table, write_report
     from tracker_node.config import TrackerConfig
+    from vehicle_common.bags.recorded_run import read_run
 
     labels = root / "label_02"
     run = read_run(bag, progress=True)  # read once for the evaluation and the report

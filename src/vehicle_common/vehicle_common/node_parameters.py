@@ -21,6 +21,8 @@ import math
 import re
 from typing import Any
 
+from .process_priority import NICE_MAX, NICE_MIN
+
 #: exit code of a node or tool started with a bad parameter
 EXIT_BAD_PARAMETER = 2
 #: the CPUs of a node's process (node_runtime.apply_process_settings)
@@ -83,6 +85,23 @@ def param(
     if isinstance(default, list):
         return dataclasses.field(default_factory=lambda: list(default), metadata=rule)
     return dataclasses.field(default=default, metadata=rule)
+
+
+@dataclasses.dataclass
+class ProcessParameters:
+    """The process parameters every node takes (:func:`.node_runtime.apply_process_settings`)."""
+
+    # CPUs of the process, a "taskset -c" list ("1", "0-3"); "" = every CPU (ARCHITECTURE.md,
+    # "CPU affinity")
+    cpu_affinity: str = ""
+    # niceness of the process's threads, as "nice -n" (0 = as started; 1..19 lower priority)
+    nice: int = param(0, low=NICE_MIN, high=NICE_MAX)
+    # freed memory kept in the process for reuse (glibc mallopt): a frame's large buffers cost
+    # no fresh pages
+    keep_freed_memory: bool = True
+    # rclpy executor: "events" (EventsExecutor, its wait in C++: less CPU per message) or
+    # "single_threaded"
+    executor: str = param(EXECUTORS[0], choices=EXECUTORS)
 
 
 def _type_name(default) -> str:

@@ -226,40 +226,22 @@ def apply_process_settings(node) -> None:
     Called first in each node's construction, so that the threads started later inherit them.
     A value this process cannot take is a ParameterError naming the parameter; a platform
     without affinities, priorities or ``mallopt`` logs a warning and runs on."""
-    from rcl_interfaces.msg import ParameterDescriptor
-
     from .blas_threads import set_blas_threads
     from .cpu_affinity import check_cpu_list, pin_process
     from .malloc_policy import keep_freed_memory
     from .node_parameters import (
         CPU_AFFINITY_PARAMETER,
-        EXECUTOR_PARAMETER,
-        EXECUTORS,
         KEEP_FREED_MEMORY_PARAMETER,
         NICE_PARAMETER,
         ParameterError,
-        check_value,
+        ProcessParameters,
+        declare_config,
     )
-    from .process_priority import NICE_MAX, NICE_MIN, set_process_nice
+    from .process_priority import set_process_nice
 
-    raw = node.declare_parameter(
-        CPU_AFFINITY_PARAMETER, "", ParameterDescriptor(dynamic_typing=True)
-    ).value
-    text = check_value(CPU_AFFINITY_PARAMETER, raw, "")
-    raw_nice = node.declare_parameter(
-        NICE_PARAMETER, 0, ParameterDescriptor(dynamic_typing=True)
-    ).value
-    nice = check_value(NICE_PARAMETER, raw_nice, 0, {"low": NICE_MIN, "high": NICE_MAX})
-    raw_keep = node.declare_parameter(
-        KEEP_FREED_MEMORY_PARAMETER, True, ParameterDescriptor(dynamic_typing=True)
-    ).value
-    keep = check_value(KEEP_FREED_MEMORY_PARAMETER, raw_keep, True)
-    raw_executor = node.declare_parameter(
-        EXECUTOR_PARAMETER, EXECUTORS[0], ParameterDescriptor(dynamic_typing=True)
-    ).value
-    node.executor_kind = check_value(
-        EXECUTOR_PARAMETER, raw_executor, EXECUTORS[0], {"choices": EXECUTORS}
-    )
+    settings = declare_config(node, ProcessParameters)
+    text, nice, keep = settings.cpu_affinity, settings.nice, settings.keep_freed_memory
+    node.executor_kind = settings.executor
     try:
         cpus = check_cpu_list(text)
     except ValueError as exc:

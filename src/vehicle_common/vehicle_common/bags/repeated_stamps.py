@@ -14,7 +14,7 @@ from __future__ import annotations
 import struct
 from collections import deque
 
-from vehicle_common import topics
+from .. import topics
 
 #: the per-frame topics checked (relative names): one message per frame and stamp each
 FRAME_TOPICS = (topics.GROUND_TRUTH, topics.DETECTIONS_2D, topics.DETECTIONS_3D, topics.TRACKS)

@@ -6,8 +6,8 @@ ROS 1 messages are converted to the CDR of their ROS 2 type as they are read
 (:func:`vehicle_common.message_definitions.ros1_to_cdr_converter`); a type without a ROS 2
 definition here is refused with one line before anything is published.
 
-Used by the ``bag_player`` node (:mod:`.bag_player`), which publishes the bytes as they are, and
-by the evaluator; both open bags with :func:`vehicle_common.bag_files.open_reader`.
+Used by the ``bag_player`` node (:mod:`kitti_player_node.bag_player`), which publishes the bytes
+as they are; bags are opened with :func:`.reader.open_reader`.
 """
 
 from __future__ import annotations
@@ -21,13 +21,13 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from vehicle_common.bag_files import BagError, bag_messages, open_reader
-from vehicle_common.message_definitions import (
+from ..message_definitions import (
     MessageDefinitions,
     UnknownMessageType,
     ros1_to_cdr_converter,
     ros2_type_name,
 )
+from .reader import BagError, bag_messages, open_reader
 
 
 @dataclass(frozen=True)

@@ -1,49 +1,38 @@
-"""Reindexing an MCAP file that lost its end (recorder killed, power cut): pure core, no rclpy.
+"""Scanning an MCAP file record by record, for a file that lost its end (recorder killed, power
+cut) or holds a damaged chunk: pure core, no rclpy.
 
 An MCAP file is written as a data section (header, schemas, channels, chunks of messages each
 followed by its message indexes, metadata) and closed by a summary (schemas, channels,
 statistics, chunk indexes) and a footer. A writer that dies leaves the data section only, cut
 anywhere, maybe inside a chunk. :func:`scan_mcap` walks the top-level records and keeps every
-record that is complete (chunks decompress and match their CRC); :func:`repair_mcap` then writes
-the file up to the end of the last complete chunk (in place or as a copy), regenerates the last
-chunk's message indexes when they were cut (and the header when even that was cut: an empty
-file), and appends a summary and footer, so that every
-MCAP reader (mcap's ``make_reader``, rosbags) opens it. Nothing before the cut is rewritten.
+record that is complete (chunks decompress and match their CRC); :mod:`.mcap_repair` then
+writes the file up to the end of the last complete chunk with a summary and footer.
 
 A damaged chunk inside the file (bytes flipped on a disk or in a copy: its CRC or its
 compression fails, issue #42) is found by ``scan_mcap(past_damage=True)``, which notes it
 (:class:`DamagedChunk`: where, why, its messages' times and, from the message indexes after it,
-how many messages of which channel it held) and goes on with the next record; a repair then
-writes the file again without it (:func:`repair_mcap`: every other chunk kept byte for byte,
-message indexes and summary written anew). A file whose summary cannot be read, or does not
-match its data, is written again the same way.
+how many messages of which channel it held) and goes on with the next record. A file whose
+summary cannot be read, or does not match its data (:func:`check_summary`), is marked to be
+written again.
 """
 
 from __future__ import annotations
 
-import os
-import shutil
 import struct
 import zlib
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
 
-from mcap.data_stream import ReadDataStream, RecordBuilder
+from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
     Chunk,
-    ChunkIndex,
-    DataEnd,
-    Footer,
     Header,
     MessageIndex,
     Metadata,
-    MetadataIndex,
     Schema,
-    Statistics,
-    SummaryOffset,
 )
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -198,112 +187,149 @@ def scan_mcap(
                 scan.stop_reason = "file cut inside its magic"
                 return scan
             raise McapRecoveryError(f"{path}: cannot read bag (not an MCAP file: bad magic)")
-        pos = 8
-        scan.valid_end = pos
-        t_min, t_max = None, None
-        bad: DamagedChunk | None = None  # the damaged chunk just passed (its indexes follow)
-        while True:
-            head = f.read(9)
-            if len(head) < 9:
-                scan.stop_reason = "" if not head else "incomplete record"
-                break
-            opcode, length = _RECORD_HEAD.unpack(head)
-            if pos + 9 + length > size:
-                if scan.complete and past_damage:  # a complete file: its framing is damaged
-                    exc = ValueError(f"record length {length} runs past the end of the file")
-                    if _go_on(scan, f, pos, exc, resume):
-                        pos, bad = scan.valid_end, None
-                        continue
-                    break
-                scan.stop_reason = "incomplete record"
-                break
-            content = f.read(length)
-            stream = ReadDataStream(BytesIO(content))
-            rec_len = 9 + length
-            if opcode != Opcode.MESSAGE_INDEX:
-                bad = None
-            try:
-                if bad is not None:  # an index of the damaged chunk: what it held
-                    mi = MessageIndex.read(stream)
-                    bad.lost[mi.channel_id] = bad.lost.get(mi.channel_id, 0) + len(mi.records)
-                    pos += rec_len
-                    scan.valid_end = pos
-                    continue
-                if opcode == Opcode.HEADER and pos == 8:
-                    Header.read(stream)
-                    scan.has_header = True
-                elif opcode == Opcode.SCHEMA:
-                    s = _checked_schema(Schema.read(stream))
-                    scan.schemas[s.id] = s
-                elif opcode == Opcode.CHANNEL:
-                    c = Channel.read(stream)
-                    scan.channels[c.id] = c
-                elif opcode == Opcode.CHUNK:
-                    chunk = Chunk.read(stream)
-                    index, data = _chunk_index(chunk)
-                    _inner_schemas_channels(data, scan)
-                    scan.chunks.append(
-                        ChunkInfo(
-                            start=pos,
-                            length=rec_len,
-                            message_start_time=chunk.message_start_time,
-                            message_end_time=chunk.message_end_time,
-                            compression=chunk.compression,
-                            compressed_size=len(chunk.data),
-                            uncompressed_size=chunk.uncompressed_size,
-                            index=index,
-                        )
-                    )
-                    scan.chunks[-1].index_end = pos + rec_len
-                    for channel, entries in index.items():
-                        scan.message_counts[channel] = scan.message_counts.get(channel, 0) + len(
-                            entries
-                        )
-                        times = [t for t, _ in entries]
-                        t_min = min(times) if t_min is None else min(t_min, *times)
-                        t_max = max(times) if t_max is None else max(t_max, *times)
-                    if not scan.first_message and index:
-                        off = min(o for entries in index.values() for _, o in entries)
-                        scan.first_message = data[off + 9 + _MESSAGE_HEAD.size :][:4]
-                elif opcode == Opcode.MESSAGE_INDEX:
-                    mi = MessageIndex.read(stream)
-                    if not scan.chunks:
-                        raise ValueError("message index before any chunk")
-                    scan.chunks[-1].index_records[mi.channel_id] = pos
-                    scan.chunks[-1].index_end = pos + rec_len
-                elif opcode == Opcode.METADATA:
-                    scan.metadata.append((pos, rec_len, Metadata.read(stream)))
-                elif opcode == Opcode.DATA_END:
-                    scan.stop_reason = "end of data section"
-                    break
-                elif opcode in (Opcode.HEADER, Opcode.FOOTER) or opcode == 0:
-                    raise ValueError(f"unexpected record 0x{opcode:02x}")
-                # attachments, top-level messages and unknown records are kept as they are
-            except Exception as exc:  # damaged record: the data ends before it
-                if past_damage and opcode == Opcode.CHUNK:
-                    bad = _damaged_chunk(content, pos, rec_len, exc)
-                    scan.damaged.append(bad)
-                    pos += rec_len
-                    scan.valid_end = pos
-                    continue
-                if past_damage and opcode in _REBUILT:  # the summary's copy stands in
-                    scan.skipped.append(f"record at byte {pos} ({exc or type(exc).__name__})")
-                    pos += rec_len
-                    scan.valid_end = pos
-                    continue
-                if _go_on(scan, f, pos, exc, resume):
-                    pos, bad = scan.valid_end, None
-                    continue
-                break
-            scan.records.append((pos, rec_len, opcode))
-            pos += rec_len
-            scan.valid_end = pos
-    if t_min is not None:
-        scan.start_time, scan.end_time = t_min, t_max
+        _RecordWalk(f, scan, past_damage, resume).run()
+    times = [t for c in scan.chunks for entries in c.index.values() for t, _ in entries]
+    if times:
+        scan.start_time, scan.end_time = min(times), max(times)
     if scan.chunks:
         last = scan.chunks[-1]
         scan.reindex_last = set(last.index_records) != set(last.index)
     return scan
+
+
+class _RecordWalk:
+    """:func:`scan_mcap`'s walk over the top-level records after the magic: ``pos`` is the
+    offset of the next record, ``bad`` the damaged chunk just passed (its message indexes
+    follow it and say what it held)."""
+
+    def __init__(self, f, scan: McapScan, past_damage: bool, resume: list[int] | None) -> None:
+        self.f, self.scan = f, scan
+        self.past_damage, self.resume = past_damage, resume
+        self.pos = scan.valid_end = 8
+        self.bad: DamagedChunk | None = None
+
+    def run(self) -> None:
+        """Read records until the end of the data section, an incomplete record or damage
+        that cannot be passed (``scan.stop_reason`` says which)."""
+        scan = self.scan
+        while True:
+            head = self.f.read(9)
+            if len(head) < 9:
+                scan.stop_reason = "" if not head else "incomplete record"
+                return
+            opcode, length = _RECORD_HEAD.unpack(head)
+            if self.pos + 9 + length > scan.size:
+                if not (scan.complete and self.past_damage):
+                    scan.stop_reason = "incomplete record"
+                    return
+                # a complete file: its framing is damaged
+                exc = ValueError(f"record length {length} runs past the end of the file")
+                if not self._resume(exc):
+                    return
+                continue
+            content = self.f.read(length)
+            rec_len = 9 + length
+            if opcode != Opcode.MESSAGE_INDEX:
+                self.bad = None
+            try:
+                if self.bad is not None:  # an index of the damaged chunk: what it held
+                    mi = MessageIndex.read(ReadDataStream(BytesIO(content)))
+                    lost = self.bad.lost
+                    lost[mi.channel_id] = lost.get(mi.channel_id, 0) + len(mi.records)
+                    self._advance(rec_len)
+                    continue
+                if _read_record(scan, opcode, content, self.pos, rec_len):
+                    return  # the end of the data section
+            except Exception as exc:  # damaged record: the data ends before it
+                if not self._pass_damage(opcode, content, rec_len, exc):
+                    return
+                continue
+            scan.records.append((self.pos, rec_len, opcode))
+            self._advance(rec_len)
+
+    def _advance(self, rec_len: int) -> None:
+        self.pos += rec_len
+        self.scan.valid_end = self.pos
+
+    def _resume(self, exc: Exception) -> bool:
+        """Go on at the next offset of ``resume`` after a record whose framing is damaged
+        (:func:`_go_on`); False: the walk stops."""
+        if not _go_on(self.scan, self.f, self.pos, exc, self.resume):
+            return False
+        self.pos, self.bad = self.scan.valid_end, None
+        return True
+
+    def _pass_damage(self, opcode: int, content: bytes, rec_len: int, exc: Exception) -> bool:
+        """After a record that failed to read: with ``past_damage`` a damaged chunk is noted
+        and a schema, channel or index left out (the summary's copy or a rebuilt one stands
+        in); else go on at ``resume``. False: the walk stops."""
+        if self.past_damage and opcode == Opcode.CHUNK:
+            self.bad = _damaged_chunk(content, self.pos, rec_len, exc)
+            self.scan.damaged.append(self.bad)
+            self._advance(rec_len)
+            return True
+        if self.past_damage and opcode in _REBUILT:
+            self.scan.skipped.append(f"record at byte {self.pos} ({exc or type(exc).__name__})")
+            self._advance(rec_len)
+            return True
+        return self._resume(exc)
+
+
+def _read_record(scan: McapScan, opcode: int, content: bytes, pos: int, rec_len: int) -> bool:
+    """Note one complete top-level record at ``pos`` in ``scan``; True at the data end.
+    Raises (ValueError, or mcap's and the decompressors' errors) when it is damaged."""
+    stream = ReadDataStream(BytesIO(content))
+    if opcode == Opcode.HEADER and pos == 8:
+        Header.read(stream)
+        scan.has_header = True
+    elif opcode == Opcode.SCHEMA:
+        s = _checked_schema(Schema.read(stream))
+        scan.schemas[s.id] = s
+    elif opcode == Opcode.CHANNEL:
+        c = Channel.read(stream)
+        scan.channels[c.id] = c
+    elif opcode == Opcode.CHUNK:
+        _read_chunk(scan, Chunk.read(stream), pos, rec_len)
+    elif opcode == Opcode.MESSAGE_INDEX:
+        mi = MessageIndex.read(stream)
+        if not scan.chunks:
+            raise ValueError("message index before any chunk")
+        scan.chunks[-1].index_records[mi.channel_id] = pos
+        scan.chunks[-1].index_end = pos + rec_len
+    elif opcode == Opcode.METADATA:
+        scan.metadata.append((pos, rec_len, Metadata.read(stream)))
+    elif opcode == Opcode.DATA_END:
+        scan.stop_reason = "end of data section"
+        return True
+    elif opcode in (Opcode.HEADER, Opcode.FOOTER) or opcode == 0:
+        raise ValueError(f"unexpected record 0x{opcode:02x}")
+    # attachments, top-level messages and unknown records are kept as they are
+    return False
+
+
+def _read_chunk(scan: McapScan, chunk: Chunk, pos: int, rec_len: int) -> None:
+    """A complete chunk at ``pos``: decompressed and CRC-checked (ValueError when damaged),
+    its schemas, channels, message index and counts noted."""
+    index, data = _chunk_index(chunk)
+    _inner_schemas_channels(data, scan)
+    scan.chunks.append(
+        ChunkInfo(
+            start=pos,
+            length=rec_len,
+            message_start_time=chunk.message_start_time,
+            message_end_time=chunk.message_end_time,
+            compression=chunk.compression,
+            compressed_size=len(chunk.data),
+            uncompressed_size=chunk.uncompressed_size,
+            index=index,
+        )
+    )
+    scan.chunks[-1].index_end = pos + rec_len
+    for channel, entries in index.items():
+        scan.message_counts[channel] = scan.message_counts.get(channel, 0) + len(entries)
+    if not scan.first_message and index:
+        off = min(o for entries in index.values() for _, o in entries)
+        scan.first_message = data[off + 9 + _MESSAGE_HEAD.size :][:4]
 
 
 #: top-level records a rewrite can do without: a schema or channel (also in the summary), a
@@ -419,162 +445,3 @@ def _inner_schemas_channels(data: bytes, scan: McapScan) -> None:
                 c = Channel.read(stream)
                 scan.channels[c.id] = c
         pos += 9 + length
-
-
-def repair_mcap(scan: McapScan, dst: str | Path | None = None) -> Path:
-    """Write the scanned file with a summary and footer: in place (``dst`` None: the file is cut
-    after its last complete record and the summary appended) or as a copy at ``dst``. Returns
-    the repaired file's path. A complete file is copied unchanged (or left as it is). A file
-    with damaged chunks or a summary that cannot be used is written anew (:func:`_rewrite`)."""
-    if scan.needs_rewrite:
-        return _rewrite(scan, dst)
-    src = scan.path
-    if scan.complete:
-        if dst is None:
-            return src
-        shutil.copyfile(src, dst)
-        return Path(dst)
-    end = scan.valid_end if scan.has_header else 0
-    if scan.reindex_last:
-        end = scan.chunks[-1].start + scan.chunks[-1].length
-    scan.metadata = [m for m in scan.metadata if m[0] + m[1] <= end]
-    target = Path(dst) if dst is not None else src
-    if dst is not None:
-        with open(src, "rb") as fin, open(target, "wb") as fout:
-            remaining = end
-            while remaining:
-                buf = fin.read(min(remaining, 1 << 22))
-                if not buf:
-                    break
-                fout.write(buf)
-                remaining -= len(buf)
-    with open(target, "r+b") as f:
-        f.truncate(end)
-        f.seek(end)
-        f.write(_tail(scan, end))
-        f.flush()
-        os.fsync(f.fileno())
-    return target
-
-
-def _rewrite(scan: McapScan, dst: str | Path | None = None) -> Path:
-    """Write the scanned file without its damaged chunks: every record kept as it is (each
-    chunk followed by message indexes rebuilt from its data), then a new summary and footer.
-    In place through a temporary file beside it (renamed over the original once on disk) or
-    as a copy at ``dst``."""
-    src = scan.path
-    unknown = sorted({c for chunk in scan.chunks for c in chunk.index} - set(scan.channels))
-    if unknown:
-        raise McapRecoveryError(
-            f"{src}: cannot repair: the definitions of channel(s) {unknown} were lost with the "
-            "damaged part and the summary does not hold them"
-        )
-    target = Path(dst) if dst is not None else src
-    tmp = target.with_name(target.name + ".rewrite")
-    chunks = {c.start: c for c in scan.chunks}
-    kept_metadata = {o: (n, m) for o, n, m in scan.metadata}
-    scan.metadata = []
-    with open(src, "rb") as fin, open(tmp, "wb") as fout:
-        out = RecordBuilder()  # a header and every definition at the start of the data
-        Header(profile="ros2", library="bag_recover").write(out)
-        for record in (*scan.schemas.values(), *scan.channels.values()):
-            record.write(out)
-        fout.write(MAGIC + out.end())
-        for start, length, opcode in scan.records:
-            if opcode in (Opcode.HEADER, Opcode.MESSAGE_INDEX):
-                continue  # written above; rebuilt after each chunk
-            fin.seek(start)
-            new_start = fout.tell()
-            fout.write(fin.read(length))
-            chunk = chunks.get(start)
-            if chunk is not None:
-                chunk.start = new_start
-                out = RecordBuilder()
-                chunk.index_records = {}
-                for channel, entries in chunk.index.items():
-                    chunk.index_records[channel] = new_start + length + out.count
-                    MessageIndex(channel_id=channel, records=entries).write(out)
-                fout.write(out.end())
-                chunk.index_end = fout.tell()
-            elif opcode == Opcode.METADATA and start in kept_metadata:
-                n, meta = kept_metadata[start]
-                scan.metadata.append((new_start, n, meta))
-        end = fout.tell()
-        scan.reindex_last = False
-        scan.has_header = True
-        fout.write(_tail(scan, end))
-        fout.flush()
-        os.fsync(fout.fileno())
-    tmp.replace(target)
-    return target
-
-
-def _tail(scan: McapScan, end: int) -> bytes:
-    """Message indexes of a cut last chunk, data end, summary, summary offsets, footer, magic."""
-    head = b""
-    if not scan.has_header:  # cut inside the magic or header: nothing survived, start anew
-        hb = RecordBuilder()
-        Header(profile="ros2", library="bag_recover").write(hb)
-        head = MAGIC + hb.end()
-    out = RecordBuilder()
-    pos = end + len(head)
-    if scan.reindex_last:
-        last = scan.chunks[-1]
-        last.index_records = {}
-        for channel, entries in last.index.items():
-            last.index_records[channel] = pos + out.count
-            MessageIndex(channel_id=channel, records=entries).write(out)
-        last.index_end = pos + out.count
-    DataEnd(data_section_crc=0).write(out)
-    summary_start = pos + out.count
-    groups: list[tuple[int, int, int]] = []  # opcode, start, length
-
-    def group(opcode, records) -> None:
-        start = out.count
-        for r in records:
-            r.write(out)
-        if out.count > start:
-            groups.append((opcode, pos + start, out.count - start))
-
-    group(Opcode.SCHEMA, scan.schemas.values())
-    group(Opcode.CHANNEL, scan.channels.values())
-    stats = Statistics(
-        message_count=scan.message_count,
-        schema_count=len(scan.schemas),
-        channel_count=len(scan.channels),
-        attachment_count=0,
-        metadata_count=len(scan.metadata),
-        chunk_count=len(scan.chunks),
-        message_start_time=scan.start_time,
-        message_end_time=scan.end_time,
-        channel_message_counts=dict(scan.message_counts),
-    )
-    group(Opcode.STATISTICS, [stats])
-    group(
-        Opcode.CHUNK_INDEX,
-        [
-            ChunkIndex(
-                message_start_time=c.message_start_time,
-                message_end_time=c.message_end_time,
-                chunk_start_offset=c.start,
-                chunk_length=c.length,
-                message_index_offsets=dict(c.index_records),
-                message_index_length=c.index_end - (c.start + c.length),
-                compression=c.compression,
-                compressed_size=c.compressed_size,
-                uncompressed_size=c.uncompressed_size,
-            )
-            for c in scan.chunks
-        ],
-    )
-    group(
-        Opcode.METADATA_INDEX,
-        [MetadataIndex(offset=o, length=n, name=m.name) for o, n, m in scan.metadata],
-    )
-    summary_offset_start = pos + out.count
-    for opcode, start, length in groups:
-        SummaryOffset(group_opcode=opcode, group_start=start, group_length=length).write(out)
-    Footer(
-        summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=0
-    ).write(out)
-    return head + out.end() + MAGIC

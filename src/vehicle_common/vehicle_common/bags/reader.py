@@ -1,6 +1,8 @@
-"""Opening recorded MCAP bags (rosbag2 layout or a bare ``.mcap``) with ``rosbags``.
+"""Opening recorded bags with ``rosbags`` (rosbag2 layout, a bare ``.mcap``, ROS 1 ``.bag``).
 
-Shared by the bag player (kitti_player_node.bag_replay) and the evaluator (eval_node.bag_reader).
+Every reader of this project opens bags here: the replay core (:mod:`.replay`), the recorded-run
+reader (:mod:`.recorded_run`) and the evaluator's odometry check. An interrupted recording is
+read through a repaired copy (:mod:`.recovery`).
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-from .kitti import KittiFormatError
+from ..kitti import KittiFormatError
 
 
 class BagError(KittiFormatError):
@@ -37,7 +39,7 @@ def _readable(path: Path, warn: Callable[[str], None]) -> Path:
     its last flushed chunk), made once per process in a temporary folder; warns once (one line)
     saying what was lost. A recording of which nothing can be read (0 bytes, or cut before its
     first complete chunk) raises BagError instead: there is nothing to play or evaluate."""
-    from .bag_recovery import readable_copy
+    from .recovery import readable_copy
 
     files = sorted(path.iterdir()) if path.is_dir() else [path]
     key = (
@@ -81,8 +83,8 @@ def open_reader(path: str | Path, warn: Callable[[str], None] = _print_warning):
     Raises BagError naming the file when the bag is missing or unreadable."""
     from rosbags.highlevel import AnyReader
 
-    from .bag_recovery import bag_files, needs_recovery
-    from .mcap_recovery import McapRecoveryError, has_footer
+    from .mcap_scan import McapRecoveryError, has_footer
+    from .recovery import bag_files, needs_recovery
 
     path = Path(path)
     if not path.exists():
@@ -120,7 +122,7 @@ def _bag_error(path: Path, exc: Exception) -> BagError:
 
 def _cut_files(bag_dir: Path) -> list[Path]:
     """``.mcap`` files of a bag directory that lack their footer."""
-    from .mcap_recovery import has_footer
+    from .mcap_scan import has_footer
 
     return [p for p in bag_dir.glob("*.mcap") if not has_footer(p)]
 
@@ -140,7 +142,7 @@ def bag_messages(reader, path: str | Path, connections=None):
 def damaged_bag_error(path: Path, exc: Exception) -> BagError:
     """One line for a bag whose messages could not be read: its damaged chunks (scanned) and
     how to keep the rest, else the reader's own words."""
-    from .bag_recovery import describe_damage
+    from .recovery import describe_damage
 
     try:
         damage = describe_damage(path)

@@ -14,7 +14,7 @@ Optional zstd compression (``storage``: MCAP chunk compression, readable by ever
 methods are thread-safe (one lock). The pending chunk is written out to the file as soon as it
 holds ``flush_messages`` messages or its first one is ``flush_period`` old (checked at each
 write), and :meth:`BagWriter.flush` (a thread calls it every ``flush_period``) also fsyncs it,
-so a killed recorder loses at most the last chunk (see :mod:`vehicle_common.bag_recovery`).
+so a killed recorder loses at most the last chunk (see :mod:`.recovery`).
 """
 
 from __future__ import annotations
@@ -28,7 +28,9 @@ from pathlib import Path
 import zstandard
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
-from vehicle_common.bag_recovery import (
+
+from ..message_definitions import MessageDefinitions
+from .metadata import (
     ROS_DISTRO,
     FileInfo,
     compress_file,
@@ -36,7 +38,6 @@ from vehicle_common.bag_recovery import (
     rosbag2_metadata,
     write_metadata_yaml,
 )
-from vehicle_common.message_definitions import MessageDefinitions
 
 COMPRESSION_MODES = ("storage", "message", "file")
 #: Bytes of messages per MCAP chunk before it is closed (rosbag2's and rosbags' 1 MiB).
@@ -62,7 +63,7 @@ def empty_bag_files(path: Path) -> list[Path] | None:
     be read, counts as recorded data."""
     import re
 
-    from vehicle_common.bag_files import BagError, EmptyBagError, open_reader
+    from .reader import BagError, EmptyBagError, open_reader
 
     if not path.is_dir() or path.is_symlink():
         return None

@@ -19,16 +19,16 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from vehicle_common.bag_files import BagError, bag_messages, open_reader
-from vehicle_common.camera_frames import kitti_row_from_centre
-from vehicle_common.frame_messages import bbox_to_xyxy, kitti_objects_from_message, stamp_ns
-from vehicle_common.kitti import KittiObject
-from vehicle_common.odometry import Pose
-from vehicle_common.odometry_messages import TransformTree
-from vehicle_common.orientation_bins import bin_to_alpha
 
-from eval_node.repeated_stamps import mixed_runs_hint
-from vehicle_common import topics
+from .. import topics
+from ..camera_frames import kitti_row_from_centre
+from ..frame_messages import bbox_to_xyxy, kitti_objects_from_message, stamp_ns
+from ..kitti import KittiObject
+from ..odometry import Pose
+from ..odometry_messages import TransformTree
+from ..orientation_bins import bin_to_alpha
+from .reader import BagError, bag_messages, open_reader
+from .repeated_stamps import mixed_runs_hint
 
 #: the graph's topics as recorded without a namespace (see :func:`bag_namespace`)
 GT_TOPIC = topics.resolve(topics.GROUND_TRUTH)
@@ -195,6 +195,49 @@ def bag_namespace(topic_names) -> str:
     return ""
 
 
+#: the topics :func:`read_run` reads (as recorded without a namespace)
+_RUN_TOPICS = (
+    GT_TOPIC,
+    DET2D_TOPIC,
+    DET3D_TOPIC,
+    TRACKS_TOPIC,
+    LEFT_INFO_TOPIC,
+    TF_TOPIC,
+    TF_STATIC_TOPIC,
+)
+#: the pipeline's per-frame outputs, attached to the frames by stamp
+_OUTPUT_TOPICS = (DET2D_TOPIC, DET3D_TOPIC, TRACKS_TOPIC)
+
+
+@dataclass
+class _RunMessages:
+    """What :func:`read_run` takes from a bag before building frames: per topic (its name
+    without namespace) ``stamp -> (message, receive time [ns])``, the last left camera_info and
+    every recorded transform."""
+
+    name: dict[str, str]  # topic -> its name in the bag (namespaced)
+    msgs: dict[str, dict[int, tuple[object, int]]]
+    info: object | None = None
+    transforms: TransformTree = field(default_factory=lambda: TransformTree(history=10**9))
+    repeated: dict[str, int] = field(default_factory=dict)  # topic -> stamps seen again
+
+    def add(self, topic: str, msg, t_ns: int, path) -> None:
+        """Note one deserialised message of ``topic``."""
+        if topic == LEFT_INFO_TOPIC:
+            self.info = msg
+            return
+        if topic in (TF_TOPIC, TF_STATIC_TOPIC):
+            try:
+                self.transforms.add_message(msg, static=topic == TF_STATIC_TOPIC)
+            except ValueError as exc:
+                raise BagReadError(f"{path}: {self.name[topic]}: {exc}") from None
+            return
+        stamp = stamp_ns(msg.header)
+        if stamp in self.msgs[topic]:
+            self.repeated[topic] = self.repeated.get(topic, 0) + 1
+        self.msgs[topic][stamp] = (msg, t_ns)
+
+
 def read_run(
     path: str | Path,
     track_states: tuple[int, ...] = OUTPUT_STATES,
@@ -213,146 +256,14 @@ def read_run(
     counts = {c.topic: c.msgcount for c in reader.connections}
     if namespace is None:
         namespace = bag_namespace(counts)
-    name = {
-        t: topics.resolve(t.lstrip("/"), namespace)
-        for t in (
-            GT_TOPIC,
-            DET2D_TOPIC,
-            DET3D_TOPIC,
-            TRACKS_TOPIC,
-            LEFT_INFO_TOPIC,
-            TF_TOPIC,
-            TF_STATIC_TOPIC,
-        )
-    }
-    recorded = {v: k for k, v in name.items()}  # namespaced name -> the name used below
-    wanted = set(name.values())
-    conns = [c for c in reader.connections if c.topic in wanted]
-    gts: dict[int, object] = {}
-    msgs: dict[str, dict[int, tuple[object, int]]] = {t: {} for t in name}
-    P_left, image_size, info_seen = None, None, None
-    transforms = TransformTree(history=10**9)  # every recorded stamp
-    repeated: dict[str, int] = {}  # topic -> stamps seen again (two runs in one bag)
-    if not conns:
-        reader.close()
-        raise BagReadError(f"{path}: none of the pipeline's topics ({', '.join(sorted(wanted))})")
-    try:
-        it = bag_messages(reader, path, conns)  # a damaged chunk: one line naming it
-        if progress:
-            from tqdm import tqdm
-
-            total = sum(c.msgcount for c in conns)
-            it = tqdm(it, total=total, desc="reading bag", unit="msg")
-        for conn, t_ns, raw in it:
-            try:
-                msg = reader.deserialize(raw, conn.msgtype)
-            except Exception as exc:
-                raise BagReadError(f"{path}: {conn.topic}: cannot deserialise ({exc})") from None
-            topic = recorded[conn.topic]
-            if topic == LEFT_INFO_TOPIC:
-                info_seen = msg
-                continue
-            if topic in (TF_TOPIC, TF_STATIC_TOPIC):
-                try:
-                    transforms.add_message(msg, static=topic == TF_STATIC_TOPIC)
-                except ValueError as exc:
-                    raise BagReadError(f"{path}: {conn.topic}: {exc}") from None
-                continue
-            stamp = stamp_ns(msg.header)
-            if stamp in msgs[topic]:
-                repeated[topic] = repeated.get(topic, 0) + 1
-            if topic == GT_TOPIC:
-                gts[stamp] = msg
-            msgs[topic][stamp] = (msg, int(t_ns))
-    finally:
-        reader.close()
-    if repeated:
-        topic, n = max(repeated.items(), key=lambda kv: kv[1])
-        raise BagReadError(
-            f"{path}: mixes more than one run: {name[topic]} holds {n} stamp(s) more than once "
-            f"(one message per frame and stamp in a run); {mixed_runs_hint()}"
-        )
-
-    sequence = ""
-    frames: dict[int, RecordedFrame] = {}
-    if gts:
-        for stamp, m in gts.items():
-            sequence = sequence or str(m.sequence)
-            off = np.array(m.left_camera_offset, dtype=float).reshape(3)
-            f = RecordedFrame(frame=int(m.frame_index), stamp_ns=stamp, offset=off)
-            f.gt = kitti_objects_from_message(m)
-            f.receive_ns[GT_TOPIC] = msgs[GT_TOPIC][stamp][1]
-            frames[stamp] = f
+    run = _read_messages(reader, path, namespace, progress)
+    _refuse_mixed_runs(run, path)
+    if run.msgs[GT_TOPIC]:
+        frames, sequence = _ground_truth_frames(run.msgs[GT_TOPIC])
     else:
-        stamps = sorted({s for t in (DET2D_TOPIC, DET3D_TOPIC, TRACKS_TOPIC) for s in msgs[t]})
-        for i, s in enumerate(stamps):
-            k = i if frame_grid is None else frame_grid.frame(s, path)
-            frames[s] = RecordedFrame(frame=k, stamp_ns=s, offset=np.zeros(3))
-        if frame_grid is not None and stamps:  # a frame with no output at all: nothing tracked
-            seen = {f.frame for f in frames.values()}
-            for k in range(min(seen), max(seen) + 1):
-                if k not in seen:
-                    s = int(round((frame_grid.start_s + k * frame_grid.period_s) * 1e9))
-                    frames[s] = RecordedFrame(frame=k, stamp_ns=s, offset=np.zeros(3))
-
-    if info_seen is not None:
-        K = np.array(info_seen.k, dtype=float).reshape(3, 3)
-        image_size = (int(info_seen.width), int(info_seen.height))
-        if gts:
-            off = next(iter(frames.values())).offset
-            P_left = K @ np.hstack([np.eye(3), off[:, None]])
-
-    camera_frame = info_seen.header.frame_id if info_seen is not None else None
-    unmatched = 0
-    for topic in (DET2D_TOPIC, DET3D_TOPIC, TRACKS_TOPIC):
-        for stamp, (m, t_ns) in msgs[topic].items():
-            f = frames.get(stamp)
-            if f is None:
-                unmatched += 1
-                continue
-            f.receive_ns[topic] = t_ns
-            if topic == DET2D_TOPIC:
-                for d in m.detections:
-                    f.det2d.append(
-                        KittiObject(
-                            type="Car",
-                            alpha=bin_to_alpha(int(d.orientation_bin)),
-                            bbox=bbox_to_xyxy(d.bbox),
-                            frame=f.frame,
-                            score=float(d.score),
-                        )
-                    )
-            elif topic == DET3D_TOPIC:
-                f.det3d_msg = m
-                rows = (det3d_to_object(d, f.offset, f.frame) for d in m.detections)
-                f.det3d = [r for r in rows if r is not None]
-            else:
-                vehicles = m.vehicles
-                camera = f.det3d_msg.header.frame_id if f.det3d_msg is not None else camera_frame
-                if camera and m.header.frame_id and m.header.frame_id != camera:
-                    pose = transforms.lookup(m.header.frame_id, camera, stamp)
-                    if pose is None:
-                        raise BagReadError(
-                            f"{path}: {name[TRACKS_TOPIC]}: tracks in {m.header.frame_id!r} at "
-                            f"stamp {stamp} ns and no recorded transform to {camera!r} "
-                            f"({name[TF_TOPIC]}, {name[TF_STATIC_TOPIC]})"
-                        )
-                    vehicles = tracks_in_camera_frame(m, pose)
-                for v in vehicles:
-                    output = int(v.state) in track_states
-                    if not output and int(v.state) not in RANKED_STATES:
-                        continue
-                    row = _track_object(v, f.offset, f.frame)
-                    if row is None:
-                        continue
-                    if not output:
-                        f.tentative.append(row)
-                        continue
-                    f.tracks.append(row)
-                    f.track_velocities.append(
-                        np.array([v.velocity.x, v.velocity.y, v.velocity.z], dtype=float)
-                    )
-                    f.track_ground_velocities.append(_ground_velocity(v))
+        frames, sequence = _output_frames(run.msgs, path, frame_grid), ""
+    P_left, image_size = _left_camera(run.info, bool(run.msgs[GT_TOPIC]), frames)
+    unmatched = _attach_outputs(frames, run, path, track_states)
     ordered = sorted(frames.values(), key=lambda f: (f.frame, f.stamp_ns))
     return RecordedRun(
         path=Path(path),
@@ -365,12 +276,164 @@ def read_run(
     )
 
 
+def _read_messages(reader, path, namespace: str, progress: bool) -> _RunMessages:
+    """Every message of ``_RUN_TOPICS`` (in ``namespace``) of the opened ``reader``, which
+    is closed; BagReadError when the bag holds none of them or one cannot be read."""
+    name = {t: topics.resolve(t.lstrip("/"), namespace) for t in _RUN_TOPICS}
+    recorded = {v: k for k, v in name.items()}  # namespaced name -> the name used below
+    wanted = set(name.values())
+    conns = [c for c in reader.connections if c.topic in wanted]
+    if not conns:
+        reader.close()
+        raise BagReadError(f"{path}: none of the pipeline's topics ({', '.join(sorted(wanted))})")
+    run = _RunMessages(name=name, msgs={t: {} for t in name})
+    try:
+        it = bag_messages(reader, path, conns)  # a damaged chunk: one line naming it
+        if progress:
+            from tqdm import tqdm
+
+            total = sum(c.msgcount for c in conns)
+            it = tqdm(it, total=total, desc="reading bag", unit="msg")
+        for conn, t_ns, raw in it:
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except Exception as exc:
+                raise BagReadError(f"{path}: {conn.topic}: cannot deserialise ({exc})") from None
+            run.add(recorded[conn.topic], msg, int(t_ns), path)
+    finally:
+        reader.close()
+    return run
+
+
+def _refuse_mixed_runs(run: _RunMessages, path) -> None:
+    """BagReadError when a per-frame topic holds a stamp twice: the bag mixes two runs."""
+    if run.repeated:
+        topic, n = max(run.repeated.items(), key=lambda kv: kv[1])
+        raise BagReadError(
+            f"{path}: mixes more than one run: {run.name[topic]} holds {n} stamp(s) more than "
+            f"once (one message per frame and stamp in a run); {mixed_runs_hint()}"
+        )
+
+
+def _ground_truth_frames(gts: dict[int, tuple]) -> tuple[dict[int, RecordedFrame], str]:
+    """One frame per recorded ground-truth message (stamp -> frame), and the sequence."""
+    sequence = ""
+    frames: dict[int, RecordedFrame] = {}
+    for stamp, (m, t_ns) in gts.items():
+        sequence = sequence or str(m.sequence)
+        off = np.array(m.left_camera_offset, dtype=float).reshape(3)
+        f = RecordedFrame(frame=int(m.frame_index), stamp_ns=stamp, offset=off)
+        f.gt = kitti_objects_from_message(m)
+        f.receive_ns[GT_TOPIC] = t_ns
+        frames[stamp] = f
+    return frames, sequence
+
+
+def _output_frames(msgs, path, frame_grid: FrameGrid | None) -> dict[int, RecordedFrame]:
+    """Without ground truth: one frame per stamp of the pipeline's outputs, numbered on
+    ``frame_grid`` (the frames between with no output at all kept, empty) or in stamp order."""
+    frames: dict[int, RecordedFrame] = {}
+    stamps = sorted({s for t in _OUTPUT_TOPICS for s in msgs[t]})
+    for i, s in enumerate(stamps):
+        k = i if frame_grid is None else frame_grid.frame(s, path)
+        frames[s] = RecordedFrame(frame=k, stamp_ns=s, offset=np.zeros(3))
+    if frame_grid is not None and stamps:  # a frame with no output at all: nothing tracked
+        seen = {f.frame for f in frames.values()}
+        for k in range(min(seen), max(seen) + 1):
+            if k not in seen:
+                s = int(round((frame_grid.start_s + k * frame_grid.period_s) * 1e9))
+                frames[s] = RecordedFrame(frame=k, stamp_ns=s, offset=np.zeros(3))
+    return frames
+
+
+def _left_camera(info, has_gt: bool, frames: dict[int, RecordedFrame]):
+    """(P_left, image size) from the recorded left camera_info: P_left (camera-0 points into
+    the left image) only with ground truth, which gives the camera offset; Nones without it."""
+    if info is None:
+        return None, None
+    K = np.array(info.k, dtype=float).reshape(3, 3)
+    image_size = (int(info.width), int(info.height))
+    P_left = None
+    if has_gt:
+        off = next(iter(frames.values())).offset
+        P_left = K @ np.hstack([np.eye(3), off[:, None]])
+    return P_left, image_size
+
+
+def _attach_outputs(frames, run: _RunMessages, path, track_states) -> int:
+    """The 2D detections, 3D detections and tracks attached to their frames by stamp; returns
+    how many messages have a stamp without a frame."""
+    camera_frame = run.info.header.frame_id if run.info is not None else None
+    unmatched = 0
+    for topic in _OUTPUT_TOPICS:
+        for stamp, (m, t_ns) in run.msgs[topic].items():
+            f = frames.get(stamp)
+            if f is None:
+                unmatched += 1
+                continue
+            f.receive_ns[topic] = t_ns
+            if topic == DET2D_TOPIC:
+                f.det2d.extend(_det2d_object(d, f.frame) for d in m.detections)
+            elif topic == DET3D_TOPIC:
+                f.det3d_msg = m
+                rows = (det3d_to_object(d, f.offset, f.frame) for d in m.detections)
+                f.det3d = [r for r in rows if r is not None]
+            else:
+                camera = f.det3d_msg.header.frame_id if f.det3d_msg is not None else camera_frame
+                _add_tracks(f, _tracks_in_camera(m, camera, stamp, run, path), track_states)
+    return unmatched
+
+
+def _det2d_object(d, frame: int) -> KittiObject:
+    """A VehicleDetection2D as a KITTI result row (alpha from the orientation bin)."""
+    return KittiObject(
+        type="Car",
+        alpha=bin_to_alpha(int(d.orientation_bin)),
+        bbox=bbox_to_xyxy(d.bbox),
+        frame=frame,
+        score=float(d.score),
+    )
+
+
+def _tracks_in_camera(m, camera: str | None, stamp: int, run: _RunMessages, path) -> list:
+    """The vehicles of a TrackedVehicleArray as seen from the camera: as they are when
+    published in the camera's frame, else moved with the recorded transforms."""
+    if not (camera and m.header.frame_id and m.header.frame_id != camera):
+        return m.vehicles
+    pose = run.transforms.lookup(m.header.frame_id, camera, stamp)
+    if pose is None:
+        raise BagReadError(
+            f"{path}: {run.name[TRACKS_TOPIC]}: tracks in {m.header.frame_id!r} at "
+            f"stamp {stamp} ns and no recorded transform to {camera!r} "
+            f"({run.name[TF_TOPIC]}, {run.name[TF_STATIC_TOPIC]})"
+        )
+    return tracks_in_camera_frame(m, pose)
+
+
+def _add_tracks(f: RecordedFrame, vehicles, track_states) -> None:
+    """The tracks of one frame: those in ``track_states`` as output (with their velocities),
+    the other ranked ones (tentative) for the tracks' AP only."""
+    for v in vehicles:
+        output = int(v.state) in track_states
+        if not output and int(v.state) not in RANKED_STATES:
+            continue
+        row = _track_object(v, f.offset, f.frame)
+        if row is None:
+            continue
+        if not output:
+            f.tentative.append(row)
+            continue
+        f.tracks.append(row)
+        f.track_velocities.append(_vector(v.velocity))
+        f.track_ground_velocities.append(_ground_velocity(v))
+
+
 def read_left_images(
     path: str | Path, stamps: set[int] | None = None, namespace: str | None = None
 ) -> dict[int, np.ndarray]:
     """Left images of a bag as RGB arrays, keyed by stamp [ns] (only ``stamps`` when given;
     ``namespace`` as in :func:`read_run`)."""
-    from vehicle_common.image_conversion import image_to_rgb
+    from ..image_conversion import image_to_rgb
 
     reader = open_reader(path)
     out: dict[int, np.ndarray] = {}
