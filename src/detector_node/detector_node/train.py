@@ -757,9 +757,25 @@ def _trainer(args: argparse.Namespace, model, sources, start: _Start, device) ->
     if args.ema:
         from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-        avg = get_ema_multi_avg_fn(args.ema)
-        trainer.ema = AveragedModel(model, multi_avg_fn=avg, use_buffers=True)
+        trainer.ema = AveragedModel(
+            model, multi_avg_fn=_ema_of_floats(get_ema_multi_avg_fn(args.ema)), use_buffers=True
+        )
     return trainer
+
+
+def _ema_of_floats(ema_fn):
+    """``--ema``'s average of the floating-point parameters and buffers (``ema_fn``, torch's
+    per-dtype group); integer buffers (the CenterNet graph's int32 constants, BatchNorm's
+    counters) are copied from the model, never averaged: averaged, a shape constant of 3
+    truncated to 2 and the saved checkpoint failed ("concat on axis 2 not supported")."""
+
+    def average(averaged: list, current: list, n_averaged) -> None:
+        if averaged and not averaged[0].is_floating_point():
+            torch._foreach_copy_(averaged, current)
+        else:
+            ema_fn(averaged, current, n_averaged)
+
+    return average
 
 
 def _end_epoch(
