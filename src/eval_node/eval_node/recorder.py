@@ -29,7 +29,7 @@ from vehicle_common.node_parameters import (
     declare_config,
     parameter_error_line,
 )
-from vehicle_common.node_runtime import apply_process_settings, init_rclpy
+from vehicle_common.node_runtime import apply_process_settings, init_rclpy, make_executor
 
 from eval_node.bag_writer import BagWriter, BagWriterError
 from eval_node.parameters import RecorderParameters
@@ -247,7 +247,9 @@ def main(args: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    executor = rclpy.executors.SingleThreadedExecutor()
+    # the node's ``executor`` parameter (EventsExecutor by default: its per-message cost is in
+    # C++, ARCHITECTURE.md "CPU per frame")
+    executor = make_executor(node.executor_kind, node.context)
     executor.add_node(node)
     try:
         while not stop and node.write_error() is None:
