@@ -19,7 +19,6 @@ from datetime import datetime
 from pathlib import Path
 
 import rclpy
-import rclpy.executors
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from vehicle_common.node_parameters import (
