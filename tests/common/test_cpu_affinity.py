@@ -93,3 +93,15 @@ def test_a_node_started_with_cpu_affinity_and_nice_runs_every_thread_so(tmp_path
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=30) == 0
+
+
+def test_library_threads_follow_the_cpus_the_process_may_use(monkeypatch):
+    """More pool threads than CPUs only wait on each other (issue #39): the count asked for,
+    at most the CPUs of the process's affinity, at least one."""
+    from vehicle_common import cpu_affinity
+
+    monkeypatch.setattr(cpu_affinity, "available_cpus", lambda: frozenset({3}))
+    assert cpu_affinity.usable_threads(2) == 1
+    monkeypatch.setattr(cpu_affinity, "available_cpus", lambda: frozenset(range(8)))
+    assert cpu_affinity.usable_threads(2) == 2
+    assert cpu_affinity.usable_threads(0) == 1

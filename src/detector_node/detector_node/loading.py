@@ -108,8 +108,9 @@ def checkpoint_framing(checkpoint: str = "", cache: OnnxCache | None = None):
 
 def load_node_detector(p) -> tuple[object, str, str | None]:
     """The node's CNN detector of its parameters ``p`` (:class:`.parameters.DetectorParameters`;
-    PyTorch's threads set to ``p.num_threads`` when it runs it), its info line and, for a
-    CenterNet on PyTorch on the CPU that could run on ONNX Runtime, a warning line (else None).
+    PyTorch's threads set to ``p.num_threads``, at most the CPUs the process may use, when it
+    runs it), its info line and, for a CenterNet on PyTorch on the CPU that could run on ONNX
+    Runtime, a warning line (else None).
     A checkpoint that cannot be used: ParameterError naming ``checkpoint``."""
     try:  # device and runtime raise ParameterError themselves
         cnn = load_detector(
@@ -127,8 +128,9 @@ def load_node_detector(p) -> tuple[object, str, str | None]:
         raise ParameterError("checkpoint", str(exc)) from None
     if cnn.runtime == "torch":
         import torch
+        from vehicle_common.cpu_affinity import usable_threads
 
-        torch.set_num_threads(p.num_threads)
+        torch.set_num_threads(usable_threads(p.num_threads))
     c = cnn.config
     built = getattr(getattr(cnn, "source", None), "built", [])
     info = (

@@ -3,16 +3,24 @@ by :mod:`.onnx_detector` (no torch) and :mod:`.onnx_backend` (PyTorch's model ex
 
 from __future__ import annotations
 
+from vehicle_common.cpu_affinity import usable_threads
+
 
 def ort_session(graph: bytes, threads: int):
-    """An ONNX Runtime CPU session of a serialized graph: ``threads`` intra-op threads, one
-    inter-op, sequential, every graph optimisation."""
+    """An ONNX Runtime CPU session of a serialized graph: ``threads`` intra-op threads (at most
+    the CPUs this process may use: more only wait on each other), one inter-op, sequential,
+    every graph optimisation, and no spinning: ONNX Runtime's idle pool threads busy-wait for
+    the next operator by default, which on real KITTI 0005 (1242x375, the shipped CenterNet,
+    2 threads) cost 1.6x the CPU of an inference without it, same outputs (CHANGELOG, issue
+    #39); on one CPU a spinning thread also takes it from the one that works."""
     import onnxruntime as ort
 
     so = ort.SessionOptions()
-    so.intra_op_num_threads = threads
+    so.intra_op_num_threads = usable_threads(threads)
     so.inter_op_num_threads = 1
     so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     so.log_severity_level = 3
+    so.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    so.add_session_config_entry("session.inter_op.allow_spinning", "0")
     return ort.InferenceSession(graph, so, providers=["CPUExecutionProvider"])

@@ -20,7 +20,6 @@ from datetime import datetime
 from pathlib import Path
 
 import rclpy
-import rclpy.executors
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from vehicle_common.bags.repeated_stamps import (
@@ -37,7 +36,7 @@ from vehicle_common.node_parameters import (
     declare_config,
     parameter_error_line,
 )
-from vehicle_common.node_runtime import apply_process_settings, init_rclpy
+from vehicle_common.node_runtime import apply_process_settings, init_rclpy, make_executor
 
 from eval_node.parameters import RecorderParameters
 from vehicle_common import topics as graph_topics
@@ -248,7 +247,9 @@ def main(args: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
-    executor = rclpy.executors.SingleThreadedExecutor()
+    # the node's ``executor`` parameter (EventsExecutor by default: its per-message cost is in
+    # C++, ARCHITECTURE.md "CPU per frame")
+    executor = make_executor(node.executor_kind, node.context)
     executor.add_node(node)
     try:
         while not stop and node.write_error() is None:

@@ -29,6 +29,7 @@ from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
 from tf2_msgs.msg import TFMessage
 from vehicle_common.camera_motion import CameraMotion
+from vehicle_common.cpu_affinity import usable_threads
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.frame_trace import frame_tracer
@@ -171,7 +172,8 @@ class StereoDepthNode(Node):
         #: the node with its one-line error and exit code 2)
         self.fatal_error: ParameterError | None = None
         check_overrides(self)  # every parameter is declared: refuse one the node has not
-        cv2.setNumThreads(p.num_threads)  # process-wide
+        # process-wide; at most the CPUs the process may use (cpu_affinity: more only wait)
+        cv2.setNumThreads(usable_threads(p.num_threads))
         # a frame's odometry, then its road plane's map, run in this thread beside its map in
         # the boxes and its ranging; the check waits for the road map, the publishing of the
         # 3D array for the odometry (ARCHITECTURE.md, "A frame's path through the graph")

@@ -198,6 +198,9 @@ def vision_tracks_message(tracks: TrackSet, header, pose: Pose | None = None):
     return out
 
 
+#: the corners of a box's 12 edges, in LINE_LIST order (pairs)
+_EDGE_CORNERS = [k for edge in box_edges() for k in edge]
+
 #: Marker lifetime [s]: five frame periods of the KITTI camera (10 Hz), so that boxes vanish
 #: soon after the tracker stops publishing instead of staying in RViz for ever.
 MARKER_LIFETIME_S = 0.5
@@ -229,9 +232,15 @@ def markers_for(
 
     move = pose or Pose()
 
+    def points(ps) -> list:
+        ps = np.reshape(np.asarray(ps, float), (-1, 3))
+        # all at once in the camera's frame; moved point by point (each point's own product:
+        # the same rounding as before) when there is a pose
+        moved = move.apply(ps) if pose is None else np.array([move.apply(p) for p in ps])
+        return [Point(x=x, y=y, z=z) for x, y, z in moved.tolist()]
+
     def point(p):
-        x, y, z = (float(a) for a in move.apply(p))
-        return Point(x=x, y=y, z=z)
+        return points(p)[0]
 
     def base(ns, mid, kind):
         m = Marker()
@@ -250,9 +259,7 @@ def markers_for(
         box = base("boxes", mid, Marker.LINE_LIST)
         box.scale.x = 0.05
         box.color.r, box.color.g, box.color.b, box.color.a = r, g, b, 1.0
-        for a, e in box_edges():
-            for k in (a, e):
-                box.points.append(point(corners[k]))
+        box.points = points(corners[_EDGE_CORNERS])
         text = base("labels", mid, Marker.TEXT_VIEW_FACING)
         text.pose.position = point((c[0], c[1] - h / 2 - 0.3, c[2]))
         text.scale.z = 0.6
@@ -262,7 +269,7 @@ def markers_for(
         v = tracks.velocity_over_ground[i]  # the car's own motion when known
         if not np.isfinite(v).all():
             v = tracks.velocity[i]
-        arrow.points = [point(c), point(np.asarray(c, float) + v)]
+        arrow.points = points([c, np.asarray(c, float) + v])
         arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.1, 0.2, 0.3
         arrow.color.r, arrow.color.g, arrow.color.b, arrow.color.a = r, g, b, 1.0
         arr.markers += [box, text, arrow]

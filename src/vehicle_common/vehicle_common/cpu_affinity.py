@@ -40,6 +40,13 @@ def available_cpus() -> frozenset[int]:
     return frozenset(range(os.cpu_count() or 1))
 
 
+def usable_threads(requested: int) -> int:
+    """A worker-thread count for a library's pool (ONNX Runtime, OpenCV, PyTorch):
+    ``requested`` but at most the CPUs this process may use now (after ``cpu_affinity`` or
+    ``taskset``), at least 1; more threads than CPUs only wait on each other."""
+    return max(1, min(int(requested), len(available_cpus())))
+
+
 def check_cpu_list(text: str) -> frozenset[int]:
     """The CPUs of ``text`` (empty: none requested), each one this process may use;
     ValueError naming the CPUs that are not."""
