@@ -433,60 +433,70 @@ def offline_stage_times(
     stereo node's own frame path (``stereo_depth_node.pipeline.StereoPipeline`` with the
     parameter file's ``stereo_depth`` section, ``-p NODE.PARAM:=VALUE`` overrides included),
     its side work run in order in this thread (``SerialExecutor``) and timed by its trace
-    points; the CNN of the detector node, thread counts and malloc policy as the graph's nodes.
-    The baseline the graph's stages are compared with. The odometry of frame k runs from frame
-    k-1 (its scene map and the previous frame's CNN boxes; its corners found ahead after frame
-    k-1's output: "corners ahead"); "ranging + check" ranges the CNN's boxes with their
-    orientation bins and angles and checks them against the frame's road plane."""
-    import cv2
-    import torch
-    from detector_node.loading import load_detector
-    from stereo_depth_node.disparity import block_matching_disparity, compute_disparity
-    from stereo_depth_node.offline import FRAME_NS, parameter_values
-    from stereo_depth_node.parameters import stereo_config_from_values
-    from stereo_depth_node.pipeline import FrameBoxes, StereoPipeline
-    from stereo_depth_node.region_matching import to_gray
-    from tracking_bringup.parameters import default
-    from vehicle_common.image_conversion import image_to_rgb, numpy_to_image
+    points; the CNN of the detector node, thread counts and malloc policy as the graph's nodes
+    (``tracking_bringup.offline_stages``). The baseline the graph's stages are compared with.
+    The odometry of frame k runs from frame k-1 (its scene map and the previous frame's CNN
+    boxes; its corners found ahead after frame k-1's output: "corners ahead"); "ranging +
+    check" ranges the CNN's boxes with their orientation bins and angles and checks them
+    against the frame's road plane."""
+    from tracking_bringup.offline_stages import graph_stages
     from vehicle_common.kitti import TrackingSequence
-    from vehicle_common.malloc_policy import keep_freed_memory
 
     seq = TrackingSequence.open(root, sequence)
     frames = seq.frame_ids[:max_frames]
-    # the stereo node's parameters: the file's section as the node reads it, then the -p's
-    values = dict(graph.file_parameters(PARAMS_FILE).get(graph.STEREO.name, {}))
-    values.update(parameter_values(None, graph.node_overrides(overrides, graph.STEREO.name)))
-    config = stereo_config_from_values(values)
-
-    def threads(node: str) -> int:
-        ovs = graph.node_overrides(overrides, node)
-        return int(graph.parameter_value(PARAMS_FILE, ovs, node, "num_threads"))
-
-    det_threads, cv_threads = threads(graph.DETECTOR.name), config.node.num_threads
-    torch.set_num_threads(det_threads)
-    detector = load_detector("", "cpu")
-    cv2.setNumThreads(cv_threads)
-    # the stereo node's settings: its parameter file's section, plus its malloc policy (a node
-    # keeps freed memory for reuse: keep_freed_memory)
+    stages = graph_stages(overrides)
     pairs = [seq.read_stereo(f) for f in frames]
-    left0, right0 = pairs[0]
-    if values.get("keep_freed_memory", default(graph.STEREO.name, "keep_freed_memory")):
-        keep_freed_memory()
+    out = {"frames": float(len(pairs))}
+    out.update(_message_costs(seq, frames[-1], pairs[0][0]))
+    times = _frame_path_times(stages, seq, frames, pairs)
+    out.update({k: float(np.median(v)) for k, v in times.items()})
+    return out
+
+
+def _timed(fn, clock=time.perf_counter):
+    """(``fn()``, its ms)."""
+    t0 = clock()
+    out = fn()
+    return out, (clock() - t0) * 1e3
+
+
+def _median_ms(fn, repeats: int = 5) -> float:
+    for _ in range(2):
+        fn()
+    return float(np.median([_timed(fn)[1] for _ in range(repeats)]))
+
+
+def _message_costs(seq, frame: int, left0) -> dict[str, float]:
+    """The player's read of a pair and an image message's conversions (median ms)."""
+    from vehicle_common.image_conversion import image_to_rgb, numpy_to_image
+
+    return {
+        "read pair (2 PNG)": _median_ms(lambda: seq.read_stereo(frame)),
+        "image message, build + convert": _median_ms(
+            lambda: image_to_rgb(numpy_to_image(left0, "rgb8"))
+        ),
+        "image message from bytes (before)": _median_ms(lambda: _image_from_bytes(left0)),
+    }
+
+
+def _frame_path_times(stages, seq, frames, pairs) -> dict[str, list[float]]:
+    """Each frame through the CNN and the stereo node's pipeline, in order: ms per step."""
+    from stereo_depth_node.disparity import block_matching_disparity, compute_disparity
+    from stereo_depth_node.offline import FRAME_NS
+    from stereo_depth_node.pipeline import FrameBoxes
+    from stereo_depth_node.region_matching import to_gray
+
     points: dict[str, tuple[float, float]] = {}  # trace point -> (wall, CPU) [s], this frame
 
     def trace(point: str, stamp: int) -> None:
         points[point] = (time.perf_counter(), time.process_time())
 
-    pipeline = StereoPipeline.from_config(config, trace=trace)
+    left0, right0 = pairs[0]
+    pipeline = stages.pipeline(trace)
     pipeline.camera_from_projections(left0, seq.calib.P2, seq.calib.P3)
     geometry, settings = pipeline.camera()
     params = pipeline.disparity_params_for(left0.shape[0], settings)
-
-    def timed(fn, clock=time.perf_counter):
-        t0 = clock()
-        out = fn()
-        return out, (clock() - t0) * 1e3
-
+    detector = stages.detector
     for _ in range(3):  # warm-up (first allocations, caches)
         detector.detect(left0)
         compute_disparity(left0, right0, params)
@@ -499,18 +509,12 @@ def offline_stage_times(
     def span(start: str, end: str, cpu: bool = False) -> float:
         return (points[end][cpu] - points[start][cpu]) * 1e3
 
+    cv_threads = stages.stereo_config.node.num_threads
     label = f"disparity ({cv_threads} thread{'s' if cv_threads > 1 else ''})"
     for k, (left, right) in enumerate(pairs):
-        dets, ms = timed(lambda left=left: detector.detect(left))
-        add(f"detect (CNN, {det_threads} thread)", ms)
-        boxes = FrameBoxes(
-            [d.box for d in dets],
-            [d.orientation_bin for d in dets],
-            [d.observation_angle for d in dets],
-            [d.observation_angle_variance for d in dets],
-            [d.score for d in dets],
-            [str(i) for i in range(len(dets))],
-        )
+        dets, ms = _timed(lambda left=left: detector.detect(left))
+        add(f"detect (CNN, {stages.detector_threads} thread)", ms)
+        boxes = FrameBoxes.from_detections(dets)
         points.clear()
         pipeline.process(frames[k] * FRAME_NS, left, right, geometry, params, boxes)
         add(label, span("disparity_start", "disparity_end"))
@@ -525,25 +529,10 @@ def offline_stage_times(
             add("road map (coarse)", span("road_start", "road_end"))
         add("ranging + check", span("ranging_start", "ranging_end"))
         # the next frame's corners, found ahead (in idle time after the 3D array)
-        _, ms = timed(lambda b=boxes.boxes: pipeline.frame_done(b))
+        _, ms = _timed(lambda b=boxes.boxes: pipeline.frame_done(b))
         if k + 1 < len(pairs):
             add("corners ahead (odometry)", ms)
-
-    def median_ms(fn, repeats: int = 5) -> float:
-        for _ in range(2):
-            fn()
-        return float(np.median([timed(fn)[1] for _ in range(repeats)]))
-
-    out = {
-        "frames": float(len(pairs)),
-        "read pair (2 PNG)": median_ms(lambda: seq.read_stereo(frames[-1])),
-        "image message, build + convert": median_ms(
-            lambda: image_to_rgb(numpy_to_image(left0, "rgb8"))
-        ),
-        "image message from bytes (before)": median_ms(lambda: _image_from_bytes(left0)),
-    }
-    out.update({k: float(np.median(v)) for k, v in times.items()})
-    return out
+    return times
 
 
 def path_alone(alone: dict[str, float]) -> float:

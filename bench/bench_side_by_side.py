@@ -37,38 +37,60 @@ REPO = Path(__file__).resolve().parents[1]
 REAL_ROOT = REPO.parent / "shared" / "kitti" / "tracking" / "training"
 
 
-def _boxes(dets):
+def _paths(stages, seq, pairs):
+    """The two frame paths, ``path(frame, left, right)`` -> the stereo pipeline's result:
+    today's (CNN, then the pipeline in the boxes) and side by side (the band's map in a second
+    thread while the CNN runs, then the pipeline's ranging on it)."""
+    from stereo_depth_node.disparity import compute_disparity
+    from stereo_depth_node.offline import FRAME_NS
     from stereo_depth_node.pipeline import FrameBoxes
 
-    return FrameBoxes(
-        [d.box for d in dets],
-        [d.orientation_bin for d in dets],
-        [d.observation_angle for d in dets],
-        [d.observation_angle_variance for d in dets],
-        [d.score for d in dets],
-        [str(i) for i in range(len(dets))],
-    )
+    detector = stages.detector
+    boxes_path, band_path = stages.pipeline(), stages.pipeline(map_area="band")
+    for pipeline in (boxes_path, band_path):
+        pipeline.camera_from_projections(pairs[0][0], seq.calib.P2, seq.calib.P3)
+    geometry, settings = boxes_path.camera()
+    params = boxes_path.disparity_params_for(pairs[0][0].shape[0], settings)
+    side = ThreadPoolExecutor(1, thread_name_prefix="side")
+    for _ in range(3):  # warm-up
+        detector.detect(pairs[0][0])
+        compute_disparity(*pairs[0], params)
+
+    def today(k, left, right):
+        boxes = FrameBoxes.from_detections(detector.detect(left))
+        out = boxes_path.process(k * FRAME_NS, left, right, geometry, params, boxes)
+        boxes_path.frame_done(boxes.boxes)
+        return out
+
+    def side_by_side(k, left, right):
+        disparity = side.submit(compute_disparity, left, right, params)  # beside the CNN
+        boxes = FrameBoxes.from_detections(detector.detect(left))
+        out = band_path.process(
+            k * FRAME_NS, left, right, geometry, params, boxes, disparity=disparity.result()
+        )
+        band_path.frame_done(boxes.boxes)
+        return out
+
+    return {"today": today, "side by side": side_by_side}
 
 
-def _graph_setup(overrides: dict):
-    """The detector and the stereo pipeline as the graph's nodes run them (thread counts and
-    the ``stereo_depth`` section of the graph's parameter file, ``overrides`` on top)."""
-    import cv2
-    import torch
-    from detector_node.loading import load_detector
-    from stereo_depth_node.parameters import stereo_config_from_values
-    from stereo_depth_node.pipeline import StereoPipeline
-    from tracking_bringup.environment import PARAMS_FILE
-
-    from tracking_bringup import graph
-
-    values = dict(graph.file_parameters(PARAMS_FILE).get(graph.STEREO.name, {}))
-    values.update(overrides)
-    config = stereo_config_from_values(values)
-    det_threads = int(graph.parameter_value(PARAMS_FILE, [], graph.DETECTOR.name, "num_threads"))
-    torch.set_num_threads(det_threads)
-    cv2.setNumThreads(config.node.num_threads)
-    return load_detector("", "cpu"), StereoPipeline.from_config(config), det_threads, config
+def _time_paths(paths, frames, pairs, repeats):
+    """Both paths on every frame, alternated: (per path, latency and CPU ms per frame), the
+    distances [m] between the two paths' 3D positions of the same box."""
+    figures: dict[str, dict[str, list[float]]] = {name: {} for name in paths}
+    apart: list[float] = []
+    for _ in range(repeats):
+        for k, (left, right) in enumerate(pairs):
+            results = {}
+            for name, path in paths.items():
+                t0, c0 = time.perf_counter(), time.process_time()
+                results[name] = path(frames[k], left, right)
+                f = figures[name]
+                f.setdefault("latency ms", []).append(1e3 * (time.perf_counter() - t0))
+                f.setdefault("CPU ms", []).append(1e3 * (time.process_time() - c0))
+            a, b = ({i: r.position for i, r, _, _ in results[n].kept} for n in results)
+            apart += [float(np.linalg.norm(a[i] - b[i])) for i in a if i in b]
+    return figures, apart
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,63 +102,24 @@ def main(argv: list[str] | None = None) -> int:
     if not (REAL_ROOT / "image_02" / "0005").is_dir():
         print(f"error: {REAL_ROOT}: no KITTI 0005 (../shared/kitti)", file=sys.stderr)
         return 2
-    from stereo_depth_node.disparity import compute_disparity
-    from stereo_depth_node.offline import FRAME_NS
+    from tracking_bringup.offline_stages import graph_stages
     from vehicle_common.kitti import TrackingSequence
 
     load0 = os.getloadavg()[0]
     seq = TrackingSequence.open(REAL_ROOT, "0005")
     frames = seq.frame_ids[: args.frames]
     pairs = [seq.read_stereo(f) for f in frames]
-    detector, boxes_path, det_threads, config = _graph_setup({})
-    _, band_path, _, _ = _graph_setup({"map_area": "band"})
-    for pipeline in (boxes_path, band_path):
-        pipeline.camera_from_projections(pairs[0][0], seq.calib.P2, seq.calib.P3)
-    geometry, settings = boxes_path.camera()
-    params = boxes_path.disparity_params_for(pairs[0][0].shape[0], settings)
-    side = ThreadPoolExecutor(1, thread_name_prefix="side")
-    for _ in range(3):  # warm-up
-        detector.detect(pairs[0][0])
-        compute_disparity(*pairs[0], params)
-
-    def today(k, left, right):
-        boxes = _boxes(detector.detect(left))
-        out = boxes_path.process(k * FRAME_NS, left, right, geometry, params, boxes)
-        boxes_path.frame_done(boxes.boxes)
-        return out
-
-    def side_by_side(k, left, right):
-        disparity = side.submit(compute_disparity, left, right, params)  # beside the CNN
-        boxes = _boxes(detector.detect(left))
-        out = band_path.process(
-            k * FRAME_NS, left, right, geometry, params, boxes, disparity=disparity.result()
-        )
-        band_path.frame_done(boxes.boxes)
-        return out
-
-    figures: dict[str, dict[str, list[float]]] = {"today": {}, "side by side": {}}
-    apart: list[float] = []
-    for _ in range(args.repeats):
-        for k, (left, right) in enumerate(pairs):
-            results = {}
-            for name, path in (("today", today), ("side by side", side_by_side)):
-                t0, c0 = time.perf_counter(), time.process_time()
-                results[name] = path(frames[k], left, right)
-                f = figures[name]
-                f.setdefault("latency ms", []).append(1e3 * (time.perf_counter() - t0))
-                f.setdefault("CPU ms", []).append(1e3 * (time.process_time() - c0))
-            a, b = ({i: r.position for i, r, _, _ in results[n].kept} for n in results)
-            apart += [float(np.linalg.norm(a[i] - b[i])) for i in a if i in b]
-    side.shutdown()
+    stages = graph_stages()
+    figures, apart = _time_paths(_paths(stages, seq, pairs), frames, pairs, args.repeats)
     load1 = os.getloadavg()[0]
     summary = {
         name: {key: statistics.median(v) for key, v in f.items()} for name, f in figures.items()
     }
     t, s = summary["today"], summary["side by side"]
     print(
-        f"real 0005, {len(pairs)} frames x {args.repeats}, CNN {det_threads} threads, OpenCV "
-        f"{config.node.num_threads} threads, load {load0:.1f} -> {load1:.1f} (2 cores: "
-        f"{os.cpu_count()} CPUs here)"
+        f"real 0005, {len(pairs)} frames x {args.repeats}, CNN {stages.detector_threads} "
+        f"threads, OpenCV {stages.stereo_config.node.num_threads} threads, load {load0:.1f} -> "
+        f"{load1:.1f} ({os.cpu_count()} CPUs here)"
     )
     for name, f in summary.items():
         print(

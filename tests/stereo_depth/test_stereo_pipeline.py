@@ -78,3 +78,47 @@ def test_parameter_values_are_checked_as_the_node_does():
         stereo_config_from_values({"wls_lambda": -1.0})
     with pytest.raises(ParameterError, match="min_hits: unknown parameter"):
         stereo_config_from_values({"min_hits": 3})
+
+
+def test_a_band_map_computed_beside_the_cnn_gives_the_same_detections(kitti_tracking_root):
+    """Issue #39 (bench_side_by_side): the band's map given to ``process`` (computed while the
+    CNN ran) ranges the boxes exactly as the band's map computed inside it."""
+    from stereo_depth_node.disparity import compute_disparity
+
+    seq = TrackingSequence.open(kitti_tracking_root, "0005")
+    config = stereo_config_from_values({"map_area": "band"})
+    inside, given = StereoPipeline.from_config(config), StereoPipeline.from_config(config)
+    for frame in seq.frame_ids[:3]:
+        left, right = seq.read_stereo(frame)
+        boxes = offline.oracle_boxes(seq, frame, ("Car", "Van"))
+        out = []
+        for pipeline, precomputed in ((inside, False), (given, True)):
+            if pipeline.settings is None:
+                pipeline.camera_from_projections(left, seq.calib.P2, seq.calib.P3)
+            geometry, settings = pipeline.camera()
+            params = pipeline.disparity_params_for(left.shape[0], settings)
+            disparity = compute_disparity(left, right, params) if precomputed else None
+            stamp = frame * offline.FRAME_NS
+            r = pipeline.process(stamp, left, right, geometry, params, boxes, disparity=disparity)
+            out.append([(i, tuple(rr.position)) for i, rr, _, _ in r.kept])
+        assert out[0] == out[1] and out[0]
+
+
+def test_frame_boxes_from_a_detectors_detections():
+    from types import SimpleNamespace
+
+    from stereo_depth_node.pipeline import FrameBoxes
+
+    dets = [
+        SimpleNamespace(
+            box=(1.0, 2.0, 30.0, 40.0),
+            orientation_bin=k,
+            observation_angle=0.1 * k,
+            observation_angle_variance=0.01,
+            score=0.5 + 0.1 * k,
+        )
+        for k in range(2)
+    ]
+    b = FrameBoxes.from_detections(dets)
+    assert len(b) == 2 and b.bins == [0, 1] and b.angles == [0.0, 0.1] and b.ids == ["0", "1"]
+    assert b.scores == [0.5, 0.6] and b.boxes[1] == (1.0, 2.0, 30.0, 40.0)

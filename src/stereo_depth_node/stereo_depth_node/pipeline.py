@@ -109,6 +109,19 @@ class FrameBoxes:
     def __len__(self) -> int:
         return len(self.boxes)
 
+    @classmethod
+    def from_detections(cls, dets) -> FrameBoxes:
+        """The boxes of a detector's detections (``box``, ``orientation_bin``,
+        ``observation_angle``, ``observation_angle_variance``, ``score``), named by index."""
+        return cls(
+            [d.box for d in dets],
+            [d.orientation_bin for d in dets],
+            [d.observation_angle for d in dets],
+            [d.observation_angle_variance for d in dets],
+            [d.score for d in dets],
+            [str(i) for i in range(len(dets))],
+        )
+
 
 @dataclasses.dataclass
 class FrameResult:
