@@ -46,10 +46,6 @@ from .conversions import detections_message, vision_detections_message
 from .parameters import DetectorParameters
 
 NODE_NAME = "vehicle_detector"
-IMAGE_TOPIC = topics.LEFT_IMAGE
-INFO_TOPIC = topics.LEFT_INFO
-GT_TOPIC = topics.GROUND_TRUTH
-DETECTIONS_TOPIC = topics.DETECTIONS_2D
 
 
 class VehicleDetectorNode(Node):
@@ -67,7 +63,7 @@ class VehicleDetectorNode(Node):
         self.frames = FrameCounter()  # images in, detection arrays out, images skipped
         self.worker: LatestFrameWorker | None = None
         self.flow: DownstreamAdmission | None = None  # back-pressure (the CNN, a live camera)
-        self.pub = self.create_publisher(VehicleDetection2DArray, DETECTIONS_TOPIC, 10)
+        self.pub = self.create_publisher(VehicleDetection2DArray, topics.DETECTIONS_2D, 10)
         self.vision_pub = self.create_publisher(Detection2DArray, topics.VISION_DETECTIONS_2D, 10)
         if self.backend == "cnn":
             from .loading import load_node_detector
@@ -110,13 +106,15 @@ class VehicleDetectorNode(Node):
                 self.create_subscription(VehicleDetection3DArray, DOWNSTREAM_TOPIC, done, 10)
             if not self.cam.derive:
                 self.worker.submit(None, frame=False)  # the framing of the parameters, logged
-            subscribe_camera(self, CameraInfo, INFO_TOPIC, self._on_camera_info, 5, self.usage.note)
+            subscribe_camera(
+                self, CameraInfo, topics.LEFT_INFO, self._on_camera_info, 5, self.usage.note
+            )
         elif self.backend == "oracle":
             from .oracle import OracleDetector, StampPairing
 
             self.oracle = OracleDetector.from_parameters(p)
             self.pairing = StampPairing(max_pending=p.oracle_max_pending)
-            self.create_subscription(KittiFrameLabels, GT_TOPIC, self._on_labels, 10)
+            self.create_subscription(KittiFrameLabels, topics.GROUND_TRUTH, self._on_labels, 10)
             self.get_logger().warning(
                 "ORACLE backend: publishing ground-truth boxes as detections (ablation only)"
             )
@@ -125,7 +123,9 @@ class VehicleDetectorNode(Node):
         # seen and counted, only the newest is detected; the CNN's images as bytes, converted
         # only when detected (not the skipped ones)
         depth, cnn = max(topics.INPUT_DEPTH, p.frame_queue), self.backend == "cnn"
-        subscribe_image(self, IMAGE_TOPIC, self._on_image, depth, self.usage.note, serialized=cnn)
+        subscribe_image(
+            self, topics.LEFT_IMAGE, self._on_image, depth, self.usage.note, serialized=cnn
+        )
         self.health = NodeHealth(
             self,
             self.frames,
@@ -168,7 +168,7 @@ class VehicleDetectorNode(Node):
             camera = CameraModel.from_camera_info(msg)
         except ValueError as exc:
             if self.cam.bad(exc):
-                self.get_logger().warning(f"{INFO_TOPIC}: {exc}; framing unchanged")
+                self.get_logger().warning(f"{topics.LEFT_INFO}: {exc}; framing unchanged")
             self._release_held()
             return
         changed, old = self.cam.changed(camera)
@@ -186,7 +186,8 @@ class VehicleDetectorNode(Node):
             if self.cam.camera is None and self.cam.error is None:
                 self.cam.error = "none yet"
                 self.get_logger().warning(
-                    f"no CameraInfo on {INFO_TOPIC} within {self.params.camera_info_wait:g} s: "
+                    f"no CameraInfo on {topics.LEFT_INFO} within "
+                    f"{self.params.camera_info_wait:g} s: "
                     "detecting with the checkpoint's framing until one arrives"
                 )
                 self.worker.submit(None, frame=False)
@@ -210,7 +211,7 @@ class VehicleDetectorNode(Node):
             self.get_logger().warning(line)
 
     def _failed(self, exc: Exception, msg: Image) -> None:
-        self.get_logger().warning(f"{IMAGE_TOPIC}: detection failed: {exc}; no detections")
+        self.get_logger().warning(f"{topics.LEFT_IMAGE}: detection failed: {exc}; no detections")
         self._publish(detections_message(msg.header, []))
 
     def _publish(self, out: VehicleDetection2DArray) -> None:
@@ -225,8 +226,8 @@ class VehicleDetectorNode(Node):
         try:
             rgb = image_to_rgb(as_message(msg))
         except ImageConversionError as exc:
-            self.usage.skipped(f"{IMAGE_TOPIC}: {exc}")
-            self.get_logger().warning(f"{IMAGE_TOPIC}: {exc}; publishing no detections")
+            self.usage.skipped(f"{topics.LEFT_IMAGE}: {exc}")
+            self.get_logger().warning(f"{topics.LEFT_IMAGE}: {exc}; publishing no detections")
             self._publish(detections_message(msg.header, []))
             return
         self.usage.used()
@@ -242,11 +243,12 @@ class VehicleDetectorNode(Node):
     def _publish_oracle(self, image: Image, labels: KittiFrameLabels | None) -> None:
         if labels is None:
             self.get_logger().warning(
-                f"{GT_TOPIC}: no ground truth for image stamp {stamp_ns(image.header)} ns; "
+                f"{topics.GROUND_TRUTH}: no ground truth for image stamp "
+                f"{stamp_ns(image.header)} ns; "
                 "publishing an empty array"
             )
             dets = []
-            self.usage.skipped(f"{GT_TOPIC}: no ground truth for the image's stamp")
+            self.usage.skipped(f"{topics.GROUND_TRUTH}: no ground truth for the image's stamp")
         else:
             dets = self.oracle.detect(kitti_objects_from_message(labels), image_size(image))
             self.usage.used()

@@ -158,7 +158,11 @@ def _run_tracking(args) -> int:
 
 
 def _run_detection(args) -> int:
-    from eval_node.detection_files import detection_table, evaluate_detections, read_detection_dirs
+    from eval_node.detection_scoring import (
+        detection_table,
+        evaluate_detections,
+        read_detection_dirs,
+    )
 
     gt, pred, n_missing = read_detection_dirs(args.results, args.labels)
     if n_missing:

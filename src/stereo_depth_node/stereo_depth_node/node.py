@@ -51,14 +51,6 @@ from .pipeline import FrameBoxes, NoGeometry, StereoPipeline
 from .reprojection import decimated_points
 
 NODE_NAME = "stereo_depth"
-TOPIC_LEFT = topics.LEFT_IMAGE
-TOPIC_RIGHT = topics.RIGHT_IMAGE
-TOPIC_LEFT_INFO = topics.LEFT_INFO
-TOPIC_RIGHT_INFO = topics.RIGHT_INFO
-TOPIC_DETECTIONS_2D = topics.DETECTIONS_2D
-TOPIC_DISPARITY = topics.DISPARITY
-TOPIC_POINTS = topics.POINTS
-TOPIC_DETECTIONS_3D = topics.DETECTIONS_3D
 
 
 def log_line(logger, level: str, line: str) -> None:
@@ -128,10 +120,10 @@ class FrameOutputs:
 
     def __init__(self, node: Node, given) -> None:
         self.given = given
-        self.disparity = node.create_publisher(DisparityImage, TOPIC_DISPARITY, 5)
+        self.disparity = node.create_publisher(DisparityImage, topics.DISPARITY, 5)
         self.points = None
         if given.publish_points:
-            self.points = node.create_publisher(PointCloud2, TOPIC_POINTS, 5)
+            self.points = node.create_publisher(PointCloud2, topics.POINTS, 5)
 
     def wanted(self) -> bool:
         """Whether someone subscribes to the disparity image or the point cloud (they need the
@@ -217,21 +209,21 @@ class StereoDepthNode(Node):
         depth_in = max(topics.INPUT_DEPTH, p.frame_queue)
         qos_in = QoSProfile(depth=depth_in)
         self.outputs = FrameOutputs(self, p)  # the disparity image and the point cloud
-        self.pub_det3d = self.create_publisher(VehicleDetection3DArray, TOPIC_DETECTIONS_3D, 10)
+        self.pub_det3d = self.create_publisher(VehicleDetection3DArray, topics.DETECTIONS_3D, 10)
         self.odometry_pubs = OdometryPublishers(self, config.odometry_output, p.visual_odometry)
         # camera infos first: the executor runs ready callbacks in creation order, so a frame's
         # CameraInfo that arrives with its images is read before the frame is processed
         note = self.usage.note
-        subscribe_camera(self, CameraInfo, TOPIC_LEFT_INFO, self._on_left_info, depth_in, note)
-        subscribe_camera(self, CameraInfo, TOPIC_RIGHT_INFO, self._on_right_info, depth_in, note)
+        subscribe_camera(self, CameraInfo, topics.LEFT_INFO, self._on_left_info, depth_in, note)
+        subscribe_camera(self, CameraInfo, topics.RIGHT_INFO, self._on_right_info, depth_in, note)
         # raw or compressed (parameter image_transport); as bytes, converted only for a frame
         # that is processed (a frame the detector skipped costs no image conversion)
         left_cb, right_cb = (lambda m: self._on_input("left", m)), self._on_right
-        subscribe_image(self, TOPIC_LEFT, left_cb, depth_in, note, serialized=True)
-        subscribe_image(self, TOPIC_RIGHT, right_cb, depth_in, note, serialized=True)
+        subscribe_image(self, topics.LEFT_IMAGE, left_cb, depth_in, note, serialized=True)
+        subscribe_image(self, topics.RIGHT_IMAGE, right_cb, depth_in, note, serialized=True)
         self.create_subscription(
             VehicleDetection2DArray,
-            TOPIC_DETECTIONS_2D,
+            topics.DETECTIONS_2D,
             lambda m: self._on_input("detections", m),
             qos_in,
         )
@@ -254,7 +246,7 @@ class StereoDepthNode(Node):
     def _update_geometry(self) -> None:
         """A new CameraInfo: the pipeline's camera (:meth:`.pipeline.StereoPipeline.update_camera`)
         and the rig's transforms."""
-        source = f"{TOPIC_LEFT_INFO}/{TOPIC_RIGHT_INFO}"
+        source = f"{topics.LEFT_INFO}/{topics.RIGHT_INFO}"
         report = self.pipeline.update_camera(self.left_info, self.right_info, source)
         if report is not None:
             taken, level, line = report
@@ -325,7 +317,7 @@ class StereoDepthNode(Node):
                 log = self.get_logger().warning
             if self.fatal_error is not None:  # the node stops with that one line
                 log = self.get_logger().debug
-            log(f"{TOPIC_LEFT}/{TOPIC_RIGHT}: {exc}; frame skipped")
+            log(f"{topics.LEFT_IMAGE}/{topics.RIGHT_IMAGE}: {exc}; frame skipped")
             self.pipeline.frame_lost()  # a lost frame breaks the odometry's chain
             self._publish_empty(det_msg)
             return
