@@ -107,6 +107,10 @@ class TrackerConfig:
     # coasting tracks are reported while conf >= this
     restoration_conf_threshold: float = param(0.5, low=0.0, high=1.0)
     min_hits: int = param(2, low=1)  # matched frames before a track is confirmed
+    # [s] a tentative track is also confirmed once matched twice over at least this long: the
+    # confirmation in time when fewer frames are processed (a camera faster than the graph:
+    # issue #39); 0: off (min_hits frames only)
+    min_hits_span: float = param(0.0, low=0.0)
     # smoothing gain of the box size (0..1, 1 = take the detection)
     size_gain: float = param(0.3, low=0.0, high=1.0)
     yaw_gain: float = param(0.5, low=0.0, high=1.0)  # smoothing gain of the yaw (0..1)

@@ -14,6 +14,7 @@ COLUMNS: dict[str, tuple[type, tuple[int, ...]]] = {
     "ids": (np.int64, ()),  # track id (from 1, never reused)
     "hits": (np.int64, ()),  # frames matched
     "age": (np.int64, ()),  # frames since birth (birth frame = 1)
+    "span": (float, ()),  # [s] time since birth (the sum of the frames' dt since)
     "misses": (np.int64, ()),  # consecutive frames unmatched
     "conf": (float, ()),  # track confidence: 1 when matched, x decay_rate per miss
     "confirmed": (bool, ()),  # matched min_hits times

@@ -299,6 +299,7 @@ class Tracker:
             if self.stationary is not None:
                 self.stationary.predict(dt, motion.rotation, motion.translation)
         self.tracks.age += 1
+        self.tracks.span += dt
         self.tracks.det_index[:] = -1
 
     def _mix_models(self) -> None:
@@ -404,6 +405,7 @@ class Tracker:
             ids=np.arange(self.next_id, self.next_id + k),
             hits=np.ones(k),
             age=np.ones(k),
+            span=np.zeros(k),
             misses=np.zeros(k),
             conf=np.ones(k),
             confirmed=self.lifecycle.born_confirmed(dets.score[idx]),

@@ -102,6 +102,11 @@ GRAPH_VALUES = {
             "issue #23: the shipped CNN's weaker detections only keep tracks alive",
         ),
         "min_hits": (3, "issue #23: confirmation rule for the shipped CNN's detections"),
+        "min_hits_span": (
+            0.2,
+            "issue #39: min_hits 3 at KITTI's 10 Hz span 0.2 s; under overload (every 2nd or "
+            "3rd frame processed) 2 matches over as long confirm (docs/tracker.md)",
+        ),
         "motion_heading_max_std": (
             20.0,
             "issue #34: the heading of travel in the reported yaw once known within 20 deg",
