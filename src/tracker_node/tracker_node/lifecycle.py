@@ -1,7 +1,8 @@
 """Track lifecycle: confirmation, coasting, deletion and what is reported (no motion, no costs).
 
-A new track is tentative until matched ``min_hits`` times, or twice over at least
-``min_hits_span`` seconds (fewer frames processed: a graph under overload), or until its matched
+A new track is tentative until matched ``min_hits`` times, or in each of its frames, twice or
+more, over at least ``min_hits_span`` seconds (fewer frames processed: a graph under overload),
+or until its matched
 detections' scores sum to >= ``confirm_score`` (a tentative track that misses a frame is
 deleted); a
 confirmed track that misses frames coasts on the filter's prediction with its confidence
@@ -44,13 +45,17 @@ class TrackLifecycle:
     SPAN_TOLERANCE = 1e-6
 
     def _spanned(self, table: TrackTable) -> np.ndarray:
-        """Matched at least twice over ``min_hits_span`` seconds (0: never): at 10 Hz the
-        ``min_hits`` frames of KITTI span (min_hits - 1) x 0.1 s; a graph that processes every
-        second frame (a camera faster than the graph) has seen as long a track after 2."""
+        """Matched in each of its frames, at least twice, over ``min_hits_span`` seconds (0:
+        never): at 10 Hz the ``min_hits`` frames of KITTI span (min_hits - 1) x 0.1 s; a graph
+        that processes every second frame (a camera faster than the graph) has seen as long a
+        track after 2. A track that missed a frame is not confirmed by its span (at 10 Hz
+        nothing changes: matched in each frame, 2 matches span 0.1 s)."""
         span = self.cfg.min_hits_span
         if span <= 0:
             return np.zeros(len(table), bool)
-        return (table.hits >= 2) & (table.span >= span * (1.0 - self.SPAN_TOLERANCE))
+        every_frame = table.hits >= table.age
+        long_enough = table.span >= span * (1.0 - self.SPAN_TOLERANCE)
+        return (table.hits >= 2) & every_frame & long_enough
 
     def missed(
         self, table: TrackTable, missed: np.ndarray, out_of_view: np.ndarray | None = None
