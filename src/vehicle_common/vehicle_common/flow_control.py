@@ -158,22 +158,26 @@ class CameraCadence:
                 self._intervals.append(now - self._last)
             self._last = now
 
+    def _period(self) -> float | None:
+        """The median interval (call with the lock held)."""
+        if len(self._intervals) < self.MIN_INTERVALS:
+            return None
+        return sorted(self._intervals)[len(self._intervals) // 2]
+
     @property
     def period(self) -> float | None:
         """[s] the camera period, None until :attr:`MIN_INTERVALS` intervals were seen."""
         with self._lock:
-            if len(self._intervals) < self.MIN_INTERVALS:
-                return None
-            return sorted(self._intervals)[len(self._intervals) // 2]
+            return self._period()
 
-    def next_due_in(self) -> float | None:
-        """[s] until the next image is due (negative: overdue), None while the period is
-        unknown."""
-        period = self.period
+    def _due(self) -> tuple[float | None, float | None]:
+        """(period, seconds until the next image is due; negative: overdue), Nones while the
+        period is unknown (one lock, one median)."""
         with self._lock:
+            period = self._period()
             if period is None or self._last is None:
-                return None
-            return self._last + period - self._clock()
+                return None, None
+            return period, self._last + period - self._clock()
 
     #: share of the period an image may come late (the middleware's jitter) and still be
     #: waited for
@@ -184,9 +188,10 @@ class CameraCadence:
         then fresher than the newest one by nearly a period), else None: take the newest now.
         The wait lasts until :attr:`LATE` of a period after it is due; an image later than that
         (a camera that stopped) is not waited for again."""
-        period = self.period
-        due = self.next_due_in()
-        if share <= 0 or period is None or due is None:
+        if share <= 0:
+            return None
+        period, due = self._due()
+        if period is None:
             return None
         if not -self.LATE * period < due <= share * period:
             return None
