@@ -416,3 +416,32 @@ def test_a_coasting_track_whose_car_left_the_image_ends():
             trk.step(DetectionBatch.create([[-2.0 - 1.0 * k, 1.0, 8.0]]), stamp=0.1 * k)
         trk.step(DetectionBatch.empty(), stamp=0.8)  # predicted at x -10 m: outside the image
         assert (len(trk.tracks) == 1) == alive, visible
+
+
+def test_a_coasting_track_beside_a_matched_one_is_not_reported():
+    """Issue #41 (duplicates): two tracks 1.5 m apart; when only one is matched, the coasting
+    one is hidden with coast_min_distance 2 (not deleted: it is matched again the next frame),
+    reported with 0 (off); a coasting track 5 m from any matched one is always reported."""
+    a, dup, far = [0.0, 1.0, 20.0], [1.5, 1.0, 20.0], [6.5, 1.0, 20.0]
+    for distance, coasting in ((2.0, [3]), (0.0, [2, 3])):
+        trk = Tracker(TrackerConfig(min_hits=1, coast_min_distance=distance, max_staleness=3))
+        trk.step(DetectionBatch.create([a, dup, far]), stamp=0.0)
+        out = trk.step(DetectionBatch.create([a]), stamp=0.1)
+        assert sorted(out.track_id[out.state == COASTING].tolist()) == coasting, distance
+        assert list(out.track_id[out.state == CONFIRMED]) == [1]
+        assert len(trk.tracks) == 3  # hidden, not deleted
+        out = trk.step(DetectionBatch.create([a, dup, far]), stamp=0.2)
+        assert sorted(out.track_id.tolist()) == [1, 2, 3]  # the hidden one took its car back
+
+
+def test_a_coasting_track_of_weak_detections_is_not_reported():
+    """Issue #41 (ghosts): a track matched to detections scoring 0.38 on average is not
+    reported while it coasts with coast_min_score 0.42, one scoring 0.6 is; with 0 (off) both."""
+    weak, strong = [0.0, 1.0, 20.0], [8.0, 1.0, 30.0]
+    for min_score, coasting in ((0.42, [2]), (0.0, [1, 2])):
+        trk = Tracker(TrackerConfig(min_hits=2, coast_min_score=min_score, max_staleness=3))
+        for k, s in enumerate((0.36, 0.40)):
+            trk.step(DetectionBatch.create([weak, strong], score=[s, 0.6]), stamp=0.1 * k)
+        out = trk.step(DetectionBatch.empty(), stamp=0.2)
+        assert sorted(out.track_id.tolist()) == coasting, min_score
+        assert len(trk.tracks) == 2

@@ -177,6 +177,14 @@ class TrackerConfig:
     # image ends (its car has left the view; issue #41: tracks that outlived their car; 0.5
     # chosen on the camera benchmark's tuning trajectories, docs/tracker.md); 0: off
     coast_min_visible: float = param(0.5, low=0.0, high=1.0)
+    # [m] a coasting track whose centre is nearer than this over the ground to a track matched
+    # this frame is not reported that frame (hidden, not deleted): a second track on a car
+    # another track holds (issue #41, precision; docs/tracker.md); 0: off
+    coast_min_distance: float = param(0.0, low=0.0)
+    # a coasting track is reported only while the mean score of the detections it was matched
+    # to is at least this: a track held up by weak false detections is not reported once they
+    # stop (issue #41, precision: ghosts; docs/tracker.md); 0: off
+    coast_min_score: float = param(0.0, low=0.0)
 
     def validate(self) -> TrackerConfig:
         """Check every field's type, range and choices (see ``param``); raises

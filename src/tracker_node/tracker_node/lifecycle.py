@@ -7,8 +7,9 @@ detections' scores sum to >= ``confirm_score`` (a tentative track that misses a 
 deleted); a
 confirmed track that misses frames coasts on the filter's prediction with its confidence
 multiplied by ``decay_rate`` per missed frame, is reported while confidence >=
-``restoration_conf_threshold`` (and it has been matched >= ``coast_min_hits`` times), and is
-deleted after ``max_staleness`` missed frames. (Births below ``birth_score`` are refused by the
+``restoration_conf_threshold`` (and it has been matched >= ``coast_min_hits`` times, to
+detections scoring ``coast_min_score`` on average), and is deleted after ``max_staleness``
+missed frames. (Births below ``birth_score`` are refused by the
 tracker's spawn step.)
 """
 
@@ -87,6 +88,8 @@ class TrackLifecycle:
         coast_ok = (table.conf >= cfg.restoration_conf_threshold) & (
             table.hits >= cfg.coast_min_hits
         )
+        if cfg.coast_min_score > 0:
+            coast_ok &= table.score_sum >= cfg.coast_min_score * np.maximum(table.hits, 1)
         return (state != COASTING) | coast_ok
 
     def row_score(self, table: TrackTable, idx: np.ndarray) -> np.ndarray:

@@ -514,6 +514,11 @@ class Tracker:
         velocity_cov = self.filter.velocity_cov[idx]
         if self.stationary is not None and self.world_frame:
             position = self.stationary.blend(idx, position)
+        bbox = self._report_boxes(idx, position)
+        shown = ~self._coasting_on_matched(state[idx], position)
+        if not shown.all():
+            idx, position, velocity = idx[shown], position[shown], velocity[shown]
+            velocity_cov, bbox = velocity_cov[shown], bbox[shown]
         yaw, bins = self._reported_yaw(idx, position, velocity, velocity_cov)
         if self.world_frame:  # the filter's velocity is over the ground
             ground, ground_cov = velocity, velocity_cov
@@ -531,7 +536,7 @@ class Tracker:
             size=t.size[idx].copy(),
             yaw=yaw,
             orientation_bin=bins,
-            bbox=self._report_boxes(idx, position),
+            bbox=bbox,
             age=t.age[idx].copy(),
             frames_since_update=t.misses[idx].copy(),
             score=self.lifecycle.row_score(t, idx),
@@ -540,6 +545,21 @@ class Tracker:
             velocity_over_ground=ground,
             velocity_over_ground_cov=ground_cov,
         )
+
+    def _coasting_on_matched(self, state: np.ndarray, position: np.ndarray) -> np.ndarray:
+        """Which of the reported rows (``state``, ``position``) are coasting tracks whose
+        centre is nearer than ``coast_min_distance`` metres over the ground (x-z) to a track
+        matched this frame: a second track on a car another track holds (issue #41), hidden
+        this frame, not deleted (bool; none when the parameter is 0)."""
+        hide = np.zeros(len(state), bool)
+        coasting, matched = state == COASTING, state == CONFIRMED
+        d = self.cfg.coast_min_distance
+        if d <= 0 or not coasting.any() or not matched.any():
+            return hide
+        a, b = position[coasting][:, [0, 2]], position[matched][:, [0, 2]]
+        gap = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+        hide[coasting] = (gap < d).any(axis=1)
+        return hide
 
     def _reported_yaw(self, idx, position, velocity, velocity_cov):
         """(yaw, orientation bin) of the reported tracks ``idx``: the detector's (smoothed bin
