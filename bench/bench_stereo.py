@@ -1,6 +1,7 @@
 """Stereo depth benchmarks: disparity accuracy, ranging accuracy, time per frame.
 
-Usage: python bench/bench_stereo.py [disparity|ranging|centre|odometry|plausibility|timing|all]
+Usage: python bench/bench_stereo.py [disparity|ranging|centre|odometry|plausibility|occluder|timing
+       |all]
        [--repeats N]
        [--synth ROOT:SEQ ...]
 Reads ../shared/kitti (KITTI Stereo 2015 training pairs 0..4 and tracking sequence 0005); prints
@@ -1070,6 +1071,7 @@ def main() -> int:
             "plausibility",
             "plausibility_range",
             "box_steps",
+            "occluder",
             "all",
         ],
     )
@@ -1111,6 +1113,8 @@ def main() -> int:
         stereo_real.bench_plausibility_range()
     if args.section in ("box_steps", "all"):
         stereo_real.bench_box_steps()
+    if args.section in ("occluder", "all"):
+        stereo_real.bench_occluder()
     if args.section in ("timing", "all"):
         bench_timing(variants, args.repeats)
     return 0

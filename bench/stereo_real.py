@@ -14,6 +14,7 @@ images; its detections are matched to the labels (IoU >= 0.5).
 from __future__ import annotations
 
 import csv
+import itertools
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -1292,3 +1293,241 @@ def bench_box_steps() -> None:
                 f"  step > {thr:g} m: two-car boxes {sum(r[2] > thr for r in two)} / {len(two)},"
                 f" one-car boxes {sum(r[2] > thr for r in one)} / {len(one)}"
             )
+
+
+# ----------------------------------------------------------------------------- occluder cut
+
+#: the grid of the occluder cut's thresholds searched on the TUNING keyframes
+OCCLUDER_GRID = {
+    "occluder_margin": (1.0, 2.0, 3.0, 4.0),
+    "occluder_share": (0.3, 0.5, 0.7),
+    "occluder_strip": (0.1, 0.2),
+    "occluder_bottom": (False, True),
+}
+ASSOCIATE_IOU = 0.25  # a CNN box is a label's when their IoU is at least this (greedy by score)
+
+
+@dataclass
+class OccluderCase:
+    """One labelled Car/Van (KITTI occlusion 0-2) of a frame: its CNN box's IoU with the label
+    and the 3D centre error [m] per variant (nan: no associated or ranged detection), and
+    whether the variant extended its box."""
+
+    split: str
+    source: str
+    occlusion: int
+    iou: dict = field(default_factory=dict)
+    error: dict = field(default_factory=dict)
+    extended: dict = field(default_factory=dict)
+
+
+def _ranged_variants(fr: RealFrame, variants: dict, label_alphas: dict | None = None):
+    """Each variant's ranging of the frame's CNN boxes with the CNN's angles, or with
+    ``label_alphas`` {detection index: the label's alpha} where given (a diagnosis)."""
+    from stereo_depth_node.ranging import observation_angles_of, range_boxes
+    from vehicle_common.orientation_bins import alpha_to_bin
+
+    dets = fr.detections
+    boxes = [d.box for d in dets]
+    bins = [d.orientation_bin for d in dets]
+    alphas = observation_angles_of(
+        [getattr(d, "observation_angle", np.nan) for d in dets],
+        [getattr(d, "observation_angle_variance", -1.0) for d in dets],
+    )
+    for i, a in (label_alphas or {}).items():
+        alphas[i], bins[i] = a, alpha_to_bin(a)
+    return {
+        name: range_boxes(fr.disparity, boxes, fr.geometry, p, bins, fr.images, alphas)
+        for name, p in variants.items()
+    }
+
+
+def occluder_cases(
+    frames: list[RealFrame], settings: dict, label_angles: bool = False
+) -> tuple[list, dict]:
+    """The :class:`OccluderCase` of every labelled Car/Van of ``frames`` with the ranging of
+    each frame (``fr.ranging``) replaced by each variant's ``settings`` (name -> field values),
+    and per variant the detections (TP at IoU >= 0.5 with the published boxes, FP, changed:
+    box or position moved by the variant against the first). ``label_angles``: a box of a
+    label is ranged with the label's observation angle, not the CNN's (a diagnosis)."""
+    cases, counts = [], {name: {"tp": 0, "fp": 0, "changed": 0} for name in settings}
+    for fr in frames:
+        if not fr.detections:
+            continue
+        variants = {n: replace(fr.ranging, **kw) for n, kw in settings.items()}
+        dets = fr.detections
+        scores = [d.score for d in dets]
+        _, assoc = match_detections([d.box for d in dets], scores, fr.objects, ASSOCIATE_IOU)
+        alphas = {i: float(fr.objects[j].alpha) for j, i in assoc.items()} if label_angles else None
+        res = _ranged_variants(fr, variants, alphas)
+        first = next(iter(res.values()))
+        for name, rs in res.items():
+            pub = [
+                r.box if r is not None and r.box is not None else d.box
+                for d, r in zip(dets, rs, strict=True)
+            ]
+            kinds, _ = match_detections(pub, scores, fr.objects)
+            counts[name]["tp"] += kinds.count("tp")
+            counts[name]["fp"] += kinds.count("fp")
+            counts[name]["changed"] += sum(
+                (a is None) != (b is None)
+                or (
+                    a is not None
+                    and (a.box is not None or np.linalg.norm(a.position - b.position) > 0.01)
+                )
+                for a, b in zip(rs, first, strict=True)
+            )
+        for j, o in enumerate(fr.objects):
+            if o.type not in VEHICLES or o.occluded not in (0, 1, 2):
+                continue
+            case = OccluderCase(fr.split, fr.source, int(o.occluded))
+            centre = np.array(o.location, float) - np.array([0.0, o.dimensions[0] / 2, 0.0])
+            i = assoc.get(j)
+            for name, rs in res.items():
+                r = rs[i] if i is not None else None
+                box = dets[i].box if i is not None else None
+                if r is not None and r.box is not None:
+                    box = r.box
+                case.iou[name] = iou(box, o.bbox) if box is not None else 0.0
+                case.error[name] = (
+                    float(np.linalg.norm(r.position - centre)) if r is not None else np.nan
+                )
+                case.extended[name] = r is not None and r.box is not None
+            cases.append(case)
+    return cases, counts
+
+
+def occluder_figures(cases: list[OccluderCase], name: str, levels) -> dict:
+    """Figures of the cases of occlusion ``levels`` under variant ``name``: count, share with
+    IoU >= 0.5 and >= 0.7, mean IoU, median centre error [m], share extended."""
+    sel = [c for c in cases if c.occlusion in levels]
+    if not sel:
+        return {"n": 0}
+    ious = np.array([c.iou[name] for c in sel])
+    err = np.array([c.error[name] for c in sel])
+    err = err[np.isfinite(err)]
+    return {
+        "n": len(sel),
+        "iou50": float(np.mean(ious >= 0.5)),
+        "iou70": float(np.mean(ious >= 0.7)),
+        "iou": float(np.mean(ious)),
+        "err": float(np.median(err)) if err.size else np.nan,
+        "extended": float(np.mean([c.extended[name] for c in sel])),
+    }
+
+
+def _occluder_rule(cases: list[OccluderCase], name: str) -> tuple[bool, float, float, float]:
+    """Rule parts (1) and (2) of docs/stereo_depth.md section 12 against variant "off":
+    (passes, occluded IoU>=0.5 gain [points], unoccluded IoU>=0.5 loss [points], unoccluded
+    median centre error rise [m])."""
+    occ_on, occ_off = (occluder_figures(cases, n, (1, 2)) for n in (name, "off"))
+    un_on, un_off = (occluder_figures(cases, n, (0,)) for n in (name, "off"))
+    gain = 100 * (occ_on["iou50"] - occ_off["iou50"])
+    loss = 100 * (un_off["iou50"] - un_on["iou50"])
+    rise = un_on["err"] - un_off["err"]
+    return gain >= 5.0 and loss <= 1.0 and rise <= 0.05, gain, loss, rise
+
+
+def occluder_table(cases, counts, names, title: str, n_frames: int) -> None:
+    print(f"\n{title}")
+    print(
+        "| variant | occlusion | cars | IoU >= 0.5 | IoU >= 0.7 | mean IoU | centre error median"
+        " [m] | boxes extended |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for name in names:
+        for levels, label in (((0,), "0"), ((1,), "1"), ((2,), "2"), ((1, 2), "1+2")):
+            f = occluder_figures(cases, name, levels)
+            if not f["n"]:
+                continue
+            print(
+                f"| {name} | {label} | {f['n']} | {f['iou50']:.3f} | {f['iou70']:.3f} |"
+                f" {f['iou']:.3f} | {f['err']:.2f} | {f['extended']:.3f} |"
+            )
+    for name in names:
+        c = counts[name]
+        print(
+            f"  {name}: CNN detections matched at IoU >= 0.5 with the published boxes: TP"
+            f" {c['tp']}, FP {c['fp']} ({n_frames} frames); detections changed against"
+            f" '{names[0]}': {c['changed']}"
+        )
+
+
+def bench_occluder() -> None:
+    """Issue #41 item 2: the occluder cut (docs/stereo_depth.md section 12). Thresholds chosen
+    on the TUNING keyframes (LiDAR disparity as the map, the shipped CNN's boxes) by the rule
+    written there, checked on 0005 SGBM, then the REPORTING keyframes once."""
+    kf = keyframes()
+    sgbm = sgbm_0005()
+    run_cnn(kf + sgbm)
+    tune = [f for f in kf if f.split == "tuning"]
+    report = [f for f in kf if f.split == "reporting"]
+    keys = list(OCCLUDER_GRID)
+    grid = [
+        dict(zip(keys, values, strict=True))
+        for values in itertools.product(*OCCLUDER_GRID.values())
+    ]
+    settings = {"off": {"occluder_cut": False}}
+    for g in grid:
+        name = ", ".join(f"{k.removeprefix('occluder_')} {v}" for k, v in g.items())
+        settings[name] = {"occluder_cut": True, **g}
+    cases, counts = occluder_cases(tune, settings)
+    print("\n## The occluder cut (issue #41 item 2): threshold search on the TUNING keyframes")
+    print(
+        f"({len(tune)} frames, LiDAR disparity as the map, the shipped CNN; rule: occlusion-1/2"
+        " IoU>=0.5 share +5 points, occlusion-0 share -1 point at most, its centre error median"
+        " +0.05 m at most)"
+    )
+    print(
+        "| setting | occl. 1+2 IoU>=0.5 gain [pts] | occl. 0 IoU>=0.5 loss [pts] | occl. 0 centre"
+        " error rise [m] | occl. 0 extended | TP / FP | passes (1), (2) |"
+    )
+    print("|---|---|---|---|---|---|---|")
+
+    def rank(name):  # the gain, then the unoccluded cars' loss and false extensions
+        _, gain, loss, rise = _occluder_rule(cases, name)
+        un = occluder_figures(cases, name, (0,))
+        occ = occluder_figures(cases, name, (1, 2))
+        return (round(gain, 6), -round(loss, 6), -un["extended"], -rise, occ["iou"])
+
+    for name in list(settings)[1:]:
+        ok, gain, loss, rise = _occluder_rule(cases, name)
+        ext = occluder_figures(cases, name, (0,))["extended"]
+        c = counts[name]
+        print(
+            f"| {name} | {gain:+.1f} | {loss:+.1f} | {rise:+.3f} | {ext:.3f} |"
+            f" {c['tp']} / {c['fp']} | {'yes' if ok else 'no'} |"
+        )
+    off = counts["off"]
+    print(f"  off: TP / FP {off['tp']} / {off['fp']}")
+    passing = [n for n in list(settings)[1:] if _occluder_rule(cases, n)[0]]
+    best = max(passing, key=rank) if passing else None
+    chosen = best or max(list(settings)[1:], key=rank)
+    print(
+        "chosen: the largest gain among those passing (1) and (2) (none passing: among all),"
+        " then the smallest occlusion-0 loss, fewest occlusion-0 boxes extended, smallest centre"
+        " error rise, largest occlusion-1/2 mean IoU:"
+    )
+    print(f"  {chosen} (passes (1) and (2): {'yes' if best else 'no'})")
+    pick = {"off": settings["off"], "on": settings[chosen]}
+    t_cases, t_counts = occluder_cases(tune, pick)
+    occluder_table(t_cases, t_counts, ["off", "on"], "TUNING keyframes", len(tune))
+    g_cases, g_counts = occluder_cases(tune, pick, label_angles=True)
+    occluder_table(
+        g_cases,
+        g_counts,
+        ["off", "on"],
+        "TUNING keyframes, each labelled car's box ranged with the LABEL's angle (diagnosis)",
+        len(tune),
+    )
+    s_cases, s_counts = occluder_cases(sgbm, pick)
+    occluder_table(
+        s_cases, s_counts, ["off", "on"], "0005 SGBM (16 frames, rule part 3)", len(sgbm)
+    )
+    passes3 = s_counts["on"]["changed"] <= 1
+    print(f"  rule part (3) (changed detections <= 1): {'yes' if passes3 else 'no'}")
+    print(f"SHIP: {'yes' if best and passes3 else 'no'}")
+    r_cases, r_counts = occluder_cases(report, pick)
+    occluder_table(
+        r_cases, r_counts, ["off", "on"], "REPORTING keyframes (reported once)", len(report)
+    )

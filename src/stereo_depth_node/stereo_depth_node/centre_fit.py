@@ -46,13 +46,15 @@ def fit_lateral(
     image_width: int,
     border: float = 2.0,
     iterations: int = 4,
+    cut: tuple[bool, bool] | None = None,
 ) -> np.ndarray:
     """``centre`` (x, y, z) [m] moved along x (depth kept) so that the projected footprint
     (:func:`footprint_columns`) matches the 2D ``box`` (x1, y1, x2, y2): centres aligned; a box
-    edge within ``border`` px of the image border is not used (truncation); a box cut on both
-    sides is returned unchanged."""
+    edge within ``border`` px of the image border is not used (truncation), nor one of the
+    (left, right) sides ``cut`` names when given (e.g. hidden by a nearer object); a box cut on
+    both sides is returned unchanged."""
     x1, _, x2, _ = (float(v) for v in box)
-    cut_left, cut_right = x1 <= border, x2 >= image_width - 1 - border
+    cut_left, cut_right = cut or (x1 <= border, x2 >= image_width - 1 - border)
     if cut_left and cut_right:
         return np.asarray(centre, float).copy()
     out = np.asarray(centre, float).copy()
@@ -107,6 +109,7 @@ def fit_cut_box(
     start: np.ndarray,
     border: float = 2.0,
     iterations: int = 8,
+    cut: tuple[bool, bool] | None = None,
 ) -> np.ndarray | None:
     """Centre (x, y, z) [m] of a car whose 2D ``box`` is cut by the left or right image border,
     from its visible part: the ``length`` x ``width`` footprint at ``alpha`` whose projection
@@ -114,10 +117,12 @@ def fit_cut_box(
     image ``columns`` the car was measured on (:func:`surface_depths`) gives the measured
     surface depth: ``statistic(depths)`` (the ranging's estimator applied to the model's
     depths [m] per column of ``columns``, nan where the model misses it) equals ``target``
-    [m]. Gauss-Newton on (x, z) from ``start`` (y kept). None when the box is cut on both
-    sides or on neither, or no solution is found."""
+    [m]. Gauss-Newton on (x, z) from ``start`` (y kept). ``cut``: the (left, right) sides cut
+    when given (also a side hidden by a nearer object), else those within ``border`` px of the
+    image border. None when the box is cut on both sides or on neither, or no solution is
+    found."""
     x1, _, x2, _ = (float(v) for v in box)
-    cut_left, cut_right = x1 <= border, x2 >= image_width - 1 - border
+    cut_left, cut_right = cut or (x1 <= border, x2 >= image_width - 1 - border)
     if cut_left == cut_right or not len(columns):
         return None
 

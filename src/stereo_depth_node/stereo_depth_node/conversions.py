@@ -7,6 +7,7 @@ message is built, no rclpy.
 from __future__ import annotations
 
 import numpy as np
+from vehicle_common.frame_messages import xyxy_to_bbox
 from vehicle_common.image_conversion import byte_array, numpy_to_image
 
 from .disparity import DisparityParams, disparity_range
@@ -68,7 +69,7 @@ def detection_3d_message(det2d, result, check=None, score: float | None = None):
     (:class:`.ranging.RangeResult`: position, covariance, disparity, valid pixel fraction),
     with its plausibility check (:class:`.plausibility.Plausibility`; None: fields left at 0,
     ``plausible`` false) and ``score`` (None: the 2D detection's)."""
-    from stereo_vehicle_msgs.msg import VehicleDetection3D
+    from stereo_vehicle_msgs.msg import BoundingBox2D, VehicleDetection3D
 
     m = VehicleDetection3D()
     m.id, m.class_id = det2d.id, det2d.class_id
@@ -76,6 +77,9 @@ def detection_3d_message(det2d, result, check=None, score: float | None = None):
     m.position.x, m.position.y, m.position.z = (float(v) for v in result.position)
     m.position_covariance = [float(v) for v in result.covariance.ravel()]
     m.bbox = det2d.bbox
+    if getattr(result, "box", None) is not None:  # extended to an occluded car's full extent
+        m.bbox = BoundingBox2D()
+        xyxy_to_bbox(result.box, m.bbox)
     m.orientation_bin = det2d.orientation_bin
     m.orientation_probs = [float(v) for v in det2d.orientation_probs]
     m.disparity = float(result.disparity)

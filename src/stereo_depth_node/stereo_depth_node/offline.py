@@ -131,7 +131,7 @@ def _row(frame: int, i: int, boxes: FrameBoxes, r, c, score) -> list:
     return [
         frame,
         i,
-        *(f"{v:.2f}" for v in boxes.boxes[i]),
+        *(f"{v:.2f}" for v in (boxes.boxes[i] if r.box is None else r.box)),
         f"{boxes.scores[i] if score is None else score:.4f}",
         *(f"{v:.3f}" for v in r.position),
         f"{r.disparity:.3f}",

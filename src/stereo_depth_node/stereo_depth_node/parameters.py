@@ -57,6 +57,9 @@ RANGING_RULES = {
     "prior_log_sigma": {"low": 0},
     "correction_bin_spread": {"low": 0.0, "high": 1.0},
     "surface_blend": {"low": 0.0, "high": 1.0},
+    "occluder_strip": {"low": 0, "low_open": True},
+    "occluder_margin": {"low": 0},
+    "occluder_share": {"low": 0.0, "high": 1.0},
 }
 PLAUSIBILITY_RULES = {
     "max_ground_fraction": {"low": 0.0, "high": 1.0},

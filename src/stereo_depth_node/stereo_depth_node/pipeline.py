@@ -39,6 +39,7 @@ from .disparity import (
     compute_disparity_in_boxes,
     match_band,
 )
+from .occluder import map_boxes
 from .plausibility import (
     GroundEstimator,
     GroundHeightCheck,
@@ -328,7 +329,10 @@ class StereoPipeline:
             if boxes:
                 road = self.executor.submit(self._road_map, stamp, left, right, params)
             self.trace("disparity_start", stamp)
-            disparity = compute_disparity_in_boxes(left, right, boxes, params)
+            # with the occluder cut, also the strips beside the boxes it judges
+            r = self.ranging_params
+            area = map_boxes(boxes, r.occluder_strip) if r.occluder_cut and boxes else boxes
+            disparity = compute_disparity_in_boxes(left, right, area, params)
             self.trace("disparity_end", stamp)
         self.trace("pair_end", stamp)
         self.frames_processed += 1

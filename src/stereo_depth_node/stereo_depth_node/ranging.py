@@ -26,6 +26,7 @@ centre propagated with depth, plus the correlation that a depth error induces al
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -33,6 +34,7 @@ import numpy as np
 from vehicle_common.orientation_bins import BIN_WIDTH, NUM_BINS, alpha_to_bin
 
 from .centre_fit import fit_cut_box, fit_lateral
+from .occluder import extend_hidden_sides, full_extent_box, hidden_reach, occluder_sides
 from .region_matching import (
     REFINE_METHODS,
     RegionParams,
@@ -149,6 +151,21 @@ class RangingParams:
     # docs section 9
     cut_box_fit: bool = True
     near_max_disparity: float = 160.0  # [px] largest disparity a near cut box is searched at
+    # boxes with a side hidden by a NEARER object (an "occluder cut", issue #41; with
+    # cut_box_fit and the robust method): a strip beside the box's left, right (or bottom) edge
+    # whose valid, non-road pixels are mostly nearer than the car (occluder.occluder_sides);
+    # such a side is treated like one cut by the image border (the centre from the visible
+    # part, the other edge kept) and the published 2D box (RangeResult.box) is extended on it
+    # to the full-extent projection of the fitted mean car (car_length x car_width x
+    # prior_height, standing on the road), no farther than the nearer object reaches
+    # (occluder.hidden_reach); a box that does not grow keeps its uncut ranging. OFF: it failed
+    # its shipping rule on the tuning keyframes (docs section 12); the thresholds below are the
+    # best of its grid there (LiDAR maps, the shipped CNN)
+    occluder_cut: bool = False
+    occluder_strip: float = 0.1  # strip width: this share of the box's width (height), >= 3 px
+    occluder_margin: float = 3.0  # [m] a strip pixel this much nearer than the car: occluder
+    occluder_share: float = 0.3  # share of the strip's valid non-road pixels that must be nearer
+    occluder_bottom: bool = False  # also the bottom side (the road below is often taken for one)
     refine: str = "region_shift"  # none | region_sgbm | region_shift (region_matching.py)
     refine_max_disparity: float = 40.0  # [px] boxes with a larger coarse disparity: not refined
     disparity_bias: float = -0.28  # [px] bias of the estimate on KITTI 2015 (docs), subtracted
@@ -193,6 +210,9 @@ class RangeResult:
     disparity: float
     valid_pixel_fraction: float
     disparity_std: float = 0.0  # [px] of ``disparity`` (disparity_std; the error model's)
+    #: the 2D box (x1, y1, x2, y2) [px] to publish when it is not the detection's: a box with
+    #: sides hidden by a nearer object, extended to the car's full extent (``occluder_cut``)
+    box: tuple[float, float, float, float] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -486,8 +506,10 @@ class _Surface:
     frac: float
     u: float
     v: float
-    cut: _BorderCut
+    cut: _BorderCut  # cut by the image border or hidden by a nearer object
     one_side: bool  # cut on one side and fitted by its visible part (_fit_cut_centre)
+    hidden: _BorderCut | None = None  # the sides hidden by a nearer object (occluder cut)
+    plain: _Surface | None = None  # with hidden sides: the surface as if none were hidden
 
 
 def _box_surface(
@@ -506,15 +528,43 @@ def _box_surface(
     found = _box_disparity(disparity, box, geometry, params, images, visible_part, u)
     if found is None:
         return None
+    hidden = None
+    if params.occluder_cut and params.cut_box_fit and params.method == "robust":
+        # the car's surface in the map's terms (the bias put back) against the strips beside
+        d_map = found[0] + float(disparity_bias_at(u, geometry, params))
+        sides = occluder_sides(
+            disparity,
+            box,
+            d_map,
+            geometry,
+            params.occluder_strip,
+            params.occluder_margin,
+            params.occluder_share,
+            params.ground_height,
+            params.ground_margin,
+            (cut.left, cut.right, cut.bottom or not params.occluder_bottom),
+        )
+        if any(sides):  # hidden sides: ranged like sides cut by the border
+            plain = _Surface(*found, u, v, cut, one_side)
+            hidden = _BorderCut(*sides)
+            cut = _BorderCut(cut.left or sides[0], cut.right or sides[1], cut.bottom or sides[2])
+            if not visible_part:
+                again = _box_disparity(disparity, box, geometry, params, images, True, u)
+                found = again if again is not None else found
+            one_side = cut.left != cut.right
+            return _Surface(*found, u, v, cut, one_side, hidden, plain)
     return _Surface(*found, u, v, cut, one_side)
 
 
 def _box_result(
-    surface: _Surface, box, geometry: StereoGeometry, setup: RangingSetup, b: int, alpha, width
+    surface: _Surface, box, geometry: StereoGeometry, setup: RangingSetup, b: int, alpha, size
 ) -> RangeResult:
     """The car's centre behind ``surface`` with its bin ``b`` (NUM_BINS: none) and angle
-    ``alpha`` (nan: none), and its covariance."""
+    ``alpha`` (nan: none), its covariance and, for sides hidden by a nearer object, the 2D box
+    extended there to the fitted car's full extent; ``size``: (height, width) of the map."""
     params = setup.params
+    width = size[1]
+    sides = (surface.cut.left, surface.cut.right)
     z_surface = float(geometry.fx * geometry.baseline / surface.d)
     offset, b, alpha = _centre_offset(setup, surface.cut.side, b, alpha)
     ray = geometry.backproject(surface.u, surface.v, 1.0)
@@ -529,18 +579,29 @@ def _box_result(
             geometry,
             width,
             TRUNCATION_BORDER,
+            cut=sides,
         )
     if surface.one_side and params.centre_correction and math.isfinite(alpha):
         if surface.cut.bottom:  # the box's centre row is not the car's: on the road
             point[1] = params.ground_height - 0.5 * params.prior_height
         fitted = _fit_cut_centre(
-            z_surface, surface.columns, box, alpha, point, geometry, params, width
+            z_surface, surface.columns, box, alpha, point, geometry, params, width, sides
         )
         if fitted is not None:
             point = fitted + np.array([0.0, 0.0, params.depth_offset[b]])
     sd = disparity_std(surface.d, surface.refined, params)
     cov = position_covariance(surface.u, surface.v, float(point[2]), geometry, params, sd)
-    return RangeResult(point, cov, float(surface.d), float(surface.frac), float(sd))
+    extended = None
+    if surface.hidden is not None and math.isfinite(alpha):
+        # the mean car standing on the road at the fitted centre, seen at its angle
+        bottom = (float(point[0]), params.ground_height, float(point[2]))
+        full = full_extent_box(
+            bottom, alpha, params.car_length, params.car_width, params.prior_height, geometry
+        )
+        if full is not None:
+            hidden = (surface.hidden.left, surface.hidden.right, surface.hidden.bottom)
+            extended = extend_hidden_sides(box, hidden, full, size)
+    return RangeResult(point, cov, float(surface.d), float(surface.frac), float(sd), extended)
 
 
 def range_boxes(
@@ -577,8 +638,34 @@ def range_boxes(
             continue
         b = int(orientation_bins[i]) if orientation_bins is not None else NUM_BINS
         alpha = float(observation_angles[i]) if observation_angles is not None else math.nan
-        results.append(_box_result(surface, box, geometry, setup, b, alpha, size[1]))
+        result = _box_result(surface, box, geometry, setup, b, alpha, size)
+        if surface.hidden is not None:
+            result = _hidden_result(result, surface, box, disparity, geometry, setup, b, alpha)
+        results.append(result)
     return results
+
+
+def _hidden_result(result, surface, box, disparity, geometry, setup, b, alpha) -> RangeResult:
+    """The result of a box with sides hidden by a nearer object: its extended box cut back to
+    where the nearer object reaches (:func:`.occluder.hidden_reach`); when that leaves the box
+    as it was (the car does not reach beyond its box), the result as if nothing were hidden."""
+    if result.box is not None:
+        p = setup.params
+        d_map = surface.d + float(disparity_bias_at(surface.u, geometry, p))
+        reach = hidden_reach(
+            disparity,
+            box,
+            result.box,
+            d_map,
+            geometry,
+            0.0,  # nearer than the car: an occluder's side face may be within the margin
+            p.occluder_share,
+            p.ground_height,
+            p.ground_margin,
+        )
+        if np.max(np.abs(np.subtract(reach, box))) > 0.5:
+            return dataclasses.replace(result, box=reach)
+    return _box_result(surface.plain, box, geometry, setup, b, alpha, disparity.shape)
 
 
 def _mode_disparity(vals, box_h: float, geometry: StereoGeometry, params: RangingParams):
@@ -639,7 +726,7 @@ def _cut_box_disparity(
 
 
 def _fit_cut_centre(
-    z_surface: float, columns, box, alpha: float, start, geometry, params, width: int
+    z_surface: float, columns, box, alpha: float, start, geometry, params, width: int, cut=None
 ):
     """:func:`centre_fit.fit_cut_box` with the ranging's estimator (no far weighting) as the
     statistic of the model car's visible surface over the measured columns, whose real surface
@@ -668,4 +755,5 @@ def _fit_cut_centre(
         width,
         np.asarray(start, float),
         TRUNCATION_BORDER,
+        cut=cut,
     )
