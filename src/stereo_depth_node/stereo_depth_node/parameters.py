@@ -89,9 +89,10 @@ class StereoNodeParameters:
     map_area: str = param("boxes", choices=("boxes", "band"))
     # the road plane's map with map_area "boxes": "own" (the map's algorithm at half its
     # resolution over the band, computed for it in the helper thread) or "shared" (the
-    # odometry's block-matching map of the band, no map of its own: about a quarter less CPU
-    # per frame, a noisier plane; docs/stereo_depth.md section 12). With "band" the road
-    # plane always takes the band's map.
+    # odometry's block matching of the band, its speckle filter read in pixels: no map of its
+    # own, about a quarter less CPU per frame; not the default: on KITTI 2015 its plane
+    # differs from own's by more than own's noise, docs/stereo_depth.md section 12). With
+    # "band" the road plane always takes the band's map.
     road_map: str = param("own", choices=("own", "shared"))
     # the camera-dependent settings: 0 / [-1, -1] = derived from the CameraInfo pair at run
     # time (vehicle_common.camera_settings); a value given wins
