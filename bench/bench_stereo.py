@@ -1077,6 +1077,13 @@ def main() -> int:
     )
     ap.add_argument("--synth", action="append", default=[], help="ROOT:SEQ of kitti_synth data")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument(
+        "--road-map",
+        choices=stereo_real.ROAD_MAPS,
+        default="band",
+        help="plausibility: the map 0005's road plane is fitted to (band: the band's map; own, "
+        "shared: the node's road_map with map_area boxes)",
+    )
     args = ap.parse_args()
     if not (SHARED / "README.md").is_file():
         print(f"error: {SHARED}: KITTI samples not found", file=sys.stderr)
@@ -1108,7 +1115,7 @@ def main() -> int:
     if args.section in ("odometry", "all"):
         bench_odometry()
     if args.section in ("plausibility", "all"):
-        stereo_real.bench_plausibility()
+        stereo_real.bench_plausibility(args.road_map)
     if args.section in ("plausibility_range", "all"):
         stereo_real.bench_plausibility_range()
     if args.section in ("box_steps", "all"):

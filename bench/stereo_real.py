@@ -63,6 +63,7 @@ class RealFrame:
     ranging: RangingParams
     images: tuple[np.ndarray, np.ndarray] | None = None  # gray pair (refinement)
     detections: list = field(default_factory=list)  # CNN detections (inference.Detection)
+    road: np.ndarray | None = None  # the map the road plane is fitted to (None: ``disparity``)
 
 
 def split_of(sequence: str) -> str:
@@ -103,13 +104,32 @@ def keyframes() -> list[RealFrame]:
     return out
 
 
-def sgbm_0005(dparams: DisparityParams | None = None) -> list[RealFrame]:
-    """The 16 stereo frames of tracking 0005 with the default disparity map (reporting)."""
+#: the road plane's map of the 0005 frames (``--road-map``): the band's map (as the node's
+#: ``map_area: band``), or the node's ``road_map`` choices with ``map_area: boxes``
+ROAD_MAPS = ("band", "own", "shared")
+
+
+def road_map_of(left, right, gray, name: str, dparams: DisparityParams) -> np.ndarray | None:
+    """The map the road plane of a frame is fitted to (None: the band's map itself)."""
+    from stereo_depth_node.disparity import block_matching_maps, coarse_disparity
+
+    if name == "own":
+        return coarse_disparity(left, right, dparams)
+    if name == "shared":
+        return block_matching_maps(*gray, dparams)[1]
+    return None
+
+
+def sgbm_0005(dparams: DisparityParams | None = None, road_map: str = "band") -> list[RealFrame]:
+    """The 16 stereo frames of tracking 0005 with the default disparity map (reporting) and
+    the road plane's map (``road_map``, :data:`ROAD_MAPS`)."""
     seq = TrackingSequence.open(TRACKING, "0005")
     geo = StereoGeometry.from_projections(seq.calib.P2, seq.calib.P3)
+    dparams = dparams or DisparityParams()
     out = []
     for f in seq.frame_ids:
         left, right = seq.read_stereo(f)
+        gray = (to_gray(left), to_gray(right))
         out.append(
             RealFrame(
                 f"0005_{f:06d}",
@@ -117,12 +137,13 @@ def sgbm_0005(dparams: DisparityParams | None = None) -> list[RealFrame]:
                 "reporting",
                 "0005 SGBM",
                 left,
-                compute_disparity(left, right, dparams or DisparityParams()),
+                compute_disparity(left, right, dparams),
                 geo,
                 seq.calib,
                 seq.objects(f),
                 RangingParams(),
-                (to_gray(left), to_gray(right)),
+                gray,
+                road=road_map_of(left, right, gray, road_map, dparams),
             )
         )
     return out
@@ -240,7 +261,8 @@ def checked_boxes(frames: list[RealFrame], params) -> tuple[list[CheckedBox], di
     for fr in frames:
         est = chain if fr.source == "0005 SGBM" else GroundEstimator(params)
         bias = disparity_bias_at(np.arange(fr.disparity.shape[1]), fr.geometry, fr.ranging)
-        plane = planes[fr.name] = est.update(fr.disparity, fr.geometry, bias)
+        road = fr.disparity if fr.road is None else fr.road
+        plane = planes[fr.name] = est.update(road, fr.geometry, bias)
         labels = [o for o in fr.objects if o.type in VEHICLES]
         if labels:
             bins = [alpha_to_bin(o.alpha) for o in labels]
@@ -620,14 +642,16 @@ def plausibility_timing(frames_0005: list[RealFrame], params, repeats: int = 3) 
     )
 
 
-def bench_plausibility() -> None:
+def bench_plausibility(road_map: str = "band") -> None:
     """Issue #23 part 1 on real frames: threshold choice on TUNING keyframes, figures on the
-    rest, road plane quality, time."""
+    rest, road plane quality, time. ``road_map``: the 0005 frames' road plane map
+    (:data:`ROAD_MAPS`; the keyframes' is their ground-truth map)."""
     from dataclasses import asdict
 
     from stereo_depth_node.plausibility import PlausibilityParams
 
-    kf, s5 = keyframes(), sgbm_0005()
+    kf, s5 = keyframes(), sgbm_0005(road_map=road_map)
+    print(f"0005's road plane fitted to: {road_map} map")
     frames = kf + s5
     run_cnn(frames)
     defaults = PlausibilityParams()

@@ -161,3 +161,29 @@ def test_real_kitti_odometry_matches_the_parked_cars(kitti_tracking_root):
     step = np.mean([z(3, t) - z(2, t) for t in parked])
     assert m.translation[2] == pytest.approx(step, rel=0.06)
     assert _angle_deg(m.rotation) < 0.3
+
+
+def test_each_image_is_scaled_once_for_its_tracking_and_its_corners(synthetic_pair, monkeypatch):
+    """Issue #39 item 3: the later image scaled for the tracking is the next reference's
+    image for its corners (found ahead), not scaled again; the motions are unchanged."""
+    from stereo_depth_node import visual_odometry
+
+    _, g, gray0, d0, gray1, boxes = synthetic_pair
+    want = [estimate_camera_motion(a, d0, b, g, boxes) for a, b in ((gray0, gray1), (gray1, gray0))]
+    scaled = []
+    real = visual_odometry._scaled
+    monkeypatch.setattr(
+        visual_odometry,
+        "_scaled",
+        lambda img, p, *a: scaled.append(img is gray0 or img is gray1) or real(img, p, *a),
+    )
+    odo = FrameToFrameOdometry()
+    odo.begin(0, gray0, d0)
+    odo.prepare(boxes)()
+    got = []
+    for k, gray in enumerate((gray1, gray0), start=1):
+        got.append(odo.begin(k * 100_000_000, gray, d0)(g, boxes))
+        odo.prepare(boxes)()
+    for m, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(m.translation, w.translation)
+    assert sum(scaled) == 3  # gray0, gray1, gray0 again (a new frame): once each (was 5)

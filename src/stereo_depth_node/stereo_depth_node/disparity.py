@@ -362,12 +362,29 @@ def compute_disparity_in_boxes(
 def block_matching_disparity(
     left_gray: np.ndarray, right_gray: np.ndarray, params: DisparityParams | None = None
 ) -> np.ndarray:
-    """A fast, sparser disparity map of the band for what needs the whole scene but not the
-    ranging's accuracy (the visual odometry's corners, the road plane): OpenCV block matching
+    """The scene map of :func:`block_matching_maps` alone."""
+    return block_matching_maps(left_gray, right_gray, params, road=False)[0]
+
+
+def block_matching_maps(
+    left_gray: np.ndarray,
+    right_gray: np.ndarray,
+    params: DisparityParams | None = None,
+    road: bool = True,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(scene, road) maps of one block matching. ``scene``: a fast, sparser disparity map of
+    the band for what needs the whole scene but not the ranging's accuracy (the visual
+    odometry's corners, the road plane): OpenCV block matching
     (``cv2.StereoBM``, 9 x 9 blocks, its texture and uniqueness checks and the left-right check
     ``disp12_max_diff``) at 1/``downscale`` resolution over the band, the left border padded,
     nearest-neighbour back to full resolution. Gray uint8 images; float32 [px], invalid pixels
-    :data:`INVALID_DISPARITY`. About a tenth of the cost of :func:`compute_disparity`."""
+    :data:`INVALID_DISPARITY`. About a tenth of the cost of :func:`compute_disparity`.
+
+    ``road`` (when asked): the same matches with the speckle filter's ``speckle_range`` read in
+    pixels, as SGBM reads it (OpenCV's block matcher reads it in 1/16 px, so on the scene map a
+    road, whose disparity changes by a fraction of a pixel from one row to the next, falls into
+    blobs smaller than ``speckle_window_size`` and is mostly removed): the road plane's map,
+    for the price of a second speckle filtering (the scene map is the same either way)."""
     params = params or DisparityParams()
     params.validate()
     if left_gray.shape != right_gray.shape or left_gray.ndim != 2:
@@ -378,7 +395,7 @@ def block_matching_disparity(
     scale = params.downscale
     n = _round16(params.num_disparities / scale)
     if bottom - top < 2 * BM_BLOCK * scale:
-        return out
+        return out, (out.copy() if road else None)
     pad = n * scale if params.pad_left else 0
 
     def prepared(img: np.ndarray) -> np.ndarray:
@@ -391,14 +408,23 @@ def block_matching_disparity(
     bm.setMinDisparity(int(params.min_disparity // scale))
     bm.setUniquenessRatio(params.uniqueness_ratio)
     bm.setDisp12MaxDiff(params.disp12_max_diff)
-    bm.setSpeckleWindowSize(params.speckle_window_size)
-    bm.setSpeckleRange(params.speckle_range)
-    disp = bm.compute(prepared(left_gray), prepared(right_gray)).astype(np.float32) / 16.0
-    disp = disp[:, pad // scale :]
-    if scale != 1:
-        disp = cv2.resize(disp, (width, bottom - top), interpolation=cv2.INTER_NEAREST) * scale
-    out[top:bottom] = np.where(disp > max(0.0, float(params.min_disparity)), disp, out[top:bottom])
-    return out
+    bm.setSpeckleWindowSize(0)  # filtered below (the same as the matcher's own filter)
+    raw = bm.compute(prepared(left_gray), prepared(right_gray))
+    # the matcher's value of a pixel its speckle filter removes
+    removed = (int(params.min_disparity // scale) - 1) * 16
+    ranges = (params.speckle_range, 16 * params.speckle_range) if road else (params.speckle_range,)
+    maps = []
+    for speckle_range in ranges:
+        disp = raw.copy() if road else raw
+        if params.speckle_window_size > 0:
+            cv2.filterSpeckles(disp, removed, params.speckle_window_size, speckle_range)
+        disp = disp[:, pad // scale :].astype(np.float32) / 16.0
+        if scale != 1:
+            disp = cv2.resize(disp, (width, bottom - top), interpolation=cv2.INTER_NEAREST) * scale
+        full = out.copy()
+        full[top:bottom] = np.where(disp > max(0.0, float(params.min_disparity)), disp, -1.0)
+        maps.append(full)
+    return maps[0], (maps[1] if road else None)
 
 
 #: block size of :func:`block_matching_disparity` (at the matching resolution)

@@ -90,6 +90,13 @@ class StereoNodeParameters:
     # context; the odometry and the road plane take a block-matching map of the band) or
     # "band" (the whole band for everything, as before issue #33)
     map_area: str = param("boxes", choices=("boxes", "band"))
+    # the road plane's map with map_area "boxes": "own" (the map's algorithm at half its
+    # resolution over the band, computed for it in the helper thread) or "shared" (the
+    # odometry's block matching of the band, its speckle filter read in pixels: no map of its
+    # own, about a quarter less CPU per frame; not the default: on KITTI 2015 its plane
+    # differs from own's by more than own's noise, docs/stereo_depth.md section 13). With
+    # "band" the road plane always takes the band's map.
+    road_map: str = param("own", choices=("own", "shared"))
     # the camera-dependent settings: 0 / [-1, -1] = derived from the CameraInfo pair at run
     # time (vehicle_common.camera_settings); a value given wins
     # [px] disparity range (>= 16, the DisparityParams field); 0: fx * baseline / 4.05 m

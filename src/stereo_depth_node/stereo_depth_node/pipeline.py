@@ -33,7 +33,7 @@ from vehicle_common.frame_messages import stamp_ns
 
 from .disparity import (
     DisparityParams,
-    block_matching_disparity,
+    block_matching_maps,
     coarse_disparity,
     compute_disparity,
     compute_disparity_in_boxes,
@@ -156,6 +156,7 @@ class StereoPipeline:
         num_disparities: int = 0,
         match_rows: tuple = DERIVED_ROWS,
         map_area: str = "boxes",
+        road_map: str = "own",
         visual_odometry: bool = True,
         executor: Executor | None = None,
         trace: Callable[[str, int], None] | None = None,
@@ -174,6 +175,7 @@ class StereoPipeline:
         )
         self.given = (num_disparities, tuple(match_rows), ground_height)
         self.map_area = map_area
+        self.road_map = road_map
         self.odometry = FrameToFrameOdometry() if visual_odometry else None
         self.executor = executor or SerialExecutor()
         self.trace = trace or _no_trace
@@ -207,6 +209,7 @@ class StereoPipeline:
             num_disparities=p.num_disparities,
             match_rows=tuple(p.match_rows),
             map_area=p.map_area,
+            road_map=p.road_map,
             visual_odometry=p.visual_odometry,
             **kwargs,
         )
@@ -318,15 +321,19 @@ class StereoPipeline:
             road = _Ready(disparity)
         else:
             # the odometry's map of the scene: block matching over the band; then, in the
-            # helper thread, the odometry and the road plane's map (the map's algorithm at
-            # half its resolution, when there are boxes to check) beside the map in the boxes
-            # and the ranging
+            # helper thread, the odometry and the road plane's map (``road_map`` "own": the
+            # map's algorithm at half its resolution, when there are boxes to check;
+            # "shared": the scene's block matching, its speckle filter read in pixels) beside
+            # the map in the boxes and the ranging
             self.trace("scene_start", stamp)
-            scene = block_matching_disparity(gray, gray_right, params)
+            shared = self.road_map == "shared" and bool(boxes)
+            scene, road_scene = block_matching_maps(gray, gray_right, params, road=shared)
             self.trace("scene_end", stamp)
             odometry = self._start_odometry(stamp, gray, scene, geometry)
             road = None
-            if boxes:
+            if shared:
+                road = _Ready(road_scene)
+            elif boxes:
                 road = self.executor.submit(self._road_map, stamp, left, right, params)
             self.trace("disparity_start", stamp)
             # with the occluder cut, also the strips beside the boxes it judges

@@ -91,13 +91,15 @@ def reference_corners(
     earlier_disparity: np.ndarray,
     exclude_boxes=(),
     params: OdometryParams | None = None,
+    scaled: np.ndarray | None = None,
 ) -> ReferenceCorners:
-    """The corners of the earlier frame that :func:`estimate_camera_motion` tracks."""
+    """The corners of the earlier frame that :func:`estimate_camera_motion` tracks;
+    ``scaled``: its gray image at the tracking scale, when made already."""
     p = params or OdometryParams()
     valid = np.isfinite(earlier_disparity) & (earlier_disparity >= p.min_disparity)
     mask = _corner_mask(earlier_gray.shape, exclude_boxes, p.box_margin)
     mask[~valid] = 0
-    small = _scaled(earlier_gray, p)
+    small = _scaled(earlier_gray, p) if scaled is None else scaled
     corners = cv2.goodFeaturesToTrack(
         small,
         p.max_corners,
@@ -117,14 +119,16 @@ def estimate_camera_motion(
     params: OdometryParams | None = None,
     disparity_bias=0.0,
     reference: ReferenceCorners | None = None,
+    later_scaled: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> CameraMotion | None:
     """The camera's motion from the earlier frame (gray left image and its disparity map, same
     size) to the later one (gray left image); ``exclude_boxes``: (x1, y1, x2, y2) boxes of the
     earlier image where no corners are taken; ``disparity_bias``: the map's known bias [px]
     (a number, or one per image column), subtracted before the points are lifted to 3D (a
     biased far point scales the translation); ``reference``: the earlier frame's
-    :func:`reference_corners` with the same boxes, when done ahead (else computed here). None
-    when it cannot be estimated."""
+    :func:`reference_corners` with the same boxes, when done ahead (else computed here);
+    ``later_scaled(later_gray)``: the later image at the tracking scale (a caller that keeps
+    it for the later frame's own corners). None when it cannot be estimated."""
     p = params or OdometryParams()
     if not 0.0 < p.scale <= 1.0:
         raise ValueError(f"scale: {p.scale} is not in (0, 1]")
@@ -139,7 +143,7 @@ def estimate_camera_motion(
     earlier_gray, corners = reference.gray, reference.corners
     if corners is None or len(corners) < p.min_inliers:
         return None
-    later_gray = _scaled(later_gray, p)
+    later_gray = (later_scaled or partial(_scaled, p=p))(later_gray)
     lk = {
         "winSize": (p.lk_window, p.lk_window),
         "maxLevel": p.lk_levels,
@@ -205,6 +209,10 @@ class FrameToFrameOdometry:
         self.params = params or OdometryParams()
         self._ref: tuple[int, np.ndarray, np.ndarray] | None = None
         self._prepared: tuple[tuple, ReferenceCorners] | None = None  # (reference, its corners)
+        # (gray image, it at the tracking scale): the latest estimate's later image, which is
+        # the next reference (made once for its tracking and its corners; the one thread that
+        # runs the estimates and the corners ahead reads and writes it)
+        self._scaled: tuple[np.ndarray, np.ndarray] | None = None
 
     def reset(self) -> None:
         self._ref = None
@@ -261,7 +269,19 @@ class FrameToFrameOdometry:
 
     def _prepare_from(self, ref, boxes: tuple) -> None:
         if ref is not None:
-            self._prepared = (ref, reference_corners(ref[1], ref[2], boxes, self.params))
+            corners = reference_corners(ref[1], ref[2], boxes, self.params, self._scaled_of(ref[1]))
+            self._prepared = (ref, corners)
+
+    def _scaled_of(self, gray: np.ndarray) -> np.ndarray | None:
+        """``gray`` at the tracking scale if the latest estimate made it (else None)."""
+        kept = self._scaled
+        return kept[1] if kept is not None and kept[0] is gray else None
+
+    def _scale(self, gray: np.ndarray) -> np.ndarray:
+        """``gray`` at the tracking scale, kept for its own corners as the next reference."""
+        small = _scaled(gray, self.params)
+        self._scaled = (gray, small)
+        return small
 
     def _estimate_from(
         self, ref, stamp_ns: int, gray, geometry, reference_boxes=(), disparity_bias=0.0
@@ -276,8 +296,20 @@ class FrameToFrameOdometry:
             and prepared[1].exclude_boxes == _box_key(reference_boxes)
         ):
             corners = prepared[1]
+        else:  # not found ahead: found now, on the reference's scaled image if made already
+            corners = reference_corners(
+                ref[1], ref[2], reference_boxes, self.params, self._scaled_of(ref[1])
+            )
         motion = estimate_camera_motion(
-            ref[1], ref[2], gray, geometry, reference_boxes, self.params, disparity_bias, corners
+            ref[1],
+            ref[2],
+            gray,
+            geometry,
+            reference_boxes,
+            self.params,
+            disparity_bias,
+            corners,
+            self._scale,
         )
         return None if motion is None else replace(motion, dt=(stamp_ns - ref[0]) * 1e-9)
 
