@@ -11,11 +11,16 @@ the shipped checkpoint at its 896x224 framing, in ONE process, runs interleaved 
 - with ``--profile``, ONNX Runtime's own profile of the shipped session: time per node type;
 - with ``--int8 N``, a static INT8 (QDQ, per-channel) copy of the graph calibrated on N
   frames of the project's synthetic renderer (what a fresh clone has), timed beside the
-  others, with the agreement of its outputs with the float graph's on the real frames.
-The fixed reference workload (../shared/tools/cpu_reference.py) and the load average are
-printed before and after.
+  others, with the agreement of its detections with the float graph's on the real frames
+  (``--int8-reduce-range``: 7-bit weights; ``--int8-calibration real``: a diagnostic);
+- with ``--sizes WxH[@ROI],...``, the whole ``detect`` at other framings, timed beside the
+  shipped one, and with ``--tune`` their AP on issue 34's training (tuning) frames.
+OpenBLAS runs on one thread and freed memory is kept, as in the node. The fixed reference
+workload (../shared/tools/cpu_reference.py) and the load average are printed before and after.
 
-Usage: python bench/bench_detector_cpu.py [--frames 30] [--profile] [--int8 20] [--rounds 1]
+Usage: python bench/bench_detector_cpu.py [--frames 30] [--profile] [--variants] [--rounds 1]
+       [--int8 20 [--int8-reduce-range] [--int8-calibration synthetic|real]]
+       [--sizes 768x224,896x192@0.3 [--tune]]   (--rounds 0: no timing)
 """
 
 from __future__ import annotations
