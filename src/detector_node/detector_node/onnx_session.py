@@ -6,7 +6,15 @@ from __future__ import annotations
 from vehicle_common.cpu_affinity import usable_threads
 
 
-def ort_session(graph: bytes, threads: int):
+def ort_session(
+    graph: bytes,
+    threads: int,
+    level=None,
+    mem_pattern: bool = True,
+    arena: bool = True,
+    entries: dict[str, str] | None = None,
+    profile_prefix: str | None = None,
+):
     """An ONNX Runtime CPU session of a serialized graph: ``threads`` intra-op threads (at most
     the CPUs this process may use: more only wait on each other), one inter-op, sequential,
     every graph optimisation, and no spinning: ONNX Runtime's idle pool threads busy-wait for
@@ -19,8 +27,16 @@ def ort_session(graph: bytes, threads: int):
     so.intra_op_num_threads = usable_threads(threads)
     so.inter_op_num_threads = 1
     so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    so.graph_optimization_level = (
+        ort.GraphOptimizationLevel.ORT_ENABLE_ALL if level is None else level
+    )
+    so.enable_mem_pattern = mem_pattern
+    so.enable_cpu_mem_arena = arena
     so.log_severity_level = 3
-    so.add_session_config_entry("session.intra_op.allow_spinning", "0")
-    so.add_session_config_entry("session.inter_op.allow_spinning", "0")
+    config = {"session.intra_op.allow_spinning": "0", "session.inter_op.allow_spinning": "0"}
+    for key, value in {**config, **(entries or {})}.items():
+        so.add_session_config_entry(key, value)
+    if profile_prefix:
+        so.enable_profiling = True
+        so.profile_file_prefix = profile_prefix
     return ort.InferenceSession(graph, so, providers=["CPUExecutionProvider"])
