@@ -70,6 +70,7 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(101, 20
 import numpy as np  # noqa: E402
 from tracking_bringup.environment import PARAMS_FILE, apply_graph_environment  # noqa: E402
 from tracking_bringup.launcher import GraphLauncher, graph_processes  # noqa: E402
+from tracking_bringup.supervision import LaunchError  # noqa: E402
 from vehicle_common.frame_trace import TRACE_ENV, read_traces, span_ms  # noqa: E402
 
 from tracking_bringup import graph  # noqa: E402
@@ -1104,6 +1105,14 @@ def main(argv=None) -> int:
     if args.compare_tree:
         return compare_trees(args, list(sys.argv[1:] if argv is None else argv))
     apply_graph_environment()
+    overrides = list(args.param)
+    if args.cpus:
+        overrides = [f"{n.name}.cpu_affinity:={args.cpus}" for n in graph.PIPELINE] + overrides
+    try:  # a bad -p (node name, value) is one line before any node starts
+        graph_processes(graph.PIPELINE, PARAMS_FILE, overrides)
+    except (LaunchError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     datasets = _datasets(args)
     windows = [int(w) for w in args.windows.split(",") if w]
     modes = ([] if args.no_realtime or factors else [("realtime", False, 1)]) + [
@@ -1111,9 +1120,6 @@ def main(argv=None) -> int:
     ]
     # overload: a camera at each factor x the capacity measured by lockstep 1 in this run
     modes += [(f"camera {f:g}x", False, f) for f in factors]
-    overrides = list(args.param)
-    if args.cpus:
-        overrides = [f"{n.name}.cpu_affinity:={args.cpus}" for n in graph.PIPELINE] + overrides
     offline: dict[str, dict[str, float]] = {}  # per dataset label
     if not args.no_offline:
         for label, root, seq in datasets:
@@ -1126,14 +1132,18 @@ def main(argv=None) -> int:
     short_runs: dict[str, dict] = {}
     quality: dict[tuple[str, str], dict] = {}
     load_before = Path("/proc/loadavg").read_text().split()[:3]
-    for label, root, seq in datasets:
-        results = (rows, quality, profiles)
-        _run_modes(args, label, root, seq, modes, overrides, stamp, camera_hz, results)
-        if do_cpu:
-            logs = OUT / "runs" / stamp / f"{label.replace(' ', '_')}_short"
-            print(f"[bench] {label}, lockstep 1, {SHORT_RUN} frames ...", file=sys.stderr)
-            short = [f"kitti_player.last_frame:={SHORT_RUN - 1}", *overrides]
-            short_runs[label] = run_case(root, seq, True, 1, short, logs)
+    try:
+        for label, root, seq in datasets:
+            results = (rows, quality, profiles)
+            _run_modes(args, label, root, seq, modes, overrides, stamp, camera_hz, results)
+            if do_cpu:
+                logs = OUT / "runs" / stamp / f"{label.replace(' ', '_')}_short"
+                print(f"[bench] {label}, lockstep 1, {SHORT_RUN} frames ...", file=sys.stderr)
+                short = [f"kitti_player.last_frame:={SHORT_RUN - 1}", *overrides]
+                short_runs[label] = run_case(root, seq, True, 1, short, logs)
+    except LaunchError as exc:  # a node refused its parameters or died: its one line
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.exit_code
     if do_cpu:
         references.append(reference_ms())
     load = Path("/proc/loadavg").read_text().split()[:3]
