@@ -8,7 +8,7 @@
     python bench/bench_tracker.py sim
     python bench/bench_tracker.py real   [--source stereo,camera,pointrcnn] [--split tuning]
                                          [--set K=V] [--no-camera-motion] [--checkpoint PT]
-    python bench/bench_tracker.py graph  OUTPUT/bag [--sequence 0005]
+    python bench/bench_tracker.py graph  OUTPUT/bag [--sequence 0005] [--set K=V]
 
 ``mot``: tracker_offline's core over ../shared/kitti/detections/pointrcnn_Car_val, scored with
 eval_node.tracking_metrics (KITTI devkit rules; 3D IoU 0.25 and 2D IoU 0.5), per filter x
@@ -24,7 +24,8 @@ measured on KITTI Stereo 2015, and the real PointRCNN detections; see bench/real
 ``--source camera``: the shipped CNN's measured statistics replayed (bench/camera_stats.py);
 every source gets poses_orbslam3 as the camera motion unless ``--no-camera-motion``. ``graph``:
 a recorded whole-graph run (``make demo``) on a real sequence: velocity over the ground and the
-confirmed rows where no vehicle is.
+confirmed rows where no vehicle is; with ``--set`` (any, even ``--set box_gain=1``) also the run
+re-tracked offline with the graph's parameters and the overrides.
 """
 
 from __future__ import annotations
@@ -366,6 +367,17 @@ def cmd_sim(args) -> None:
         )
 
 
+def _overrides(pairs: list[str] | None) -> dict:
+    """``--set NAME=VALUE`` pairs as TrackerConfig field values (typed as the field)."""
+    base, out = TrackerConfig(), {}
+    for kv in pairs or []:
+        name, value = kv.split("=", 1)
+        out[name] = type(getattr(base, name))(
+            value if not isinstance(getattr(base, name), bool) else value == "true"
+        )
+    return out
+
+
 def cmd_real(args) -> None:
     import real_motion as rm
 
@@ -375,12 +387,7 @@ def cmd_real(args) -> None:
     print(f"tuning sequences (not reported): {','.join(tune)}")
     print(f"reporting sequences: {','.join(report)}")
     base = TrackerConfig()
-    overrides = {}
-    for kv in args.set or []:
-        name, value = kv.split("=", 1)
-        overrides[name] = type(getattr(base, name))(
-            value if not isinstance(getattr(base, name), bool) else value == "true"
-        )
+    overrides = _overrides(args.set)
     # the stereo detections are tracked with the graph's parameters, PointRCNN's with the
     # TrackerConfig defaults (tracker_offline's)
     configs = {
@@ -543,6 +550,30 @@ def cmd_graph(args) -> None:
         print(f"  frame {fr} track {tid} at {loc} (camera 0, bottom centre)")
     for fr, tid, loc in leaving:
         print(f"  leaving the view: frame {fr} track {tid} at {loc}")
+    if args.set is not None:
+        _retrack(run, gt, _overrides(args.set))
+
+
+def _retrack(run, gt, overrides: dict) -> None:
+    """The recorded tracks and the recorded 3D arrays re-tracked offline with the graph's
+    parameters (``GRAPH_PARAMS``) and ``overrides``: CLEAR-MOT / HOTA, 2D and 3D IoU."""
+    from eval_node.bag_evaluation import tracking_scores
+    from eval_node.filter_comparison import run_tracker
+    from vehicle_common.bags.recorded_run import OUTPUT_STATES
+
+    config = replace(TrackerConfig.from_yaml(GRAPH_PARAMS), **overrides)
+    runs = {
+        "recorded": {f.frame: f.tracks for f in run.frames},
+        f"re-tracked {overrides}": run_tracker(run, config, states=OUTPUT_STATES),
+    }
+    for name, tracks in runs.items():
+        m = tracking_scores(gt, tracks)
+        m3 = m["iou3d"]
+        print(
+            f"{name}: MOTA / HOTA (2D IoU) {100 * m['mota']:.1f} / {100 * m['hota']:.1f}, "
+            f"recall / precision {100 * m['recall']:.2f} / {100 * m['precision']:.2f} %, "
+            f"MOTA (3D IoU 0.25) / HOTA (3D IoU) {100 * m3['mota']:.1f} / {100 * m3['hota']:.1f}"
+        )
 
 
 def _recorded_poses(run) -> list | None:
@@ -628,6 +659,12 @@ def main() -> None:
     g = sub.add_parser("graph", help="a recorded whole-graph run on a real sequence")
     g.add_argument("bag", help="the demo's output folder or its bag")
     g.add_argument("--sequence", default="", help="KITTI sequence (default: the recording's)")
+    g.add_argument(
+        "--set",
+        action="append",
+        help="NAME=VALUE: also re-track the recorded 3D arrays offline with the graph's "
+        "parameters and these overrides, and score both (2D and 3D CLEAR-MOT / HOTA)",
+    )
     args = p.parse_args()
     if args.cmd in ("mot", "tune", "compare") and not DETS.is_dir():
         sys.exit(f"error: {DETS}: shared KITTI detections not found")

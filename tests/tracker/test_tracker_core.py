@@ -445,3 +445,33 @@ def test_a_coasting_track_of_weak_detections_is_not_reported():
         out = trk.step(DetectionBatch.empty(), stamp=0.2)
         assert sorted(out.track_id.tolist()) == coasting, min_score
         assert len(trk.tracks) == 2
+
+
+def test_box_gain_smooths_the_box_carried_with_the_car():
+    """Issue #41 (off the box): a car driving across and nearer (its box moves 40-50 px and
+    grows each frame), its detection boxes 8 px off to alternate sides. With box_gain 1 the
+    reported box is the detection's (8 px off); with 0.5 the first box is the detection's,
+    then gain x detection + (1 - gain) x the previous box carried with the car: within 5 px
+    (a plain average of the two detection boxes would be 20 px or more behind the car)."""
+    P = np.array([[721.5, 0.0, 609.6, 0.0], [0.0, 721.5, 172.9, 0.0], [0.0, 0.0, 1.0, 0.0]])
+
+    def true_box(p, w=1.8, h=1.5):
+        f = 721.5 / p[2]
+        u, v = f * p[0] + 609.6, f * p[1] + 172.9
+        return np.array([u - f * w / 2, v - f * h / 2, u + f * w / 2, v + f * h / 2])
+
+    for gain in (1.0, 0.5):
+        trk = Tracker(
+            TrackerConfig(min_hits=1, box_gain=gain, measurement_noise=0.05), projection=P
+        )
+        for k in range(6):
+            p = [-3.0 + 1.0 * k, 1.0, 20.0 - 1.0 * k]
+            off = np.array([8.0, 0.0, 8.0, 0.0]) * (-1) ** k
+            out = trk.step(DetectionBatch.create([p], bbox=[true_box(p) + off]), stamp=0.1 * k)
+            err = np.abs(out.bbox[0] - true_box(p)).max()
+            if gain == 1.0 or k == 0:
+                assert err == pytest.approx(8.0), (gain, k)
+            else:
+                assert err < 5.0, (gain, k, err)
+    with pytest.raises(TrackerConfigError):
+        TrackerConfig(box_gain=0.0).validate()

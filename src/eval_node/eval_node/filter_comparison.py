@@ -19,10 +19,13 @@ from eval_node.detection_metrics import LEVELS, precision_recall
 FILTER_NAMES = ("none", "kalman", "particle")
 
 
-def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, list[KittiObject]]:
+def run_tracker(
+    run: RecordedRun, config, progress: bool = False, states=RANKED_STATES
+) -> dict[int, list[KittiObject]]:
     """Track the run's recorded 3D detections with ``config`` (a TrackerConfig):
-    ``{frame: [KittiObject...]}`` of the tracks the AP ranks (``RANKED_STATES``: confirmed,
-    coasting and, at their lowered score, tentative; as ``evaluate`` scores the live graph)."""
+    ``{frame: [KittiObject...]}`` of the tracks in ``states``; by default those the AP ranks
+    (``RANKED_STATES``: confirmed, coasting and, at their lowered score, tentative; as
+    ``evaluate`` scores the live graph), ``OUTPUT_STATES`` for CLEAR-MOT / HOTA."""
     from tracker_node.conversions import camera_motion_from_msg, detections_from_msg
     from tracker_node.tracker import DetectionBatch, Tracker
 
@@ -43,7 +46,7 @@ def run_tracker(run: RecordedRun, config, progress: bool = False) -> dict[int, l
         motion = camera_motion_from_msg(f.det3d_msg)[0] if f.det3d_msg else None
         tracks = tracker.step(batch, f.stamp_ns * 1e-9, motion)
         out[f.frame] = result_rows(
-            tracks, f.frame, f.offset, RANKED_STATES, clip_score=True, mean_hwl=mean_hwl
+            tracks, f.frame, f.offset, states, clip_score=True, mean_hwl=mean_hwl
         )
     return out
 

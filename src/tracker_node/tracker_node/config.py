@@ -149,6 +149,11 @@ class TrackerConfig:
     # occluded car) or the "projection" of its filtered 3D box (size, yaw, position through the
     # camera matrix: a full-extent box, as KITTI labels occluded cars; issue #41, docs/tracker.md)
     matched_box: str = param("detection", choices=MATCHED_BOXES)
+    # 2D box of a matched track ("detection" above): gain x its detection's box + (1 - gain) x
+    # its previous box carried to this frame the "shifted" way (moved with the filtered centre's
+    # pixel, scaled by the depth ratio); a track's first box is its detection's. 1: the
+    # detection's box (issue #41, docs/tracker.md "The 2D box smoothed over frames")
+    box_gain: float = param(1.0, low=0.0, low_open=True, high=1.0)
     # [px] for clipping projected boxes (camera_info overrides)
     image_width: int = param(1242, low=1)
     image_height: int = param(375, low=1)  # [px]

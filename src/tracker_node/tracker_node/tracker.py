@@ -345,8 +345,13 @@ class Tracker:
         t.yaw_amb[rows] &= ~np.isfinite(dets.yaw[cols])  # a full detected yaw resolves it
         dbin = dets.orientation_bin[cols]
         t.bin[rows[dbin >= 0]] = dbin[dbin >= 0]
-        t.bbox[rows] = dets.bbox[cols]
-        t.box_anchor[rows] = self._pixels(self.filter.position[rows])
+        box, now = dets.bbox[cols], self._pixels(self.filter.position[rows])
+        if cfg.box_gain < 1:  # smoothed: gain x detection + (1 - gain) x the carried last box
+            prev = self._shifted_boxes(t.bbox[rows], t.box_anchor[rows], now)
+            both = np.isfinite(prev).all(axis=1) & np.isfinite(box).all(axis=1)
+            box[both] += (1.0 - cfg.box_gain) * (prev[both] - box[both])
+        t.bbox[rows] = box
+        t.box_anchor[rows] = now
         if len(rows):
             t.cls[rows] = np.array(dets.class_id, dtype=object)[cols]
 
@@ -595,36 +600,41 @@ class Tracker:
             uv = np.where(z > 0.1, h[:, :2] / z, np.nan)
         return np.hstack([uv, np.where(z > 0.1, z, np.nan)])
 
+    def _shifted_boxes(self, last: np.ndarray, anchor: np.ndarray, now: np.ndarray) -> np.ndarray:
+        """Boxes ``last`` (N, 4) [px] drawn when their track's centre was at pixel and depth
+        ``anchor`` (N, 3), moved to the centre's pixel ``now`` (N, 3) and scaled by the depth
+        ratio, clipped to the image; NaN where that is unknown or leaves no box."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (anchor[:, 2] / now[:, 2])[:, None]
+        b = (last - anchor[:, [0, 1, 0, 1]]) * s + now[:, [0, 1, 0, 1]]
+        w, h = self.image_size
+        b = np.clip(b, 0.0, [w - 1.0, h - 1.0, w - 1.0, h - 1.0])
+        bad = ~np.isfinite(b).all(axis=1) | (b[:, 2] <= b[:, 0]) | (b[:, 3] <= b[:, 1])
+        b[bad] = np.nan
+        return b
+
     def _report_boxes(self, idx: np.ndarray, position: np.ndarray) -> np.ndarray:
         """2D boxes of the reported tracks ``idx``: the matched detection's box when matched
-        this frame, else (coasting, or a detection without a box) the projection of the
-        filtered 3D box, or with ``coast_box: shifted`` the last detection box moved with the
-        predicted centre's pixel and scaled by the depth ratio (a box it cannot place: the
-        projection); NaN (no box) when there is no camera matrix to project with, never a
-        stale detection box."""
+        this frame (with ``box_gain`` < 1 the track's smoothed box, :meth:`_update`), else
+        (coasting, or a detection without a box) the projection of the filtered 3D box, or
+        with ``coast_box: shifted`` the last box moved with the predicted centre's pixel and
+        scaled by the depth ratio (a box it cannot place: the projection); NaN (no box) when
+        there is no camera matrix to project with, never a stale detection box."""
         t = self.tracks
-        last = t.bbox[idx].copy()
-        bbox = last.copy()
+        bbox = t.bbox[idx].copy()
         need = (t.misses[idx] > 0) | ~np.isfinite(bbox).all(axis=1)
         if self.cfg.matched_box == "projection":
             need[:] = True
-        bbox[need] = np.nan
         if self.projection is None:
+            bbox[need] = np.nan
             return bbox
-        now = self._pixels(position)
-        w, h = self.image_size
-        for j in np.nonzero(need)[0]:
+        shift = need & (t.misses[idx] > 0) & (self.cfg.coast_box == "shifted")
+        now = self._pixels(position[shift])
+        moved = self._shifted_boxes(bbox[shift], t.box_anchor[idx[shift]], now)
+        bbox[need] = np.nan
+        bbox[shift] = moved
+        for j in np.nonzero(need & ~np.isfinite(bbox).all(axis=1))[0]:
             i = idx[j]
-            a = t.box_anchor[i]
-            shifted = self.cfg.coast_box == "shifted" and t.misses[i] > 0
-            if shifted and np.isfinite([*last[j], *a, *now[j]]).all():
-                s = a[2] / now[j, 2]
-                u, v = now[j, 0], now[j, 1]
-                b = (last[j] - np.array([a[0], a[1], a[0], a[1]])) * s + [u, v, u, v]
-                b = np.clip(b, 0.0, [w - 1.0, h - 1.0, w - 1.0, h - 1.0])
-                if b[2] > b[0] and b[3] > b[1]:
-                    bbox[j] = b
-                    continue
             b = self._project(position[j], t.size[i], t.yaw[i])
             if b is not None:
                 bbox[j] = b
