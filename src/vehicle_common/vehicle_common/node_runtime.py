@@ -182,6 +182,10 @@ def make_executor(kind: str, context):
     return SingleThreadedExecutor(context=context)
 
 
+#: InvalidHandle errors in a row the spin loop steps over (:func:`spin_until_stopped`)
+MAX_INVALID_HANDLES = 10
+
+
 def spin_until_stopped(
     node,
     stop: StopRequest,
@@ -192,12 +196,25 @@ def spin_until_stopped(
     """Spin ``node`` until a stop signal (or ``done()``), then call ``on_stop`` (e.g. drain the
     frame workers), publish the final report and log the exit line. rclpy is left initialised
     (the caller destroys the node and calls ``rclpy.try_shutdown``)."""
+    from rclpy.exceptions import InvalidHandle
+
     executor = make_executor(getattr(node, "executor_kind", "events"), node.context)
     executor.add_node(node)
     stop.arm()
+    invalid = 0  # InvalidHandle in a row
     try:
         while stop.requested is None and node.context.ok() and not done():
-            executor.spin_once(timeout_sec=0.1)
+            try:
+                executor.spin_once(timeout_sec=0.1)
+                invalid = 0
+            except InvalidHandle:
+                # an entity destroyed while its event was pending (a camera subscription
+                # re-created with its publishers' reliability drops its QoS event handler):
+                # rclpy skips destroyed timers and subscriptions itself, not event handlers;
+                # that work is dropped. Over and over: the node itself is gone.
+                invalid += 1
+                if invalid > MAX_INVALID_HANDLES:
+                    raise
         for fn in on_stop:
             fn()
         if health is not None:
