@@ -38,8 +38,15 @@ def _running_parameters(node, fqn: str, names: list[str], executor) -> dict:
     client = node.create_client(GetParameters, f"{fqn}/get_parameters")
     try:
         assert spin_until(executor, client.service_is_ready, 60), f"{fqn}: no parameter service"
-        future = client.call_async(GetParameters.Request(names=names))
-        assert spin_until(executor, future.done, 30), f"{fqn}: no answer"
+        # asked again every 5 s: a client can see the service ready before the server's reply
+        # writer has matched the client's reader, and that first reply is lost (DDS
+        # discovery; seen once in CI as "/kitti_player: no answer")
+        for _ in range(6):
+            future = client.call_async(GetParameters.Request(names=names))
+            if spin_until(executor, future.done, 5):
+                break
+            client.remove_pending_request(future)
+        assert future.done(), f"{fqn}: no answer in 30 s (6 requests)"
         values = future.result().values
         return {n: parameter_value_to_python(v) for n, v in zip(names, values, strict=True)}
     finally:
