@@ -97,10 +97,6 @@ class StereoNodeParameters:
     # differs from own's by more than own's noise, docs/stereo_depth.md section 13). With
     # "band" the road plane always takes the band's map.
     road_map: str = param("own", choices=("own", "shared"))
-    # [px] with road_map "own": its map matched only from this many rows above the first row
-    # the road plane reads (ceil(cy) + ground_row_step); -1: over the whole band (a behaviour
-    # change otherwise: docs/stereo_depth.md section 15)
-    road_context_rows: int = param(-1, low=-1)
     # the camera-dependent settings: 0 / [-1, -1] = derived from the CameraInfo pair at run
     # time (vehicle_common.camera_settings); a value given wins
     # [px] disparity range (>= 16, the DisparityParams field); 0: fx * baseline / 4.05 m

@@ -16,7 +16,6 @@ same).
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
 from concurrent.futures import Executor, Future
 
@@ -158,7 +157,6 @@ class StereoPipeline:
         match_rows: tuple = DERIVED_ROWS,
         map_area: str = "boxes",
         road_map: str = "own",
-        road_context_rows: int = -1,
         visual_odometry: bool = True,
         executor: Executor | None = None,
         trace: Callable[[str, int], None] | None = None,
@@ -178,7 +176,6 @@ class StereoPipeline:
         self.given = (num_disparities, tuple(match_rows), ground_height)
         self.map_area = map_area
         self.road_map = road_map
-        self.road_context_rows = road_context_rows
         self.odometry = FrameToFrameOdometry() if visual_odometry else None
         self.executor = executor or SerialExecutor()
         self.trace = trace or _no_trace
@@ -213,7 +210,6 @@ class StereoPipeline:
             match_rows=tuple(p.match_rows),
             map_area=p.map_area,
             road_map=p.road_map,
-            road_context_rows=p.road_context_rows,
             visual_odometry=p.visual_odometry,
             **kwargs,
         )
@@ -338,8 +334,7 @@ class StereoPipeline:
             if shared:
                 road = _Ready(road_scene)
             elif boxes:
-                road_params = self._road_params(params, geometry, left.shape[0])
-                road = self.executor.submit(self._road_map, stamp, left, right, road_params)
+                road = self.executor.submit(self._road_map, stamp, left, right, params)
             self.trace("disparity_start", stamp)
             # with the occluder cut, also the strips beside the boxes it judges
             r = self.ranging_params
@@ -367,18 +362,6 @@ class StereoPipeline:
             return coarse_disparity(left, right, params)
         finally:
             self.trace("road_end", stamp)
-
-    def _road_params(self, params: DisparityParams, geometry, height: int) -> DisparityParams:
-        """The band of the road plane's own map: the whole band (``road_context_rows`` -1), or
-        from ``road_context_rows`` rows above the first row the road plane reads, on the
-        band's quarter-resolution grid (docs/stereo_depth.md section 15)."""
-        if self.road_context_rows < 0:
-            return params
-        top, bottom = params.row_band or (0, height)
-        first = math.ceil(geometry.cy) + self.plausibility.ground_row_step
-        grid = 2 * params.downscale  # coarse_disparity's scale
-        skip = max(0, first - self.road_context_rows - top) // grid * grid
-        return dataclasses.replace(params, row_band=(top + skip, bottom))
 
     def _range_and_check(self, stamp, dets: FrameBoxes, disparity, road, geometry, images):
         """Range and check the frame's boxes (``road.result()``: the map the road plane is
