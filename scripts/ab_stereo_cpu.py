@@ -10,8 +10,9 @@ frames (../shared/kitti), frame by frame (old, new, new, old, ...):
   rgb8 images and 2D detection array as the subscriptions would (its helper thread drained
   before the clock stops; rclpy's executor and the middleware are not included).
 Boxes: the labels' Car/Van (score 1), or ``--detections DIR`` (``detector_offline``'s files,
-scores >= 0.3 as the detector publishes). Prints the medians, new / old, the load
-average, and whether the 3D arrays and odometry messages are bit-identical (every number).
+scores >= 0.3 as the detector publishes). Prints the medians, new / old (of the medians,
+and run by run: a run's two versions share its moment of the machine), the load average, and
+whether the 3D arrays and odometry messages are bit-identical (every number).
 In scripts/, not bench/: it drives the node module's internals in-process, which bench/ must
 not (tests/test_architecture.py).
 """
@@ -220,6 +221,9 @@ def main(argv=None) -> int:
     for part in ("core", "node"):
         old, new = (statistics.median(cpu[k, part]) * 1000 for k in ("old", "new"))
         print(f"{part}: CPU per frame old {old:.1f} ms, new {new:.1f} ms: new/old {new / old:.3f}")
+        paired = [n / o for o, n in zip(cpu["old", part], cpu["new", part], strict=True)]
+        print(f"  new/old run by run: median {statistics.median(paired):.3f}, ", end="")
+        print(f"new lower in {sum(r < 1 for r in paired)} of {len(paired)}")
         print(f"  old runs {[round(x * 1000, 1) for x in cpu['old', part]]}")
         print(f"  new runs {[round(x * 1000, 1) for x in cpu['new', part]]}")
     print(f"load average (1 min) at each repeat: {' '.join(loads)}")
