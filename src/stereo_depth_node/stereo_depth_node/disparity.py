@@ -227,10 +227,13 @@ def _match(
     # With a full-resolution guide and low-resolution disparities the filter upsamples the
     # disparities (and multiplies them by the scale) itself.
     filtered = wls.filter(disp_left, guide, disparity_map_right=disp_right)
-    disp = filtered.astype(np.float32) / 16.0
+    # in place from here on (the same float32 operations as new arrays: the same values)
+    disp = filtered.astype(np.float32)
+    disp /= 16.0
     if disp.shape != (full_h, full_w):  # filtered at the matching resolution: upsample
         factor = full_w / disp.shape[1]
-        disp = cv2.resize(disp, (full_w, full_h), interpolation=cv2.INTER_LINEAR) * factor
+        disp = cv2.resize(disp, (full_w, full_h), interpolation=cv2.INTER_LINEAR)
+        disp *= factor
     valid = disp > max(0.0, float(min_d))
     roi = wls.getROI()  # (x, y, w, h) of the area where the filter had both views
     if roi is not None and len(roi) == 4 and roi[2] > 0:
@@ -247,7 +250,8 @@ def _match(
             if conf.shape != valid.shape:
                 conf = cv2.resize(conf, (full_w, full_h), interpolation=cv2.INTER_NEAREST)
             valid &= conf >= params.wls_min_confidence
-    return np.where(valid, disp, INVALID_DISPARITY).astype(np.float32)
+    disp[~valid] = INVALID_DISPARITY
+    return disp
 
 
 #: [px, full resolution] rows of matching context above and below a box's rows, and columns
@@ -418,11 +422,14 @@ def block_matching_maps(
         disp = raw.copy() if road else raw
         if params.speckle_window_size > 0:
             cv2.filterSpeckles(disp, removed, params.speckle_window_size, speckle_range)
-        disp = disp[:, pad // scale :].astype(np.float32) / 16.0
+        disp = disp[:, pad // scale :].astype(np.float32)
+        disp /= 16.0  # in place: the same float32 operations as new arrays
         if scale != 1:
-            disp = cv2.resize(disp, (width, bottom - top), interpolation=cv2.INTER_NEAREST) * scale
+            disp = cv2.resize(disp, (width, bottom - top), interpolation=cv2.INTER_NEAREST)
+            disp *= scale
+        disp[~(disp > max(0.0, float(params.min_disparity)))] = INVALID_DISPARITY
         full = out.copy()
-        full[top:bottom] = np.where(disp > max(0.0, float(params.min_disparity)), disp, -1.0)
+        full[top:bottom] = disp
         maps.append(full)
     return maps[0], (maps[1] if road else None)
 

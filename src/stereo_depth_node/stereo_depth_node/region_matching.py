@@ -129,6 +129,32 @@ def _gradient(img: np.ndarray) -> np.ndarray:
     return cv2.Sobel(img.astype(np.float32), cv2.CV_32F, 1, 0, ksize=3)
 
 
+def _shift_costs(
+    gl: np.ndarray, gr: np.ndarray, mask: np.ndarray, x0: int, shifts: np.ndarray
+) -> np.ndarray:
+    """Mean absolute difference over ``mask`` between ``gl`` and ``gr`` shifted left by each of
+    ``shifts`` [px] (bilinear, border replicated); ``gl``'s first column is ``gr``'s ``x0``. All
+    shifts in one remap (it is per pixel), a mean per shift, so each cost is bit-identical to
+    its own remap's (the loop this replaced; tests/stereo_depth)."""
+    h, w = mask.shape
+    k = len(shifts)
+    xs = np.arange(x0, x0 + w, dtype=np.float32)
+    map_x = np.empty((k, h, w), np.float32)
+    np.subtract(xs[None, None, :], shifts.astype(np.float32)[:, None, None], out=map_x)
+    map_y = np.empty((k, h, w), np.float32)
+    map_y[:] = np.arange(h, dtype=np.float32)[None, :, None]
+    warped = cv2.remap(
+        gr,
+        map_x.reshape(-1, w),
+        map_y.reshape(-1, w),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
+    diff = np.abs(gl[None] - warped.reshape(k, h, w))
+    # one mean per shift: a mean along an axis of a 2D array may sum in another order
+    return np.array([np.mean(row) for row in diff[:, mask]])
+
+
 def refine_shift(
     left_gray: np.ndarray,
     right_gray: np.ndarray,
@@ -159,15 +185,7 @@ def refine_shift(
     gl = _gradient(left_gray[r0:r1, x_lo:c1])[:, c0 - x_lo :]
     gr = _gradient(right_gray[r0:r1, x_lo:c1])
     shifts = d_med + np.arange(-max_shift, max_shift + 1e-9, step)
-    xs = np.arange(c0, c1, dtype=np.float32) - x_lo
-    ys = np.arange(r1 - r0, dtype=np.float32)
-    base_x = np.broadcast_to(xs[None, :], mask.shape)
-    map_y = np.broadcast_to(ys[:, None], mask.shape).astype(np.float32)  # the same every shift
-    costs = []
-    for s in shifts:
-        map_x = (base_x - np.float32(s)).astype(np.float32)
-        warped = cv2.remap(gr, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        costs.append(float(np.mean(np.abs(gl - warped)[mask])))
+    costs = [float(c) for c in _shift_costs(gl, gr, mask, c0 - x_lo, shifts)]
     k = int(np.argmin(costs))
     if k == 0 or k == len(costs) - 1:
         return float("nan"), int(mask.sum())
