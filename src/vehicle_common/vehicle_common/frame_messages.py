@@ -187,3 +187,32 @@ def read_transform(transform) -> tuple[np.ndarray, np.ndarray]:
     except ValueError:
         raise ValueError("transform is not finite or its quaternion is zero") from None
     return R, tv
+
+
+def field_bits(msg) -> bytes:
+    """Every field of a ROS message, recursively, as bytes: floats as their IEEE-754 bits
+    (-0.0 and NaN payloads told apart), integers, bools and strings as written, arrays with
+    their type. Two messages with equal ``field_bits`` serialise to the same data. (Their CDR
+    bytes cannot be compared as such: the padding after a bool, such as a Marker's
+    ``frame_locked``, is left uninitialised by the serialiser and differs between runs.)"""
+    import array
+    import struct
+
+    if hasattr(msg, "get_fields_and_field_types"):
+        inner = b",".join(field_bits(getattr(msg, f)) for f in msg.get_fields_and_field_types())
+        return b"{" + inner + b"}"
+    if isinstance(msg, float):
+        return struct.pack("<d", msg)
+    if isinstance(msg, (bool, int)):
+        return repr(msg).encode()
+    if isinstance(msg, str):
+        return msg.encode() + b"\0"
+    if isinstance(msg, (bytes, bytearray)):
+        return bytes(msg)
+    if isinstance(msg, np.ndarray):
+        return msg.dtype.str.encode() + msg.tobytes()
+    if isinstance(msg, array.array):
+        return msg.typecode.encode() + msg.tobytes()
+    if isinstance(msg, (list, tuple)):
+        return b"[" + b",".join(field_bits(v) for v in msg) + b"]"
+    raise TypeError(f"field of type {type(msg).__name__}")
