@@ -352,3 +352,48 @@ def test_node_builds_markers_only_for_a_subscriber(rclpy_context, monkeypatch, s
     finally:
         helper.destroy_node()
         node.destroy_node()
+
+
+def _reference_quaternion(rotation):
+    """vehicle_common.frame_messages.quaternion_from_matrix before 2026-11-29 (numpy
+    scalars)."""
+    R = np.asarray(rotation, float).reshape(3, 3)
+    tr = np.trace(R)
+    k = int(np.argmax([tr, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + tr)
+        q = (0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s)
+    else:
+        i, j, m = (k - 1, k % 3, (k + 1) % 3)
+        s = 2.0 * np.sqrt(1.0 + R[i, i] - R[j, j] - R[m, m])
+        v = [0.0, 0.0, 0.0]
+        v[i] = 0.25 * s
+        v[j] = (R[j, i] + R[i, j]) / s
+        v[m] = (R[m, i] + R[i, m]) / s
+        q = ((R[m, j] - R[j, m]) / s, *v)
+    w, x, y, z = np.asarray(q) * (1.0 if q[0] >= 0 else -1.0)
+    return float(w), float(x), float(y), float(z)
+
+
+def test_quaternion_in_python_floats_equals_numpy_bit_for_bit():
+    """The quaternion of the vision tracks' (and the odometry's) rotations, now computed in
+    Python floats: the same bits as numpy's scalars gave, on box axes with their exact and
+    signed zeros, random rotations, both composed, the axis flips and non-finite matrices."""
+    import struct
+
+    from tracker_node.conversions import box_rotations
+    from vehicle_common.frame_messages import quaternion_from_matrix
+    from vehicle_common.odometry import rpy_rotation
+
+    rng = np.random.default_rng(11)
+    yaws = np.concatenate([[0.0, -0.0, math.pi / 2, -math.pi / 2, math.pi, -math.pi, 1e-300]])
+    mats = list(box_rotations(np.concatenate([yaws, rng.uniform(-4.0, 4.0, 1500)])))
+    for _ in range(1500):
+        mats.append(rpy_rotation(*rng.uniform(-4.0, 4.0, 3)))
+        mats.append(mats[-1] @ box_rotations(np.array([rng.uniform(-4.0, 4.0)]))[0])
+    mats += [np.diag(d) for d in ([1.0, -1, -1], [-1.0, 1, -1], [-1.0, -1, 1], [1.0, -0.0, -0.0])]
+    mats += [np.full((3, 3), np.nan), np.diag([np.inf, 1.0, 1.0]), np.diag([-5.0, -5.0, -5.0])]
+    with np.errstate(invalid="ignore"):
+        for R in mats:
+            got, want = quaternion_from_matrix(R), _reference_quaternion(R)
+            assert struct.pack("<4d", *got) == struct.pack("<4d", *want), R
