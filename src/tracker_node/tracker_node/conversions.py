@@ -7,6 +7,8 @@ moved into another one (``pose``: the camera's pose there, e.g. in ``odom``). Sh
 
 from __future__ import annotations
 
+import copy
+import functools
 import math
 
 import numpy as np
@@ -105,9 +107,11 @@ class TrackGeometry:
     ground), their covariances, box axes and yaw. In another frame the vectors are rotated and
     positions moved; the yaw is the heading's angle about that frame's z axis (REP-103 frames
     such as ``odom``: z up, 0 along x, counter-clockwise), in the optical frame it stays KITTI's
-    rotation about the camera's y axis."""
+    rotation about the camera's y axis. Built once per frame for the tracks and the vision
+    tracks; the box axes (only the vision tracks use them) on first use."""
 
     def __init__(self, tracks: TrackSet, pose: Pose | None = None):
+        self.pose = pose
         self.position = np.asarray(tracks.position, float).reshape(-1, 3)
         self.position_cov = np.asarray(tracks.position_cov, float).reshape(-1, 3, 3)
         self.velocity = np.asarray(tracks.velocity, float).reshape(-1, 3)
@@ -115,7 +119,7 @@ class TrackGeometry:
         self.ground = np.asarray(tracks.velocity_over_ground, float).reshape(-1, 3)
         self.ground_cov = np.asarray(tracks.velocity_over_ground_cov, float).reshape(-1, 3, 3)
         self.yaw = np.asarray(tracks.yaw, float).reshape(-1)
-        self.box_rotation = box_rotations(self.yaw)
+        self._camera_yaw = self.yaw  # KITTI's yaw in the camera's optical frame
         if pose is None:
             return
         R = pose.rotation
@@ -125,46 +129,70 @@ class TrackGeometry:
         self.velocity_cov = R @ self.velocity_cov @ R.T
         self.ground = self.ground @ R.T  # NaN (unknown) stays NaN
         self.ground_cov = R @ self.ground_cov @ R.T
-        self.box_rotation = R @ self.box_rotation
         heading = heading_vectors(self.yaw) @ R.T
         self.yaw = np.arctan2(heading[:, 1], heading[:, 0])
 
+    @functools.cached_property
+    def box_rotation(self) -> np.ndarray:
+        """Box axes (N, 3, 3) in the frame (:func:`box_rotations`, rotated by the pose)."""
+        axes = box_rotations(self._camera_yaw)
+        return axes if self.pose is None else self.pose.rotation @ axes
 
-def tracks_to_msg(tracks: TrackSet, header, pose: Pose | None = None):
+
+def tracks_to_msg(tracks: TrackSet, header, pose: Pose | None = None, geometry=None):
     """A TrackedVehicleArray with ``header`` from a TrackSet (``pose``: the camera's pose in the
-    header's frame when that is not the camera's, :class:`TrackGeometry`)."""
-    from stereo_vehicle_msgs.msg import TrackedVehicle, TrackedVehicleArray
+    header's frame when that is not the camera's, :class:`TrackGeometry`; ``geometry``: that
+    TrackGeometry when the caller has it already).
 
-    geo = TrackGeometry(tracks, pose)
+    Each vehicle is a copy of one default TrackedVehicle whose every field is then set (a
+    vehicle without a box keeps the default, shared, box): the same message as one built field
+    by field, at a third of the CPU."""
+    from geometry_msgs.msg import Point, Vector3
+    from stereo_vehicle_msgs.msg import BoundingBox2D, TrackedVehicle, TrackedVehicleArray
+
+    geo = TrackGeometry(tracks, pose) if geometry is None else geometry
     out = TrackedVehicleArray()
     out.header = header
-    for i in range(len(tracks)):
-        v = TrackedVehicle()
+    n = len(tracks)
+    if not n:
+        return out
+    template = TrackedVehicle()
+    confidence = np.clip(tracks.score, 0.0, 1.0).tolist()  # detection score x track conf.
+    position, velocity = geo.position.tolist(), geo.velocity.tolist()
+    ground, size = geo.ground.tolist(), np.asarray(tracks.size, float).tolist()
+    ground_known = np.isfinite(geo.ground).all(axis=1).tolist()
+    box_known = np.isfinite(tracks.bbox).all(axis=1).tolist()
+    position_cov = geo.position_cov.reshape(-1, 9)
+    velocity_cov = geo.velocity_cov.reshape(-1, 9)
+    ground_cov = geo.ground_cov.reshape(-1, 9)
+    unknown_cov = [-1.0] + [0.0] * 8  # no camera motion yet: sensor_msgs' convention
+    yaw = geo.yaw.tolist()
+    vehicles = out.vehicles
+    for i in range(n):
+        v = copy.copy(template)
         v.track_id = int(tracks.track_id[i])
         v.class_id = tracks.class_id[i]
         v.state = int(tracks.state[i])
-        v.confidence = float(np.clip(tracks.score[i], 0.0, 1.0))  # detection score x track conf.
-        v.position.x, v.position.y, v.position.z = (float(a) for a in geo.position[i])
-        v.position_covariance = [float(a) for a in geo.position_cov[i].ravel()]
-        v.velocity.x, v.velocity.y, v.velocity.z = (float(a) for a in geo.velocity[i])
-        v.velocity_covariance = [float(a) for a in geo.velocity_cov[i].ravel()]
-        g = geo.ground[i]
-        v.velocity_over_ground.x, v.velocity_over_ground.y, v.velocity_over_ground.z = (
-            float(a) for a in g
-        )
-        if np.isfinite(g).all():
-            v.velocity_over_ground_covariance = [float(a) for a in geo.ground_cov[i].ravel()]
-        else:  # unknown (no camera motion yet): sensor_msgs' convention
-            v.velocity_over_ground_covariance = [-1.0] + [0.0] * 8
-        v.size.x, v.size.y, v.size.z = (float(a) for a in tracks.size[i])
-        v.yaw = float(geo.yaw[i])
+        v.confidence = confidence[i]
+        x, y, z = position[i]
+        v.position = Point(x=x, y=y, z=z)
+        v.position_covariance = position_cov[i]
+        x, y, z = velocity[i]
+        v.velocity = Vector3(x=x, y=y, z=z)
+        v.velocity_covariance = velocity_cov[i]
+        x, y, z = ground[i]
+        v.velocity_over_ground = Vector3(x=x, y=y, z=z)
+        v.velocity_over_ground_covariance = ground_cov[i] if ground_known[i] else unknown_cov
+        x, y, z = size[i]
+        v.size = Vector3(x=x, y=y, z=z)
+        v.yaw = yaw[i]
         v.orientation_bin = int(tracks.orientation_bin[i])
-        b = tracks.bbox[i]
-        if np.isfinite(b).all():
-            xyxy_to_bbox(b, v.bbox)
+        if box_known[i]:
+            v.bbox = BoundingBox2D()
+            xyxy_to_bbox(tracks.bbox[i], v.bbox)
         v.age = int(tracks.age[i])
         v.frames_since_update = int(tracks.frames_since_update[i])
-        out.vehicles.append(v)
+        vehicles.append(v)
     return out
 
 
@@ -173,13 +201,15 @@ def tracks_to_msg(tracks: TrackSet, header, pose: Pose | None = None):
 VISION_STATES = (1, 2)  # TrackedVehicle.STATE_CONFIRMED, STATE_COASTING
 
 
-def vision_tracks_message(tracks: TrackSet, header, pose: Pose | None = None):
+def vision_tracks_message(tracks: TrackSet, header, pose: Pose | None = None, geometry=None):
     """vision_msgs/Detection3DArray of the confirmed and coasting tracks, with ``header``
-    (mapping: :mod:`vehicle_common.vision_messages`; ``pose`` as in :func:`tracks_to_msg`)."""
+    (mapping: :mod:`vehicle_common.vision_messages`; ``pose`` and ``geometry`` as in
+    :func:`tracks_to_msg`)."""
     from vision_msgs.msg import Detection3DArray
 
-    geo = TrackGeometry(tracks, pose)
+    geo = TrackGeometry(tracks, pose) if geometry is None else geometry
     out = Detection3DArray(header=header)
+    score = np.clip(tracks.score, 0.0, 1.0).tolist()
     for i in range(len(tracks)):
         if int(tracks.state[i]) not in VISION_STATES:
             continue
@@ -187,7 +217,7 @@ def vision_tracks_message(tracks: TrackSet, header, pose: Pose | None = None):
             detection_3d(
                 str(int(tracks.track_id[i])),
                 tracks.class_id[i],
-                float(np.clip(tracks.score[i], 0.0, 1.0)),
+                score[i],
                 geo.position[i],
                 geo.box_rotation[i],
                 tracks.size[i],
@@ -200,6 +230,9 @@ def vision_tracks_message(tracks: TrackSet, header, pose: Pose | None = None):
 
 #: the corners of a box's 12 edges, in LINE_LIST order (pairs)
 _EDGE_CORNERS = [k for edge in box_edges() for k in edge]
+
+#: Marker colour (r, g, b) of each track state (tentative, confirmed, coasting; white otherwise)
+_MARKER_COLOURS = {0: (1.0, 1.0, 0.0), 1: (0.0, 1.0, 0.0), 2: (1.0, 0.5, 0.0)}
 
 #: Marker lifetime [s]: five frame periods of the KITTI camera (10 Hz), so that boxes vanish
 #: soon after the tracker stops publishing instead of staying in RViz for ever.
@@ -219,10 +252,10 @@ def markers_for(
     ``lifetime_s``; DELETE markers for the tracks in ``ended_ids``. ``pose``: the camera's pose
     in the header's frame when that is not the camera's (every point moved there)."""
     from builtin_interfaces.msg import Duration
-    from geometry_msgs.msg import Point
+    from geometry_msgs.msg import Point, Vector3
+    from std_msgs.msg import ColorRGBA
     from visualization_msgs.msg import Marker, MarkerArray
 
-    colours = {0: (1.0, 1.0, 0.0), 1: (0.0, 1.0, 0.0), 2: (1.0, 0.5, 0.0)}
     arr = MarkerArray()
     clear = Marker()
     clear.header, clear.action = header, Marker.DELETEALL
@@ -231,52 +264,71 @@ def markers_for(
     lifetime = Duration(sec=sec, nanosec=int(round((lifetime_s - sec) * 1e9)))
 
     move = pose or Pose()
-
-    def points(ps) -> list:
-        ps = np.reshape(np.asarray(ps, float), (-1, 3))
-        # all at once in the camera's frame; moved point by point (each point's own product:
-        # the same rounding as before) when there is a pose
-        moved = move.apply(ps) if pose is None else np.array([move.apply(p) for p in ps])
-        return [Point(x=x, y=y, z=z) for x, y, z in moved.tolist()]
-
-    def point(p):
-        return points(p)[0]
-
-    def base(ns, mid, kind):
-        m = Marker()
-        m.header = header
-        m.ns, m.id, m.type, m.action = ns, mid, kind, Marker.ADD
-        m.pose.orientation.w = 1.0
-        m.lifetime = lifetime
-        return m
-
-    for i in range(len(tracks)):
-        mid = int(tracks.track_id[i]) % 2**31
-        r, g, b = colours.get(int(tracks.state[i]), (1.0, 1.0, 1.0))
+    # every point of the array at once in the camera's frame (the identity moves each
+    # coordinate exactly, whatever the grouping); with a pose point by point (each point's
+    # own product: the same rounding as before)
+    n = len(tracks)
+    ends, corners = [], []
+    for i in range(n):
         l, w, h = (float(a) for a in tracks.size[i])
         c = tracks.position[i]
-        corners = box_corners((h, w, l), kitti_from_centre(c, h), float(tracks.yaw[i]))
-        box = base("boxes", mid, Marker.LINE_LIST)
-        box.scale.x = 0.05
-        box.color.r, box.color.g, box.color.b, box.color.a = r, g, b, 1.0
-        box.points = points(corners[_EDGE_CORNERS])
-        text = base("labels", mid, Marker.TEXT_VIEW_FACING)
-        text.pose.position = point((c[0], c[1] - h / 2 - 0.3, c[2]))
-        text.scale.z = 0.6
-        text.color.r = text.color.g = text.color.b = text.color.a = 1.0
-        text.text = f"{int(tracks.track_id[i])}"
-        arrow = base("velocity", mid, Marker.ARROW)
+        corners.append(box_corners((h, w, l), kitti_from_centre(c, h), float(tracks.yaw[i])))
         v = tracks.velocity_over_ground[i]  # the car's own motion when known
         if not np.isfinite(v).all():
             v = tracks.velocity[i]
-        arrow.points = points([c, np.asarray(c, float) + v])
-        arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.1, 0.2, 0.3
-        arrow.color.r, arrow.color.g, arrow.color.b, arrow.color.a = r, g, b, 1.0
+        ends.append(((c[0], c[1] - h / 2 - 0.3, c[2]), c, np.asarray(c, float) + v))
+    # per track: 24 box points (its 12 edges), the label's position, the arrow's two ends
+    ps = np.empty((n, 27, 3))
+    for i in range(n):
+        ps[i, :24] = corners[i][_EDGE_CORNERS]
+        ps[i, 24:] = ends[i]
+    ps = ps.reshape(-1, 3)
+    moved = move.apply(ps) if pose is None else np.array([move.apply(p) for p in ps])
+    pts = [Point(x=x, y=y, z=z) for x, y, z in moved.tolist()]
+
+    # Each marker is a copy of one of these (its header, pose, scale, colour and lifetime
+    # shared with the array's other markers of its kind: none is changed once built); a
+    # Marker built from scratch costs six times a copy.
+    base = Marker()
+    base.header, base.action, base.lifetime = header, Marker.ADD, lifetime
+    base.pose.orientation.w = 1.0
+    kinds = {}
+    for state in (*_MARKER_COLOURS, None):
+        r, g, b = _MARKER_COLOURS.get(state, (1.0, 1.0, 1.0))
+        box = copy.copy(base)
+        box.ns, box.type = "boxes", Marker.LINE_LIST
+        box.scale = Vector3(x=0.05)
+        box.color = ColorRGBA(r=r, g=g, b=b, a=1.0)
+        arrow = copy.copy(base)
+        arrow.ns, arrow.type = "velocity", Marker.ARROW
+        arrow.scale = Vector3(x=0.1, y=0.2, z=0.3)
+        arrow.color = ColorRGBA(r=r, g=g, b=b, a=1.0)
+        kinds[state] = box, arrow
+    label = copy.copy(base)
+    label.ns, label.type = "labels", Marker.TEXT_VIEW_FACING
+    label.scale = Vector3(z=0.6)
+    label.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
+
+    for i in range(n):
+        tid = int(tracks.track_id[i])
+        mid = tid % 2**31
+        box_kind, arrow_kind = kinds.get(int(tracks.state[i]), kinds[None])
+        mine = pts[27 * i : 27 * (i + 1)]
+        box = copy.copy(box_kind)
+        box.id = mid
+        box.points = mine[:24]
+        text = copy.copy(label)
+        text.id = mid
+        text.pose = copy.copy(base.pose)
+        text.pose.position = mine[24]
+        text.text = f"{tid}"
+        arrow = copy.copy(arrow_kind)
+        arrow.id = mid
+        arrow.points = mine[25:]
         arr.markers += [box, text, arrow]
     for tid in ended_ids:
         for ns in ("boxes", "labels", "velocity"):
-            m = Marker()
-            m.header = header
+            m = copy.copy(clear)
             m.ns, m.id, m.action = ns, int(tid) % 2**31, Marker.DELETE
             arr.markers.append(m)
     return arr

@@ -36,5 +36,7 @@ def static_velocity_before(motion: CameraMotion, points: np.ndarray, dt: float) 
 def rotate_covariances(cov: np.ndarray, R: np.ndarray) -> np.ndarray:
     """``A cov A'`` for covariances (N, 3k, 3k) of k stacked 3-vectors, A = diag(R, ..., R)."""
     k = cov.shape[-1] // 3
-    A = np.kron(np.eye(k), R)
+    # np.kron(np.eye(k), R) without its generic reshaping: the same products (1 x R on the
+    # diagonal blocks, 0 x R off it, signed zeros included), a fifth of the CPU
+    A = np.multiply.outer(np.eye(k), R).transpose(0, 2, 1, 3).reshape(3 * k, 3 * k)
     return A @ cov @ A.T

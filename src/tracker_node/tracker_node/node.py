@@ -9,12 +9,14 @@ from ``stereo/left/camera_info``. Topic names are relative (:mod:`vehicle_common
 QoS of all topics: RELIABLE, KEEP_LAST, depth 10, VOLATILE.
 
 The tracks also go out as vision_msgs/Detection3DArray on ``vehicles/vision/tracks`` (confirmed
-and coasting tracks, built while someone subscribes). ``tracks_frame`` (parameter; "" = the
-input's frame, the left camera's optical frame) publishes tracks, markers and vision tracks in
-another frame, e.g. ``odom``: the camera's pose there at each array's stamp comes from /tf and
-/tf_static (:class:`~vehicle_common.odometry_messages.TransformTree`), and, when a frame's
-transform is not there (yet), from the last one it had carried on with the arrays' camera
-motions, as the stereo node integrates them (:mod:`vehicle_common.odometry`).
+and coasting tracks). The vision tracks and the markers are built only while someone subscribes
+(a publisher sends only to its matched subscriptions: nobody could have received them; nothing
+else depends on them, the markers' list of shown tracks is kept either way). ``tracks_frame``
+(parameter; "" = the input's frame, the left camera's optical frame) publishes tracks, markers
+and vision tracks in another frame, e.g. ``odom``: the camera's pose there at each array's stamp
+comes from /tf and /tf_static (:class:`~vehicle_common.odometry_messages.TransformTree`), and,
+when a frame's transform is not there (yet), from the last one it had carried on with the
+arrays' camera motions, as the stereo node integrates them (:mod:`vehicle_common.odometry`).
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from vehicle_common import topics
 
 from .config import NODE_NAME, TrackerConfig
 from .conversions import (
+    TrackGeometry,
     camera_motion_from_msg,
     detections_from_msg,
     markers_for,
@@ -183,15 +186,17 @@ class VehicleTrackerNode(Node):
             pose = self._camera_pose(msg.header, motion)
             if pose is not None:
                 header = type(msg.header)(stamp=msg.header.stamp, frame_id=self.tracks_frame)
-        self.pub.publish(tracks_to_msg(tracks, header, pose))
+        geometry = TrackGeometry(tracks, pose)  # once for the tracks and the vision tracks
+        self.pub.publish(tracks_to_msg(tracks, header, geometry=geometry))
         self.trace("tracks_published", stamp_ns(msg.header))
         self.frames.published()
         if self.vision_pub.get_subscription_count() > 0:
-            self.vision_pub.publish(vision_tracks_message(tracks, header, pose))
+            self.vision_pub.publish(vision_tracks_message(tracks, header, geometry=geometry))
         ids = {int(t) for t in tracks.track_id}
         ended = sorted(self.shown_ids - ids)
-        self.shown_ids = ids
-        self.marker_pub.publish(markers_for(tracks, header, ended, pose=pose))
+        self.shown_ids = ids  # kept without subscribers too: a later one gets the same markers
+        if self.marker_pub.get_subscription_count() > 0:
+            self.marker_pub.publish(markers_for(tracks, header, ended, pose=pose))
 
 
 def main(args: list[str] | None = None) -> int:

@@ -6,6 +6,8 @@ inverse conversion (:func:`kitti_objects_from_message`) serves consumers such as
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .image_conversion import camera_info_from_projection
@@ -119,23 +121,38 @@ def kitti_objects_from_message(msg) -> list[KittiObject]:
 
 def quaternion_from_matrix(rotation) -> tuple[float, float, float, float]:
     """(w, x, y, z) of a 3x3 rotation matrix, w >= 0."""
-    R = np.asarray(rotation, float).reshape(3, 3)
-    # Shepperd's method: branch on the largest of w, x, y, z for a stable square root
-    tr = np.trace(R)
-    k = int(np.argmax([tr, R[0, 0], R[1, 1], R[2, 2]]))
+    M = np.asarray(rotation, float).reshape(3, 3).tolist()
+    # Shepperd's method: branch on the largest of w, x, y, z for a stable square root. In
+    # Python floats: the IEEE operations numpy's scalars did before (2026-11-29), in the same
+    # order (the trace summed left to right as np.trace does; the first of equal candidates,
+    # a NaN trace first, as np.argmax), the same bits at a sixth of the CPU
+    diagonal = (M[0][0], M[1][1], M[2][2])
+    tr = diagonal[0] + diagonal[1] + diagonal[2]
+    candidates = (tr, *diagonal)
+    k = 0
+    for j in (1, 2, 3):
+        if candidates[j] > candidates[k]:
+            k = j
     if k == 0:
-        s = 2.0 * np.sqrt(1.0 + tr)
-        q = (0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s)
+        s = 2.0 * _sqrt(1.0 + tr)
+        q = (0.25 * s, (M[2][1] - M[1][2]) / s, (M[0][2] - M[2][0]) / s, (M[1][0] - M[0][1]) / s)
     else:
         i, j, m = (k - 1, k % 3, (k + 1) % 3)
-        s = 2.0 * np.sqrt(1.0 + R[i, i] - R[j, j] - R[m, m])
+        s = 2.0 * _sqrt(1.0 + M[i][i] - M[j][j] - M[m][m])
         v = [0.0, 0.0, 0.0]
         v[i] = 0.25 * s
-        v[j] = (R[j, i] + R[i, j]) / s
-        v[m] = (R[m, i] + R[i, m]) / s
-        q = ((R[m, j] - R[j, m]) / s, *v)
-    w, x, y, z = np.asarray(q) * (1.0 if q[0] >= 0 else -1.0)
-    return float(w), float(x), float(y), float(z)
+        v[j] = (M[j][i] + M[i][j]) / s
+        v[m] = (M[m][i] + M[i][m]) / s
+        q = ((M[m][j] - M[j][m]) / s, *v)
+    sign = 1.0 if q[0] >= 0 else -1.0
+    w, x, y, z = (c * sign for c in q)
+    return w, x, y, z
+
+
+def _sqrt(value: float) -> float:
+    """math.sqrt, or numpy's NaN (with its warning) for a negative or NaN argument (a matrix
+    that is no rotation), as before."""
+    return math.sqrt(value) if value >= 0 else float(np.sqrt(value))
 
 
 def _write_quaternion(rotation, q) -> None:
@@ -187,3 +204,32 @@ def read_transform(transform) -> tuple[np.ndarray, np.ndarray]:
     except ValueError:
         raise ValueError("transform is not finite or its quaternion is zero") from None
     return R, tv
+
+
+def field_bits(msg) -> bytes:
+    """Every field of a ROS message, recursively, as bytes: floats as their IEEE-754 bits
+    (-0.0 and NaN payloads told apart), integers, bools and strings as written, arrays with
+    their type. Two messages with equal ``field_bits`` serialise to the same data. (Their CDR
+    bytes cannot be compared as such: the padding after a bool, such as a Marker's
+    ``frame_locked``, is left uninitialised by the serialiser and differs between runs.)"""
+    import array
+    import struct
+
+    if hasattr(msg, "get_fields_and_field_types"):
+        inner = b",".join(field_bits(getattr(msg, f)) for f in msg.get_fields_and_field_types())
+        return b"{" + inner + b"}"
+    if isinstance(msg, float):
+        return struct.pack("<d", msg)
+    if isinstance(msg, (bool, int)):
+        return repr(msg).encode()
+    if isinstance(msg, str):
+        return msg.encode() + b"\0"
+    if isinstance(msg, (bytes, bytearray)):
+        return bytes(msg)
+    if isinstance(msg, np.ndarray):
+        return msg.dtype.str.encode() + msg.tobytes()
+    if isinstance(msg, array.array):
+        return msg.typecode.encode() + msg.tobytes()
+    if isinstance(msg, (list, tuple)):
+        return b"[" + b",".join(field_bits(v) for v in msg) + b"]"
+    raise TypeError(f"field of type {type(msg).__name__}")

@@ -75,7 +75,7 @@ def detection_3d(
     cov = np.zeros((6, 6))
     cov[:3, :3] = np.asarray(position_covariance, float).reshape(3, 3)
     cov[3:, 3:] = np.eye(3) * UNKNOWN_ROTATION_VARIANCE
-    h.pose.covariance = [float(v) for v in cov.ravel()]
+    h.pose.covariance = cov.ravel()  # float64[36]: the same values as a list of floats
     d.results.append(h)
     d.bbox.center = h.pose.pose
     d.bbox.size.x, d.bbox.size.y, d.bbox.size.z = (float(v) for v in size)
