@@ -156,3 +156,16 @@ def test_figures_are_scored_on_the_kept_frames_only():
         assert a["tp"] > 0
         # matched rows of the velocity statistics come from kept frames only
         assert 0 < len(st.pos_err) <= n_labels
+
+
+def test_a_keep_every_below_1_is_one_line_and_a_non_zero_exit():
+    import subprocess
+
+    run = subprocess.run(
+        [sys.executable, str(REPO / "bench" / "bench_tracker.py"), "real", "--keep-every", "0"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert run.returncode != 0
+    assert run.stderr.strip() == "error: --keep-every: 0 is not a positive integer"
