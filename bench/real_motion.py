@@ -237,6 +237,14 @@ class SequenceData:
     motions: list | None = None
     # {(frame, track id): velocity over the ground (3,) in that frame's camera axes} [m/s]
     ground_velocity: dict | None = None
+    # the tracker steps on frames k % keep_every == 0 only (a camera faster than the graph),
+    # at stamps k x FRAME_PERIOD; every figure is scored on those frames (:meth:`kept`)
+    keep_every: int = 1
+
+    def kept(self, frames: dict) -> dict:
+        """The entries of ``frames`` (frame -> rows: ``gt``, ``raw``) of the frames the tracker
+        steps on."""
+        return {k: v for k, v in frames.items() if k % self.keep_every == 0}
 
 
 # ----------------------------------------------------------------------------- camera poses
@@ -265,6 +273,25 @@ def camera_motions(poses, offset: np.ndarray) -> list:
         m = R1.T @ (t0 - t1)
         out.append(CameraMotion(M, m + M @ offset - offset, FRAME_PERIOD))
     return out
+
+
+def compose_motions(motions: list):
+    """The camera's motion over consecutive per-frame ``motions`` (earliest first; each
+    ``X_k = M_k X_{k-1} + m_k`` over ``dt_k``): ``X_last = M X_first + m`` with ``M = M_n ..
+    M_1``, ``m = M_n (.. (M_2 m_1 + m_2) ..) + m_n``, ``dt`` their sum; None when any is unknown
+    (None). One motion is returned as it is."""
+    from vehicle_common.camera_motion import CameraMotion
+
+    if not motions or any(m is None for m in motions):
+        return None
+    if len(motions) == 1:
+        return motions[0]
+    M, t = np.eye(3), np.zeros(3)
+    for m in motions:
+        R = np.asarray(m.rotation, float)
+        M, t = R @ M, R @ t + np.asarray(m.translation, float)
+    dt = sum(float(m.dt) for m in motions) if all(m.dt > 0 for m in motions) else 0.0
+    return CameraMotion(M, t, dt, min(int(m.inliers) for m in motions))
 
 
 def ground_velocities(gt, poses, offset: np.ndarray) -> dict:
@@ -664,8 +691,13 @@ def run_tracker(
     gt_obj = {(k, o.track_id): o for k, objs in data.gt.items() for o in _cars(objs)}
     out, ranked = {}, {}
     motions = data.motions if use_motion and data.motions is not None else None
+    step = data.keep_every
     for k, batch in enumerate(data.frames):
-        ts = trk.step(batch, k * FRAME_PERIOD, None if motions is None else motions[k])
+        if k % step:  # dropped: the camera was faster than the graph
+            continue
+        # the camera's motion since the previous kept frame (unknown before the first)
+        motion = None if motions is None else compose_motions(motions[max(k - step + 1, 0) : k + 1])
+        ts = trk.step(batch, k * FRAME_PERIOD, motion)
         # tracks keep the tracker's own score (PointRCNN's are logits) for the AP ranking, which
         # takes tentative tracks too (at their lowered score, as `evaluate` does); CLEAR-MOT
         # takes the output states (confirmed / coasting) only.
@@ -790,12 +822,12 @@ def evaluate_split(
     too, 2D IoU similarity)."""
     gt, preds = {}, {"raw": {}}
     stats, times = {}, {}
-    for data in datas:
-        for k, objs in data.gt.items():
+    for data in datas:  # scored on the frames the tracker steps on (``keep_every``)
+        for k, objs in data.kept(data.gt).items():
             gt[(data.name, k)] = objs
-        for k, objs in data.raw.items():
+        for k, objs in data.kept(data.raw).items():
             preds["raw"][(data.name, k)] = objs
-    gts = {data.name: data.gt for data in datas}
+    gts = {data.name: data.kept(data.gt) for data in datas}
     for flt in filters:
         st = MotionStats([], [], [], [], [], [], {}) if motion else None
         preds[flt] = {}
@@ -808,8 +840,8 @@ def evaluate_split(
                 preds[flt][(data.name, k)] = objs
             if st is not None:
                 st.lost += sequence_lost_cars(data, ranked, out, cfg.birth_score)
-                st.false += false_tracks(data.name, data.gt, out)
-                _add_jitter(st, data.gt, out)
+                st.false += false_tracks(data.name, gts[data.name], out)
+                _add_jitter(st, gts[data.name], out, data.keep_every)
         times[flt] = time.perf_counter() - t0
         if st is not None:
             st.mot = evaluate_tracking_sequences(
@@ -822,10 +854,15 @@ def evaluate_split(
     return _ap_table(gt, preds), stats, times
 
 
-def _add_jitter(st: MotionStats, gt, out) -> None:
-    """Pool one sequence's matched-car position jitter into ``st.jitter``."""
+def _add_jitter(st: MotionStats, gt, out, keep_every: int = 1) -> None:
+    """Pool one sequence's matched-car position jitter into ``st.jitter``: second differences
+    over three consecutive frames tracked (``keep_every`` > 1: kept frames, spanning 2 x
+    keep_every periods, the labels' over the same frames)."""
     from eval_node.motion_metrics import matched_jitter
 
+    if keep_every > 1:
+        gt = {k // keep_every: v for k, v in gt.items() if k % keep_every == 0}
+        out = {k // keep_every: v for k, v in out.items() if k % keep_every == 0}
     j = matched_jitter(gt, out)
     if j["n"]:
         st.jitter[0] += j["pred_rms_m"] ** 2 * j["n"]
@@ -858,7 +895,8 @@ def sequence_lost_cars(data: SequenceData, ranked: dict, out: dict, birth_score:
     for k, rows in ranked.items():
         shown = {o.track_id for o in out.get(k, [])}
         tentative[k] = [o for o in rows if o.track_id not in shown]
-    return lost_cars(data.name, data.gt, data.raw, data.raw, out, tentative, birth_score)
+    raw = data.kept(data.raw)
+    return lost_cars(data.name, data.kept(data.gt), raw, raw, out, tentative, birth_score)
 
 
 def print_ap(title: str, ap: dict) -> None:

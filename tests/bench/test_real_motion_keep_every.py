@@ -1,0 +1,171 @@
+"""bench/real_motion.py ``keep_every`` (``bench_tracker.py real --keep-every K``): the camera's
+motion composed over the frames dropped, the tracker's stamps, the frames scored.
+
+Synthetic (no KITTI data): a camera driving and turning past three cars, perfect detections.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO / "bench"))
+import real_motion as rm  # noqa: E402
+from tracker_node.config import TrackerConfig  # noqa: E402
+from tracker_node.offline import result_rows  # noqa: E402
+from tracker_node.tracker import DetectionBatch, Tracker  # noqa: E402
+from vehicle_common.bags.recorded_run import OUTPUT_STATES, RANKED_STATES  # noqa: E402
+from vehicle_common.box3d import projected_bbox  # noqa: E402
+from vehicle_common.camera_motion import rotation_from_vector  # noqa: E402
+from vehicle_common.kitti import KittiObject, alpha_from_rotation_y  # noqa: E402
+
+P2 = np.array([[720.0, 0.0, 620.0, 0.0], [0.0, 720.0, 187.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+OFFSET = np.array([0.06, -0.01, 0.003])  # camera 0 in the left camera's frame
+N_FRAMES = 12
+
+
+def _poses(n: int = N_FRAMES, seed: int = 0):
+    """Left-camera poses (``X_first = R X_k + t``): driving forward ~8 m/s while turning and
+    pitching a little, with some noise."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        rv = np.array([0.004, 0.03, -0.002]) * k + rng.normal(scale=0.003, size=3)
+        t = np.array([0.1 * k, 0.02 * k, 0.8 * k]) + rng.normal(scale=0.02, size=3)
+        out.append((rotation_from_vector(rv), t))
+    return out
+
+
+def _sequence() -> rm.SequenceData:
+    """Three cars (two moving in the world, one parked), seen by the camera of :func:`_poses`,
+    each detected exactly at its labelled centre in every frame."""
+    poses = _poses()
+    starts = [np.array([-4.0, 1.7, 15.0]), np.array([3.5, 1.7, 25.0]), np.array([-2.0, 1.7, 35.0])]
+    vel = [np.array([0.0, 0.0, 10.0]), np.array([0.5, 0.0, 6.0]), np.zeros(3)]  # m/s, world
+    dims = (1.5, 1.6, 3.9)
+    gt, frames, ids, raw = {}, [], [], {}
+    for k, (R, t) in enumerate(poses):
+        objs, pos = [], []
+        for i, (x0, v) in enumerate(zip(starts, vel, strict=True)):
+            xw = x0 + v * k * rm.FRAME_PERIOD  # bottom centre, first left camera's frame
+            loc = R.T @ (xw - t) - OFFSET  # camera 0, frame k
+            box = projected_bbox(P2, dims, loc, -np.pi / 2, (1242, 375))
+            o = KittiObject(
+                type="Car",
+                alpha=alpha_from_rotation_y(-np.pi / 2, loc[0], loc[2]),
+                bbox=box,
+                dimensions=dims,
+                location=tuple(float(c) for c in loc),
+                rotation_y=-np.pi / 2,
+                frame=k,
+                track_id=i,
+            )
+            objs.append(o)
+            pos.append(o.centre_of_mass)
+        gt[k] = objs
+        batch = DetectionBatch.create(
+            np.array(pos),
+            covariance=np.tile(np.diag([0.05, 0.05, 0.3]), (len(pos), 1, 1)),
+            bbox=np.array([o.bbox for o in objs]),
+            score=np.full(len(pos), 0.9),
+        )
+        frames.append(batch)
+        ids.append(np.arange(len(objs)))
+        raw[k] = rm._to_objects(batch, k)
+    data = rm.SequenceData("synthetic", gt, P2, frames, ids, raw, [])
+    return replace(data, motions=rm.camera_motions(poses, OFFSET))
+
+
+def test_composed_motion_is_the_direct_pose_difference():
+    poses = _poses()
+    motions = rm.camera_motions(poses, OFFSET)
+    rng = np.random.default_rng(1)
+    for K in (2, 3):
+        for k in range(K, N_FRAMES):
+            got = rm.compose_motions(motions[k - K + 1 : k + 1])
+            direct = rm.camera_motions([poses[k - K], poses[k]], OFFSET)[1]
+            np.testing.assert_allclose(got.rotation, direct.rotation, atol=1e-12)
+            np.testing.assert_allclose(got.translation, direct.translation, atol=1e-12)
+            assert got.dt == pytest.approx(K * rm.FRAME_PERIOD)
+            # and it takes a static point's camera-0 coordinates at k - K to those at k
+            (Ra, ta), (Rb, tb) = poses[k - K], poses[k]
+            xw = rng.normal(size=3) * 10
+            xa, xb = Ra.T @ (xw - ta) - OFFSET, Rb.T @ (xw - tb) - OFFSET
+            np.testing.assert_allclose(got.rotation @ xa + got.translation, xb, atol=1e-9)
+    assert rm.compose_motions(motions[3:4]) is motions[3]  # one frame: the motion itself
+    assert rm.compose_motions(motions[0:2]) is None  # frame 0's motion is unknown
+
+
+class _Recorder(Tracker):
+    calls: list = []
+
+    def step(self, batch, stamp, motion=None):
+        _Recorder.calls.append((stamp, motion))
+        return super().step(batch, stamp, motion)
+
+
+def test_keep_every_1_is_the_every_frame_path_and_k_steps_on_kept_frames(monkeypatch):
+    data = _sequence()
+    cfg = TrackerConfig()
+    # today's path, written out: every frame, stamp k x period, that frame's motion
+    trk = Tracker(cfg, projection=data.P2)
+    ref_ranked, ref_out = {}, {}
+    for k, batch in enumerate(data.frames):
+        ts = trk.step(batch, k * rm.FRAME_PERIOD, data.motions[k])
+        ref_ranked[k] = result_rows(ts, k, np.zeros(3), RANKED_STATES, mean_hwl=rm.MEAN_HWL)
+        ref_out[k] = result_rows(ts, k, np.zeros(3), OUTPUT_STATES, mean_hwl=rm.MEAN_HWL)
+    ranked, out = rm.run_tracker(data, cfg, None)
+    assert ranked == ref_ranked and out == ref_out
+    assert any(out.values())  # the cars are tracked: the comparison is not of empty outputs
+
+    monkeypatch.setattr(rm, "Tracker", _Recorder)
+    poses = _poses()
+    for K in (1, 2, 3):
+        _Recorder.calls = []
+        ranked, out = rm.run_tracker(replace(data, keep_every=K), cfg, None)
+        kept = list(range(0, N_FRAMES, K))
+        assert sorted(out) == kept and sorted(ranked) == kept
+        stamps = [s for s, _ in _Recorder.calls]
+        np.testing.assert_allclose(stamps, [k * rm.FRAME_PERIOD for k in kept])
+        assert _Recorder.calls[0][1] is None
+        for k, (_, m) in zip(kept[1:], _Recorder.calls[1:], strict=True):
+            if K == 1:
+                assert m is data.motions[k]
+            direct = rm.camera_motions([poses[k - K], poses[k]], OFFSET)[1]
+            np.testing.assert_allclose(m.rotation, direct.rotation, atol=1e-12)
+            np.testing.assert_allclose(m.translation, direct.translation, atol=1e-12)
+            assert m.dt == pytest.approx(K * rm.FRAME_PERIOD)
+
+
+def test_figures_are_scored_on_the_kept_frames_only():
+    data = _sequence()
+    cfg = TrackerConfig()
+    for K in (1, 2, 3):
+        kept = range(0, N_FRAMES, K)
+        _, stats, _ = rm.evaluate_split([replace(data, keep_every=K)], cfg, ["kalman"])
+        st = stats["kalman"]
+        assert st.frames == len(kept)
+        n_labels = sum(len(data.gt[k]) for k in kept)
+        a = st.mot["all_rows"]
+        assert a["tp"] + a["fn"] == n_labels  # the dropped frames' labels are not scored
+        assert a["tp"] > 0
+        # matched rows of the velocity statistics come from kept frames only
+        assert 0 < len(st.pos_err) <= n_labels
+
+
+def test_a_keep_every_below_1_is_one_line_and_a_non_zero_exit():
+    import subprocess
+
+    run = subprocess.run(
+        [sys.executable, str(REPO / "bench" / "bench_tracker.py"), "real", "--keep-every", "0"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert run.returncode != 0
+    assert run.stderr.strip() == "error: --keep-every: 0 is not a positive integer"
