@@ -268,20 +268,17 @@ def markers_for(
     # coordinate exactly, whatever the grouping); with a pose point by point (each point's
     # own product: the same rounding as before)
     n = len(tracks)
-    ends, corners = [], []
-    for i in range(n):
-        l, w, h = (float(a) for a in tracks.size[i])
-        c = tracks.position[i]
-        corners.append(box_corners((h, w, l), kitti_from_centre(c, h), float(tracks.yaw[i])))
-        v = tracks.velocity_over_ground[i]  # the car's own motion when known
-        if not np.isfinite(v).all():
-            v = tracks.velocity[i]
-        ends.append(((c[0], c[1] - h / 2 - 0.3, c[2]), c, np.asarray(c, float) + v))
     # per track: 24 box points (its 12 edges), the label's position, the arrow's two ends
     ps = np.empty((n, 27, 3))
     for i in range(n):
-        ps[i, :24] = corners[i][_EDGE_CORNERS]
-        ps[i, 24:] = ends[i]
+        l, w, h = (float(a) for a in tracks.size[i])
+        c = tracks.position[i]
+        corners = box_corners((h, w, l), kitti_from_centre(c, h), float(tracks.yaw[i]))
+        v = tracks.velocity_over_ground[i]  # the car's own motion when known
+        if not np.isfinite(v).all():
+            v = tracks.velocity[i]
+        ps[i, :24] = corners[_EDGE_CORNERS]
+        ps[i, 24:] = ((c[0], c[1] - h / 2 - 0.3, c[2]), c, np.asarray(c, float) + v)
     ps = ps.reshape(-1, 3)
     moved = move.apply(ps) if pose is None else np.array([move.apply(p) for p in ps])
     pts = [Point(x=x, y=y, z=z) for x, y, z in moved.tolist()]
