@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import statistics
-import struct
 import subprocess
 import sys
 import tempfile
@@ -82,20 +81,6 @@ def frames_of(seq, detections: Path | None):
     return out
 
 
-def bits(value):
-    """A message's fields, recursively, as comparable values that are equal only when every
-    number is bit-identical (serialized bytes are not: CDR's padding is not initialised)."""
-    if hasattr(value, "get_fields_and_field_types"):
-        return tuple(bits(getattr(value, f)) for f in value.get_fields_and_field_types())
-    if isinstance(value, (list, tuple)):
-        return tuple(bits(v) for v in value)
-    if isinstance(value, float):
-        return struct.pack("<d", value)
-    if hasattr(value, "tobytes"):  # numpy and array.array fields
-        return value.tobytes()
-    return value
-
-
 class Variant:
     """One version of the package: a core pipeline and an in-process node."""
 
@@ -117,10 +102,12 @@ class Variant:
         node.right_info = camera_info_from_projection(self.seq.calib.P3, w, h)
         node.left_info.header.frame_id = node.right_info.header.frame_id = "cam2"
         node._update_geometry()
+        from vehicle_common.frame_messages import field_bits
+
         pub = self.published.append
-        node.pub_det3d.publish = lambda m: pub(bits(m))
+        node.pub_det3d.publish = lambda m: pub(field_bits(m))
         if node.odometry_pubs.odometry is not None:
-            node.odometry_pubs.odometry.publish = lambda m: pub(bits(m))
+            node.odometry_pubs.odometry.publish = lambda m: pub(field_bits(m))
         return node
 
     def node_steps(self):
