@@ -70,6 +70,12 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(101, 20
 import numpy as np  # noqa: E402
 from tracking_bringup.environment import PARAMS_FILE, apply_graph_environment  # noqa: E402
 from tracking_bringup.launcher import GraphLauncher, graph_processes  # noqa: E402
+from tracking_bringup.process_cpu import (  # noqa: E402
+    cpu_seconds,
+    profile_summary,
+    start_profilers,
+    thread_cpu_seconds,
+)
 from tracking_bringup.supervision import LaunchError  # noqa: E402
 from vehicle_common.frame_trace import TRACE_ENV, read_traces, span_ms  # noqa: E402
 
@@ -128,82 +134,6 @@ class Probe:
         self._ctx.try_shutdown()
 
 
-def _cpu_seconds(pid: int) -> float:
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except OSError:
-        return float("nan")
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def _thread_cpu_seconds(pid: int) -> dict[str, float]:
-    """CPU seconds of a process's threads by name (``main``: the thread that runs the node's
-    executor; the others by their kernel name, threads of one name summed)."""
-    out: dict[str, float] = {}
-    tick = os.sysconf("SC_CLK_TCK")
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
-            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
-            name = "main" if task.name == str(pid) else (task / "comm").read_text().strip()
-        except OSError:
-            continue
-        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick
-    return out
-
-
-def _start_profilers(pids: dict[str, int], out: Path, rate: int = 200) -> list:
-    """``py-spy record`` on every node process (on-CPU samples of its Python threads, raw
-    collapsed stacks into ``out/<node>.txt``); stops when the process exits."""
-    import shutil
-    import subprocess
-
-    exe = shutil.which("py-spy") or str(Path(sys.executable).with_name("py-spy"))
-    if not Path(exe).is_file():
-        print("[bench] --profile: py-spy not installed (pip install py-spy)", file=sys.stderr)
-        return []
-    out.mkdir(parents=True, exist_ok=True)
-    procs = []
-    for name, pid in pids.items():
-        cmd = [exe, "record", "--pid", str(pid), "--rate", str(rate), "--format", "raw"]
-        cmd += ["--output", str(out / f"{name}.txt"), "--nonblocking", "--threads"]
-        with open(out / f"{name}.log", "w") as log:  # the child keeps its own descriptor
-            procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log))
-    return procs
-
-
-def profile_summary(folder: Path, rate: int = 200, top: int = 6) -> str:
-    """Per node: CPU seconds sampled, split by thread, and the functions with the most self
-    time (the innermost Python frame of each sample: time in a C extension such as OpenCV,
-    ONNX Runtime or numpy is booked on the Python line that called it)."""
-    lines = []
-    for f in sorted(folder.glob("*.txt")):
-        self_time: dict[str, int] = {}
-        threads: dict[str, int] = {}
-        total = 0
-        for row in f.read_text().splitlines():
-            stack, _, count = row.rpartition(" ")
-            if not stack or not count.isdigit():
-                continue
-            n = int(count)
-            frames = stack.split(";")
-            total += n
-            thread = frames[0].split(" (")[0] if frames[0].startswith(("thread", "process")) else ""
-            threads[thread] = threads.get(thread, 0) + n
-            leaf = frames[-1]
-            fn, _, where = leaf.partition(" (")
-            if len(frames) == 1 and thread:  # a sample without a Python frame
-                key = "(native code, no Python frame)"
-            else:
-                key = f"{fn} ({Path(where.split(':')[0]).name})" if where else fn
-            self_time[key] = self_time.get(key, 0) + n
-        if not total:
-            continue
-        lines.append(f"  {f.stem}: {total} samples ({total / rate:.2f} thread-s, all threads)")
-        for k, n in sorted(self_time.items(), key=lambda kv: -kv[1])[:top]:
-            lines.append(f"    {100 * n / total:5.1f} %  {k}")
-    return "\n".join(lines)
-
-
 def run_case(
     root: Path,
     sequence: str,
@@ -240,18 +170,18 @@ def run_case(
         pids = {n: r.proc.pid for n, r in launcher.running.items()}
         while not probe.times[graph.CLOCK]:  # playback starts once every edge is matched
             launcher.spin_reports(0.05)
-        cpu0, t_cpu0 = {n: _cpu_seconds(p) for n, p in pids.items()}, time.monotonic()
+        cpu0, t_cpu0 = {n: cpu_seconds(p) for n, p in pids.items()}, time.monotonic()
         cpu1 = dict(cpu0)
-        threads0 = {n: _thread_cpu_seconds(p) for n, p in pids.items()}
+        threads0 = {n: thread_cpu_seconds(p) for n, p in pids.items()}
         threads1 = dict(threads0)
-        profilers = _start_profilers(pids, profile) if profile is not None else []
+        profilers = start_profilers(pids, profile) if profile is not None else []
 
         def sample():  # the last reading of each process (the player exits at the end)
             for n, p in pids.items():
-                c = _cpu_seconds(p)
+                c = cpu_seconds(p)
                 if c == c:  # not nan
                     cpu1[n] = c
-                    threads1[n] = _thread_cpu_seconds(p) or threads1[n]
+                    threads1[n] = thread_cpu_seconds(p) or threads1[n]
 
         player = launcher.running[graph.PLAYER.name].proc
         while player.poll() is None:

@@ -36,12 +36,16 @@ import tempfile
 import time
 from pathlib import Path
 
+from tracking_bringup.environment import PARAMS_FILE as PARAMS
+
+from vehicle_common import topics
+
 REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
-PARAMS = REPO / "src" / "tracking_bringup" / "config" / "pipeline.params.yaml"
-TRACKER_OUT = ("/vehicles/tracks", "/vehicles/track_markers", "/vehicles/vision/tracks")
-DETECTIONS = "/vehicles/detections_3d"
-LEFT_INFO = "/stereo/left/camera_info"
+TRACKER_OUT = tuple(
+    topics.resolve(t) for t in (topics.TRACKS, topics.TRACK_MARKERS, topics.VISION_TRACKS)
+)
+DETECTIONS = topics.resolve(topics.DETECTIONS_3D)
+LEFT_INFO = topics.resolve(topics.LEFT_INFO)
 
 
 def read_inputs(bag: Path, frames: int = 0) -> list[tuple[str, str, bytes]]:
@@ -66,9 +70,9 @@ def read_inputs(bag: Path, frames: int = 0) -> list[tuple[str, str, bytes]]:
 
 def proc_cpu(pid: int) -> dict[str, float]:
     """CPU seconds of a process: ``total`` and per thread name (``main``: the executor's)."""
-    from bench.bench_graph import _thread_cpu_seconds
+    from tracking_bringup.process_cpu import thread_cpu_seconds
 
-    threads = _thread_cpu_seconds(pid)
+    threads = thread_cpu_seconds(pid)
     return {"total": sum(threads.values()), **threads}
 
 
@@ -101,6 +105,7 @@ def run_once(tree: Path, inputs, workdir: Path, profile: bool = False) -> dict:
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.serialization import deserialize_message
     from stereo_vehicle_msgs.msg import TrackedVehicleArray, VehicleDetection3DArray
+    from vehicle_common.bags.replay import message_class
 
     bag = workdir / "bag"
     tracker = _start(tree, "tracker_node.node", "vehicle_tracker", [], workdir / "tracker.log")
@@ -129,7 +134,7 @@ def run_once(tree: Path, inputs, workdir: Path, profile: bool = False) -> dict:
                     DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE
                 ),
             )
-            pubs[topic] = node.create_publisher(_msg_class(msgtype), topic, qos)
+            pubs[topic] = node.create_publisher(message_class(msgtype), topic, qos)
         got: list[int] = []
 
         def on_tracks(msg) -> None:
@@ -159,10 +164,10 @@ def run_once(tree: Path, inputs, workdir: Path, profile: bool = False) -> dict:
         time.sleep(1.0)  # discovery traffic settles
         profilers = []
         if profile:  # py-spy on both processes (on-CPU samples), outside the timed replay
-            from bench.bench_graph import _start_profilers
+            from tracking_bringup.process_cpu import start_profilers
 
             pids = {"vehicle_tracker": tracker.pid, "bag_recorder": recorder.pid}
-            profilers = _start_profilers(pids, workdir / "profile")
+            profilers = start_profilers(pids, workdir / "profile")
             time.sleep(1.0)
         cpu0 = {"tracker": proc_cpu(tracker.pid), "recorder": proc_cpu(recorder.pid)}
         t0 = time.monotonic()
@@ -201,17 +206,11 @@ def run_once(tree: Path, inputs, workdir: Path, profile: bool = False) -> dict:
     return out
 
 
-def _msg_class(msgtype: str):
-    import importlib
-
-    pkg, _, name = msgtype.split("/")
-    return getattr(importlib.import_module(f"{pkg}.msg"), name)
-
-
 def recorded_digests(bag: Path) -> dict[str, str]:
     """sha256 of every field of each tracker output topic's messages, in recorded order."""
     from rclpy.serialization import deserialize_message
     from vehicle_common.bags.reader import bag_messages, open_reader
+    from vehicle_common.bags.replay import message_class
     from vehicle_common.frame_messages import field_bits
 
     hashes = {t: hashlib.sha256() for t in TRACKER_OUT}
@@ -220,7 +219,7 @@ def recorded_digests(bag: Path) -> dict[str, str]:
     try:
         conns = [c for c in reader.connections if c.topic in hashes]
         for conn, _, raw in bag_messages(reader, bag, conns):
-            msg = deserialize_message(bytes(raw), _msg_class(conn.msgtype))
+            msg = deserialize_message(bytes(raw), message_class(conn.msgtype))
             hashes[conn.topic].update(field_bits(msg))
             counts[conn.topic] += 1
     finally:
@@ -272,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
                 last = k == args.repeats - 1
                 res = run_once(tree, inputs, work, args.profile and last)
                 if args.profile and last:
-                    from bench.bench_graph import profile_summary
+                    from tracking_bringup.process_cpu import profile_summary
 
                     print(profile_summary(work / "profile", top=25))
                 results[name].append(res)
