@@ -73,6 +73,19 @@ def inv3_sym(S: np.ndarray) -> np.ndarray:
     return out
 
 
+def robust_noise(nu: np.ndarray, S: np.ndarray, R: np.ndarray, k: float) -> np.ndarray:
+    """Measurement covariances ``R`` (M, 3, 3) re-weighted for innovations ``nu`` (M, 3) with
+    covariances ``S`` (M, 3, 3): a Huber-type weight on the Mahalanobis size d of the
+    innovation, ``R`` times max(1, d / k), so an innovation beyond ``k`` standard deviations
+    moves the state by about ``k`` of them at most (a stereo depth that jumped to the
+    background or an occluder); ordinary innovations (d <= k) are taken as before. ``k`` <= 0:
+    ``R`` unchanged."""
+    if k <= 0 or not len(nu):
+        return R
+    d = np.sqrt(np.einsum("mi,mij,mj->m", nu, inv3_sym(S), nu))
+    return R * np.maximum(1.0, d / k)[:, None, None]
+
+
 class BatchedKalmanFilter:
     """Constant-velocity Kalman filters of N tracks in structure-of-arrays form.
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from .ego_motion import rotate_covariances
-from .kalman import inv3_sym
+from .kalman import inv3_sym, robust_noise
 
 _LOG_2PI_3 = 3.0 * np.log(2.0 * np.pi)
 
@@ -47,8 +47,16 @@ class StationaryModel:
     [m^2/s]: the parked position's random walk. Inactive (``active`` False) until the tracker
     has the camera's motion: without it a parked car moves in the camera frame."""
 
-    def __init__(self, prior: float, switch: float, process_noise: float, min_updates: int = 0):
+    def __init__(
+        self,
+        prior: float,
+        switch: float,
+        process_noise: float,
+        min_updates: int = 0,
+        robust_k: float = 0.0,
+    ):
         self.prior = float(prior)
+        self.robust_k = float(robust_k)  # kalman.robust_noise's k (0: off)
         self.switch = float(switch)
         self.q = float(process_noise)
         self.min_updates = int(min_updates)
@@ -147,6 +155,8 @@ class StationaryModel:
         nu = z - x
         ll_s = log_likelihood(nu, S)
         ll_m = log_likelihood(z - moving_position, moving_cov + R)
+        if self.robust_k > 0:  # the likelihoods above keep the stated R
+            S = P + robust_noise(nu, S, R, self.robust_k)
         K = P @ inv3_sym(S)
         self.x[rows] = x + (K @ nu[:, :, None])[:, :, 0]
         P = P - K @ P

@@ -32,6 +32,7 @@ from .association import (
 from .config import TrackerConfig
 from .ego_motion import extrapolate, static_velocity_before
 from .filters import make_filter
+from .kalman import robust_noise
 from .lifecycle import COASTING, CONFIRMED, TENTATIVE, TrackLifecycle
 from .orientation import (
     align_to,
@@ -193,6 +194,7 @@ class Tracker:
                 self.cfg.stationary_switch,
                 self.cfg.stationary_process_noise,
                 self.cfg.stationary_min_updates,
+                self.cfg.robust_update_k,
             )
             if self.cfg.stationary_prior > 0
             else None
@@ -330,7 +332,16 @@ class Tracker:
                 self.filter.position[rows],
                 self.filter.position_cov[rows],
             )
-        self.filter.update(rows, dets.position[cols], R[cols])
+        Rm = R[cols]
+        if (
+            cfg.robust_update_k > 0
+            and cfg.robust_update_models == "both"
+            and getattr(self.filter, "name", "") == "kalman"
+        ):
+            nu = dets.position[cols] - self.filter.position[rows]
+            S = self.filter.position_cov[rows] + Rm
+            Rm = robust_noise(nu, S, Rm, cfg.robust_update_k)
+        self.filter.update(rows, dets.position[cols], Rm)
         self.lifecycle.matched(t, rows, dets.score[cols])
         t.det_index[rows] = cols
         dsize = dets.size[cols]
