@@ -847,6 +847,7 @@ def summary_lines(summary: dict) -> list[str]:
                     f" (at the actual recall {q['tracks_ap_1.5m_moderate_actual_recall']:.1f}: "
                     f"{q['moderate_boxes']} boxes cap AP|R40)"
                     if 0 < q.get("moderate_boxes", 40) < 40
+                    and np.isfinite(q["tracks_ap_1.5m_moderate_actual_recall"])
                     else ""
                 )
                 + f", MOTA {q['mota']:.1f}, HOTA (2D IoU) {q['hota']:.1f}"
