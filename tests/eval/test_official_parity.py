@@ -51,6 +51,9 @@ def test_kitti_interpolation_books_threshold_k_at_recall_k_over_40():
         GT, PRED, criterion="iou2d", threshold=0.7, difficulty="easy", interpolation="recall"
     )
     assert rec.ap_r40 == pytest.approx((20 * 1.0 + 20 * 2 / 3) / 40)
+    # every curve also gives that figure (what results.json and the report set beside AP|R40)
+    assert pr.ap_actual_recall == pytest.approx(rec.ap_r40)
+    assert rec.ap_actual_recall == pytest.approx(rec.ap_r40)
     with pytest.raises(ValueError, match="interpolation"):
         precision_recall(GT, PRED, interpolation="voc")
 
@@ -223,3 +226,27 @@ def test_results_table_says_where_the_devkit_caps_ap():
         "detections_2d": {"0.5": {"easy_num_gt": 90, "moderate_num_gt": 200, "hard_num_gt": 241}}
     }
     assert cap_note(many) is None
+
+
+def test_results_table_gives_the_actual_recall_ap_where_the_devkit_caps_it():
+    """Two cars found perfectly: the devkit's AP|R40 is 1/40 (capped), the actual-recall AP 1;
+    the report's table sets the second beside the first only when fewer than 40 boxes count."""
+    from eval_node.bag_evaluation import DISTANCES, IOUS
+    from eval_node.detection_metrics import ap_table
+    from eval_node.report import table_rows
+
+    perfect = {0: [_car(score=0.9)], 1: [_car(score=0.8)]}
+    res = {
+        "detections_3d": ap_table(GT, perfect, "centre_distance", DISTANCES),
+        "tracks_3d": ap_table(GT, perfect, "centre_distance", DISTANCES),
+        "detections_2d": ap_table(GT, perfect, "iou2d", IOUS),
+    }
+    row = res["tracks_3d"]["1.5"]
+    assert row["easy"] == pytest.approx(1 / 40) and row["easy_actual_recall"] == pytest.approx(1)
+    _, rows = table_rows(res)
+    marked = {r[0]: r[1:] for r in rows if r[0].endswith("actual recall")}
+    assert marked["tracks @ 1.5 m, actual recall"][0].strip() == "100.0"
+    for table in res.values():  # 40 counted boxes: no cap, no extra rows
+        for r in table.values():
+            r.update({f"{lv}_num_gt": 40 for lv in ("easy", "moderate", "hard")})
+    assert not [r for r in table_rows(res)[1] if r[0].endswith("actual recall")]

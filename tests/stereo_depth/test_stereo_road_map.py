@@ -52,3 +52,32 @@ def test_road_plane_on_the_shared_map_fits_a_synthetic_road(monkeypatch, road_ma
     assert plane is not None and plane.source == "fit"
     assert abs(plane.offset - CAMERA_HEIGHT) < 0.05
     assert abs(plane.pitch_deg) < 0.5 and abs(plane.roll_deg) < 0.5
+
+
+def test_the_road_map_starts_before_the_scene_map_and_the_odometry(monkeypatch):
+    """With ``road_map: own`` the helper thread takes the road plane's map first (it needs only
+    the pair, and the check waits for it), before the scene map is computed and the odometry,
+    which waits for that map, is queued behind it: the order of the frame's critical path
+    (docs/ARCHITECTURE.md, "A frame's path"). The serial executor runs each job when it is
+    submitted, so the calls' order is the submission order."""
+    calls = []
+    for name in ("coarse_disparity", "block_matching_maps"):
+        real = getattr(pipeline_module, name)
+        monkeypatch.setattr(
+            pipeline_module, name, lambda *a, _n=name, _r=real, **k: calls.append(_n) or _r(*a, **k)
+        )
+    points = []
+    pipe = StereoPipeline.from_config(
+        stereo_config_from_values({"road_map": "own"}),
+        trace=lambda point, stamp: points.append(point),
+    )
+    left, right = road_pair()
+    pipe.camera_from_projections(left, P_LEFT, P_RIGHT)
+    geometry, settings = pipe.camera()
+    params = pipe.disparity_params_for(H, settings)
+    boxes = FrameBoxes([(500.0, 150.0, 600.0, 200.0)], [0], [np.nan], [-1.0], [0.9], ["0"])
+    pipe.process(1, left, right, geometry, params, boxes)
+    assert calls == ["coarse_disparity", "block_matching_maps"]
+    assert points.index("road_end") < points.index("scene_start")
+    if "odometry_start" in points:
+        assert points.index("scene_end") < points.index("odometry_start")

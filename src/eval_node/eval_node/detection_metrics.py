@@ -266,6 +266,16 @@ class PrecisionRecall:
             return math.nan
         return float(self.precision.mean())
 
+    @property
+    def ap_actual_recall(self) -> float:
+        """AP|R40 with each operating point at its actual recall (the ``"recall"``
+        interpolation, whatever this curve's): mean over r = 1/40 .. 1 of the best precision of
+        any sampled operating point whose recall is >= r. Not capped near num_gt / 40 with few
+        boxes, unlike the devkit's AP|R40."""
+        if self.num_gt == 0:
+            return math.nan
+        return actual_recall_ap(self.tp_fp_fn, len(self.precision))
+
     def as_dict(self) -> dict:
         return {
             "ap_r41": self.ap_r41,
@@ -331,10 +341,7 @@ def precision_recall(
             if k not in cache:
                 cache[k] = _tp_fp_fn(f, k)
             pr[t] += cache[k]
-    tp, fp, fn = pr[:, 0].astype(float), pr[:, 1].astype(float), pr[:, 2].astype(float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        op_recall = np.where(tp + fn > 0, tp / (tp + fn), 0.0)
-        op_precision = np.where(tp + fp > 0, tp / (tp + fp), 0.0)
+    op_precision, op_recall = _operating_points(pr)
     recall[:] = np.linspace(0.0, 1.0, n_sample_pts)
     if interpolation == "kitti":
         # evaluate_object.cpp: precision[i] of the i-th threshold, then max over i..end; the
@@ -342,12 +349,37 @@ def precision_recall(
         n = len(op_precision)
         precision[:n] = np.maximum.accumulate(op_precision[::-1])[::-1]
     else:
-        # the best precision of any operating point with actual recall >= r_k (0 where never)
-        for k, r in enumerate(recall):
-            reached = op_precision[op_recall >= r - 1e-9]
-            precision[k] = reached.max() if reached.size else 0.0
+        precision[:] = _precision_at_actual_recall(op_precision, op_recall, recall)
     max_recall = float(op_recall.max()) if op_recall.size else 0.0
     return PrecisionRecall(precision, recall, thresholds, num_gt, pr, max_recall)
+
+
+def _operating_points(tp_fp_fn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Precision and recall of each sampled score threshold (rows: TP, FP, FN)."""
+    tp, fp, fn = (tp_fp_fn[:, i].astype(float) for i in range(3))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        op_recall = np.where(tp + fn > 0, tp / (tp + fn), 0.0)
+        op_precision = np.where(tp + fp > 0, tp / (tp + fp), 0.0)
+    return op_precision, op_recall
+
+
+def _precision_at_actual_recall(op_precision, op_recall, recall: np.ndarray) -> np.ndarray:
+    """The best precision of any operating point with actual recall >= r_k (0 where never)."""
+    out = np.zeros(len(recall))
+    for k, r in enumerate(recall):
+        reached = op_precision[op_recall >= r - 1e-9]
+        out[k] = reached.max() if reached.size else 0.0
+    return out
+
+
+def actual_recall_ap(tp_fp_fn: np.ndarray, n_sample_pts: int = N_SAMPLE_PTS) -> float:
+    """AP|R40 at the actual recall of ``tp_fp_fn``'s operating points (see
+    :attr:`PrecisionRecall.ap_actual_recall`)."""
+    op_precision, op_recall = _operating_points(np.asarray(tp_fp_fn).reshape(-1, 3))
+    precision = _precision_at_actual_recall(
+        op_precision, op_recall, np.linspace(0.0, 1.0, n_sample_pts)
+    )
+    return float(precision[1:].sum() / (n_sample_pts - 1))
 
 
 def localisation_ap(
@@ -411,8 +443,9 @@ def ap_table(
     interpolation: str = "kitti",
 ) -> dict[str, dict[str, float]]:
     """AP per threshold and difficulty in the layout of ``results.json``: ``{key(t): {"easy":
-    AP|R40, "easy_r40", "easy_r11", "easy_r41", "easy_num_gt", "moderate": ..., ...}}``
-    (fractions). ``curves``, when given, receives ``{level: {key(t): {"precision", "recall"}}}``.
+    AP|R40, "easy_r40", "easy_r11", "easy_r41", "easy_num_gt", "easy_actual_recall" (AP|R40 at
+    the actual recall, not capped with few boxes), "moderate": ..., ...}}`` (fractions).
+    ``curves``, when given, receives ``{level: {key(t): {"precision", "recall"}}}``.
     """
     table: dict[str, dict[str, float]] = {}
     for t in thresholds:
@@ -432,6 +465,7 @@ def ap_table(
             row[f"{level}_r11"] = pr.ap_r11
             row[f"{level}_r41"] = pr.ap_r41
             row[f"{level}_num_gt"] = pr.num_gt
+            row[f"{level}_actual_recall"] = pr.ap_actual_recall
             if curves is not None:
                 curves.setdefault(level, {})[key(t)] = {
                     "precision": pr.precision.tolist(),

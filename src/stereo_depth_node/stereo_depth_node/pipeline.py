@@ -320,21 +320,23 @@ class StereoPipeline:
             odometry = self._start_odometry(stamp, gray, disparity, geometry)
             road = _Ready(disparity)
         else:
-            # the odometry's map of the scene: block matching over the band; then, in the
-            # helper thread, the odometry and the road plane's map (``road_map`` "own": the
-            # map's algorithm at half its resolution, when there are boxes to check;
-            # "shared": the scene's block matching, its speckle filter read in pixels) beside
-            # the map in the boxes and the ranging
-            self.trace("scene_start", stamp)
+            # in the helper thread first, the road plane's own map (``road_map`` "own": the
+            # map's algorithm at half its resolution, when there are boxes to check): it
+            # needs only the pair, and the check waits for it; meanwhile here the odometry's
+            # map of the scene (block matching over the band; with "shared" also the road
+            # plane's, its speckle filter read in pixels), then the odometry in the helper
+            # thread beside the map in the boxes and the ranging (its motion is waited for
+            # only at the end)
             shared = self.road_map == "shared" and bool(boxes)
+            road = None
+            if boxes and not shared:
+                road = self.executor.submit(self._road_map, stamp, left, right, params)
+            self.trace("scene_start", stamp)
             scene, road_scene = block_matching_maps(gray, gray_right, params, road=shared)
             self.trace("scene_end", stamp)
             odometry = self._start_odometry(stamp, gray, scene, geometry)
-            road = None
             if shared:
                 road = _Ready(road_scene)
-            elif boxes:
-                road = self.executor.submit(self._road_map, stamp, left, right, params)
             self.trace("disparity_start", stamp)
             # with the occluder cut, also the strips beside the boxes it judges
             r = self.ranging_params
