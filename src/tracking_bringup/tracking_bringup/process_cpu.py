@@ -54,13 +54,12 @@ def start_profilers(pids: dict[str, int], out: Path, rate: int = 200) -> list:
 
 
 def profile_summary(folder: Path, rate: int = 200, top: int = 6) -> str:
-    """Per node: CPU seconds sampled, split by thread, and the functions with the most self
+    """Per node: thread-seconds sampled and the functions with the most self
     time (the innermost Python frame of each sample: time in a C extension such as OpenCV,
     ONNX Runtime or numpy is booked on the Python line that called it)."""
     lines = []
     for f in sorted(folder.glob("*.txt")):
         self_time: dict[str, int] = {}
-        threads: dict[str, int] = {}
         total = 0
         for row in f.read_text().splitlines():
             stack, _, count = row.rpartition(" ")
@@ -69,8 +68,7 @@ def profile_summary(folder: Path, rate: int = 200, top: int = 6) -> str:
             n = int(count)
             frames = stack.split(";")
             total += n
-            thread = frames[0].split(" (")[0] if frames[0].startswith(("thread", "process")) else ""
-            threads[thread] = threads.get(thread, 0) + n
+            thread = frames[0].startswith(("thread", "process"))
             leaf = frames[-1]
             fn, _, where = leaf.partition(" (")
             if len(frames) == 1 and thread:  # a sample without a Python frame
