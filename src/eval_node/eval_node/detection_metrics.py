@@ -274,7 +274,9 @@ class PrecisionRecall:
         boxes, unlike the devkit's AP|R40."""
         if self.num_gt == 0:
             return math.nan
-        return actual_recall_ap(self.tp_fp_fn, len(self.precision))
+        op_precision, op_recall = _operating_points(self.tp_fp_fn)
+        precision = _precision_at_actual_recall(op_precision, op_recall, self.recall)
+        return float(precision[1:].sum() / (len(precision) - 1))
 
     def as_dict(self) -> dict:
         return {
@@ -370,16 +372,6 @@ def _precision_at_actual_recall(op_precision, op_recall, recall: np.ndarray) -> 
         reached = op_precision[op_recall >= r - 1e-9]
         out[k] = reached.max() if reached.size else 0.0
     return out
-
-
-def actual_recall_ap(tp_fp_fn: np.ndarray, n_sample_pts: int = N_SAMPLE_PTS) -> float:
-    """AP|R40 at the actual recall of ``tp_fp_fn``'s operating points (see
-    :attr:`PrecisionRecall.ap_actual_recall`)."""
-    op_precision, op_recall = _operating_points(np.asarray(tp_fp_fn).reshape(-1, 3))
-    precision = _precision_at_actual_recall(
-        op_precision, op_recall, np.linspace(0.0, 1.0, n_sample_pts)
-    )
-    return float(precision[1:].sum() / (n_sample_pts - 1))
 
 
 def localisation_ap(
