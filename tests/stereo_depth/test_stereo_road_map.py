@@ -32,6 +32,17 @@ def road_pair() -> tuple[np.ndarray, np.ndarray]:
     return (np.dstack([left] * 3), np.dstack([right] * 3))
 
 
+def process_road_pair(pipe: StereoPipeline) -> None:
+    """One frame of :func:`road_pair` with one box through ``pipe`` (its camera from the
+    pair's projections)."""
+    left, right = road_pair()
+    pipe.camera_from_projections(left, P_LEFT, P_RIGHT)
+    geometry, settings = pipe.camera()
+    params = pipe.disparity_params_for(H, settings)
+    boxes = FrameBoxes([(500.0, 150.0, 600.0, 200.0)], [0], [np.nan], [-1.0], [0.9], ["0"])
+    pipe.process(1, left, right, geometry, params, boxes)
+
+
 @pytest.mark.parametrize("road_map, own_maps", [("shared", 0), ("own", 1)])
 def test_road_plane_on_the_shared_map_fits_a_synthetic_road(monkeypatch, road_map, own_maps):
     calls = []
@@ -39,14 +50,8 @@ def test_road_plane_on_the_shared_map_fits_a_synthetic_road(monkeypatch, road_ma
     monkeypatch.setattr(
         pipeline_module, "coarse_disparity", lambda *a, **k: calls.append(1) or own(*a, **k)
     )
-    config = stereo_config_from_values({"road_map": road_map})
-    pipe = StereoPipeline.from_config(config)
-    left, right = road_pair()
-    pipe.camera_from_projections(left, P_LEFT, P_RIGHT)
-    geometry, settings = pipe.camera()
-    params = pipe.disparity_params_for(H, settings)
-    boxes = FrameBoxes([(500.0, 150.0, 600.0, 200.0)], [0], [np.nan], [-1.0], [0.9], ["0"])
-    pipe.process(1, left, right, geometry, params, boxes)
+    pipe = StereoPipeline.from_config(stereo_config_from_values({"road_map": road_map}))
+    process_road_pair(pipe)
     assert len(calls) == own_maps
     plane = pipe.ground._last
     assert plane is not None and plane.source == "fit"
@@ -71,12 +76,7 @@ def test_the_road_map_starts_before_the_scene_map_and_the_odometry(monkeypatch):
         stereo_config_from_values({"road_map": "own"}),
         trace=lambda point, stamp: points.append(point),
     )
-    left, right = road_pair()
-    pipe.camera_from_projections(left, P_LEFT, P_RIGHT)
-    geometry, settings = pipe.camera()
-    params = pipe.disparity_params_for(H, settings)
-    boxes = FrameBoxes([(500.0, 150.0, 600.0, 200.0)], [0], [np.nan], [-1.0], [0.9], ["0"])
-    pipe.process(1, left, right, geometry, params, boxes)
+    process_road_pair(pipe)
     assert calls == ["coarse_disparity", "block_matching_maps"]
     assert points.index("road_end") < points.index("scene_start")
     if "odometry_start" in points:
