@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from concurrent.futures import Executor, Future
+from functools import partial
 
 import cv2
 import numpy as np
@@ -135,6 +136,38 @@ class FrameResult:
     geometry: StereoGeometry
     kept: list
     motion: CameraMotion | None
+
+
+@dataclasses.dataclass
+class EarlyFrame:
+    """A frame's work that needs no 2D boxes, begun before they arrive
+    (:meth:`StereoPipeline.begin`): its gray images; in the executor, the scene's
+    block-matching map with the odometry's estimate against the reference of that time
+    (``maps``: scene, motion, the odometry's error or None) and the road plane's map
+    (``road``). :meth:`StereoPipeline.process` takes it for the frame of its stamp when it was
+    made with the frame's camera and settings; an estimate made against another reference or
+    other reference boxes is made again there (the results are the same either way)."""
+
+    stamp: int
+    camera_generation: int
+    geometry: StereoGeometry
+    params: DisparityParams
+    gray: np.ndarray
+    gray_right: np.ndarray
+    reference: tuple | None  # the odometry's reference the estimate is made against
+    reference_boxes: list  # the vehicle boxes masked in that reference
+    maps: Future  # -> (scene map, motion or None, the odometry's error or None)
+    road: Future  # -> the road plane's map ("own": its half-resolution map; "shared": scene's)
+
+
+def _done(value=None, error: Exception | None = None) -> Future:
+    """A future that is already done (a result computed ahead)."""
+    future: Future = Future()
+    if error is not None:
+        future.set_exception(error)
+    else:
+        future.set_result(value)
+    return future
 
 
 class StereoPipeline:
@@ -292,6 +325,87 @@ class StereoPipeline:
         return self._band_params[1]
 
     # ------------------------------------------------------------------ one frame
+    def begin(self, stamp: int, left: np.ndarray, right: np.ndarray) -> EarlyFrame | None:
+        """Begin a frame's work that needs no boxes (the node: while the detector runs on the
+        same frame): its gray images here, then in the executor the scene's map and the
+        odometry's estimate against the current reference (the frame is not made the
+        reference: it may never be used), and the road plane's map. None when it cannot be
+        begun ahead: ``map_area`` "band", no camera yet or a camera change not yet taken by a
+        frame, or images of a size no frame has had yet (their match band is settled by the
+        first)."""
+        band = self._band_params
+        geometry, settings = self.geometry, self.settings
+        if (
+            self.map_area == "band"
+            or geometry is None
+            or self._worker_generation != self._camera_generation
+            or band is None
+            or band[0] != (left.shape[0], settings)
+        ):
+            return None
+        params = band[1]
+        reference = self.odometry.reference if self.odometry is not None else None
+        reference_boxes = list(self._vehicle_boxes)
+        gray, gray_right = to_gray(left), to_gray(right)
+        shared = self.road_map == "shared"
+        maps = self.executor.submit(
+            self._scene_and_motion, stamp, gray, gray_right, params, geometry, reference,
+            reference_boxes, shared,
+        )  # fmt: skip
+        if shared:
+            road = self.executor.submit(lambda: maps.result()[3])
+        else:
+            road = self.executor.submit(self._road_map, stamp, left, right, params)
+        return EarlyFrame(
+            stamp, self._camera_generation, geometry, params, gray, gray_right, reference,
+            reference_boxes, maps, road,
+        )  # fmt: skip
+
+    def _scene_and_motion(
+        self, stamp, gray, gray_right, params, geometry, reference, reference_boxes, shared
+    ) -> tuple:
+        """The executor's early work on a frame: the scene's map (with ``shared``, also the
+        road plane's), then the odometry's estimate against ``reference`` (traced as
+        scene_* / odometry_*): (scene, motion, error, road map or None)."""
+        self.trace("scene_start", stamp)
+        scene, road_scene = block_matching_maps(gray, gray_right, params, road=shared)
+        self.trace("scene_end", stamp)
+        motion = error = None
+        if self.odometry is not None:
+            self.trace("odometry_start", stamp)
+            try:
+                bias = self._column_bias(gray.shape[1], geometry)
+                motion = self.odometry.estimate_from(
+                    reference, stamp, gray, geometry, reference_boxes, bias
+                )
+            except (ValueError, cv2.error) as exc:
+                error = exc
+            self.trace("odometry_end", stamp)
+        return scene, motion, error, road_scene
+
+    def _usable(self, early: EarlyFrame | None, stamp: int, geometry, params) -> bool:
+        """Whether ``early`` is this frame's work, made with its camera and settings."""
+        return (
+            early is not None
+            and early.stamp == stamp
+            and early.camera_generation == self._camera_generation
+            and early.geometry is geometry
+            and early.params is params
+        )
+
+    def _early_odometry(self, early: EarlyFrame, stamp: int, geometry) -> Future | None:
+        """The frame's odometry from its early work (the frame made the reference now), or
+        started now when the reference or its boxes changed since (the same motion as without
+        early work)."""
+        scene, motion, error, _ = early.maps.result()
+        if self.odometry is None:
+            return None
+        boxes = list(self._vehicle_boxes)
+        if early.reference is not self.odometry.reference or early.reference_boxes != boxes:
+            return self._start_odometry(stamp, early.gray, scene, geometry)
+        self.odometry.set_reference(stamp, early.gray, scene)
+        return _done(motion, error)
+
     def process(
         self,
         stamp: int,
@@ -302,15 +416,27 @@ class StereoPipeline:
         dets: FrameBoxes,
         full_map: bool = False,
         disparity: np.ndarray | None = None,
+        early: EarlyFrame | None = None,
     ) -> FrameResult:
         """One frame (RGB pair, its :meth:`camera` and :meth:`disparity_params_for`): its
         disparity map where the ranging reads it (``full_map``: the whole band's, whatever
         ``map_area``; ``disparity``: that map, computed already, e.g. beside the CNN), its
-        odometry and road plane's map in the executor meanwhile, the ranging and check, and
-        the camera motion (waited for). Call :meth:`frame_done` once its output is out."""
+        odometry and road plane's map in the executor meanwhile (or taken from ``early``,
+        :meth:`begin`'s work on this frame), the ranging and check, and the camera motion
+        (waited for). Call :meth:`frame_done` once its output is out."""
         boxes = dets.boxes
-        gray, gray_right = to_gray(left), to_gray(right)
         full_map = self.map_area == "band" or full_map or disparity is not None
+        if not full_map and self._usable(early, stamp, geometry, params):
+            # the scene's map, the odometry and the road plane's map begun ahead (waited for
+            # by the check and at the end)
+            self.trace("disparity_start", stamp)
+            disparity = self._box_map(left, right, boxes, params)
+            self.trace("disparity_end", stamp)
+            road = early.road if boxes else None
+            odometry = partial(self._early_odometry, early, stamp, geometry)
+            return self._finish(stamp, dets, disparity, road, geometry, params, odometry,
+                                (early.gray, early.gray_right), False)  # fmt: skip
+        gray, gray_right = to_gray(left), to_gray(right)
         if full_map:
             # the band's map for the ranging, the road plane and the odometry
             self.trace("disparity_start", stamp)
@@ -338,16 +464,28 @@ class StereoPipeline:
             if shared:
                 road = _Ready(road_scene)
             self.trace("disparity_start", stamp)
-            # with the occluder cut, also the strips beside the boxes it judges
-            r = self.ranging_params
-            area = map_boxes(boxes, r.occluder_strip) if r.occluder_cut and boxes else boxes
-            disparity = compute_disparity_in_boxes(left, right, area, params)
+            disparity = self._box_map(left, right, boxes, params)
             self.trace("disparity_end", stamp)
+        return self._finish(stamp, dets, disparity, road, geometry, params, lambda: odometry,
+                            (gray, gray_right), full_map)  # fmt: skip
+
+    def _box_map(self, left, right, boxes, params) -> np.ndarray:
+        """The ranging's map in the boxes (with the occluder cut, also the strips beside the
+        boxes it judges)."""
+        r = self.ranging_params
+        area = map_boxes(boxes, r.occluder_strip) if r.occluder_cut and boxes else boxes
+        return compute_disparity_in_boxes(left, right, area, params)
+
+    def _finish(
+        self, stamp, dets, disparity, road, geometry, params, odometry, grays, full_map
+    ) -> FrameResult:
+        """The ranging and check of the frame's boxes, then its camera motion (``odometry()``:
+        its future, waited for)."""
         self.trace("pair_end", stamp)
         self.frames_processed += 1
-        images = (gray, gray_right) if self.ranging_params.refine != "none" else None
+        images = grays if self.ranging_params.refine != "none" else None
         kept = self._range_and_check(stamp, dets, disparity, road, geometry, images)
-        motion = self._camera_motion(odometry)
+        motion = self._camera_motion(odometry())
         return FrameResult(disparity, full_map, params, geometry, kept, motion)
 
     def frame_done(self, boxes) -> None:

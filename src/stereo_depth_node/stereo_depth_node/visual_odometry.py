@@ -246,6 +246,28 @@ class FrameToFrameOdometry:
     def reset(self) -> None:
         self._ref = None
 
+    @property
+    def reference(self) -> tuple | None:
+        """The current reference (stamp, gray image, disparity map), or None: compared by
+        identity to know whether an estimate made ahead was made against it."""
+        return self._ref
+
+    def estimate_from(
+        self,
+        reference: tuple | None,
+        stamp_ns: int,
+        gray: np.ndarray,
+        geometry: StereoGeometry,
+        reference_boxes=(),
+        disparity_bias=0.0,
+    ) -> CameraMotion | None:
+        """The motion from ``reference`` (a :attr:`reference` taken earlier) to this frame,
+        without changing the reference: a frame's estimate made before it is known to be
+        used (the stereo node, while the detector runs on that frame)."""
+        return self._estimate_from(
+            reference, stamp_ns, gray, geometry, reference_boxes, disparity_bias
+        )
+
     def step(
         self,
         stamp_ns: int,
