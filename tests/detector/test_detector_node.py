@@ -253,7 +253,9 @@ def test_detector_offline_unwritable_output_is_one_line(tmp_path, capsys):
 def test_burst_of_images_the_newest_is_detected_and_the_older_counted_dropped(rclpy_context):
     """While the CNN works on image 0, five more images arrive at once (the node's executor
     takes them late). The node detects the newest, 5, and counts 1-4 as dropped before any work
-    on them: in 6, out 2, dropped 4 (latest-frame policy, issue #33)."""
+    on them: in 6, out 2, dropped 4 (latest-frame policy, issue #33). Each image the CNN
+    starts is announced before its array (``vehicles/detections_2d/started``, the stereo node's
+    early start), the skipped ones never."""
     import threading
 
     from detector_node.node import VehicleDetectorNode
@@ -261,6 +263,7 @@ def test_burst_of_images_the_newest_is_detected_and_the_older_counted_dropped(rc
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import Image
+    from std_msgs.msg import Header
     from stereo_vehicle_msgs.msg import VehicleDetection2DArray
     from vehicle_common.frame_messages import header
     from vehicle_common.image_conversion import numpy_to_image
@@ -283,6 +286,8 @@ def test_burst_of_images_the_newest_is_detected_and_the_older_counted_dropped(rc
     test = Node("detector_burst_test", context=rclpy_context)
     got = []
     test.create_subscription(VehicleDetection2DArray, "/vehicles/detections_2d", got.append, 10)
+    announced = []
+    test.create_subscription(Header, "/vehicles/detections_2d/started", announced.append, 10)
     pub = test.create_publisher(Image, "/stereo/left/image_rect", 10)
     ex = SingleThreadedExecutor(context=rclpy_context)
     ex.add_node(det)
@@ -298,6 +303,7 @@ def test_burst_of_images_the_newest_is_detected_and_the_older_counted_dropped(rc
         )
         pub.publish(image(0))
         assert _spin_until(ex, started.is_set)
+        assert _spin_until(ex, lambda: len(announced) == 1) and got == []  # before its array
         for k in range(1, 6):  # the burst, while nobody spins the node's executor
             pub.publish(image(k))
         time.sleep(0.2)
@@ -307,6 +313,7 @@ def test_burst_of_images_the_newest_is_detected_and_the_older_counted_dropped(rc
         ex.spin_once(timeout_sec=0.2)
         assert [_stamp_ns(m.header) - 1_000_000_000 for m in got] == [0, 5]
         assert len(seen) == 2  # the CNN ran on images 0 and 5 only
+        assert [_stamp_ns(h) - 1_000_000_000 for h in announced] == [0, 5]
         counts = det.frames.snapshot()
         assert (counts.received, counts.published, counts.dropped) == (6, 2, 4)
     finally:

@@ -15,6 +15,7 @@ import sys
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
 from stereo_vehicle_msgs.msg import (
     KittiFrameLabels,
     VehicleDetection2DArray,
@@ -67,6 +68,10 @@ class VehicleDetectorNode(Node):
         self.vision_pub = self.create_publisher(Detection2DArray, topics.VISION_DETECTIONS_2D, 10)
         if self.backend == "cnn":
             from .loading import load_node_detector
+
+            # each frame the CNN starts, announced (its image's header) before its array: the
+            # stereo node begins the frame's work that needs no boxes meanwhile
+            self.started_pub = self.create_publisher(Header, topics.DETECTIONS_2D_STARTED, 5)
 
             self.cnn, info, warning = load_node_detector(p)
             c = self.cnn.config
@@ -223,6 +228,7 @@ class VehicleDetectorNode(Node):
     def _detect(self, msg: Image) -> None:
         stamp = stamp_ns(msg.header)
         self.trace("detect_start", stamp)
+        self.started_pub.publish(msg.header)
         try:
             rgb = image_to_rgb(as_message(msg))
         except ImageConversionError as exc:

@@ -5,6 +5,8 @@ A frame is the complete set of its left image, right image and 2D detection arra
 it pairs with, within a tolerance (:class:`.stamp_sync.StereoPairing`). A complete set goes to
 ``submit``; a set that can no longer complete (a newer one did, the camera's time went back, or
 the run ended) is dropped before any work on it, counted and its cause given to ``warn``.
+``on_pair(stamp)`` (optional) is told when a set has both its images and waits for its 2D
+array (:mod:`.early_start`), and :meth:`FrameIntake.pair_of` gives them.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ class FrameIntake:
         usage: InputUsage,
         submit: Callable[[tuple], object],
         warn: Callable[[str], object],
+        on_pair: Callable[[int], object] | None = None,
     ) -> None:
         # a frame = its left image, right image and 2D detection array (one stamp; in order)
         self.frame_sync = ExactStampSync(FRAME_SLOTS, cache_size, in_order=True)
@@ -49,6 +52,7 @@ class FrameIntake:
         self.usage = usage
         self._submit = submit
         self._warn = warn
+        self._on_pair = on_pair
         self._last_left_stamp: int | None = None  # a jump back: a restarted camera
         self.dropped_detection_arrays = 0  # whose images never arrived (lost or superseded)
         self._last_frame_stamp: int | None = None  # the worker's
@@ -94,6 +98,16 @@ class FrameIntake:
             self._drop_incomplete(ev, "lost, or superseded by a newer one")
         if group is not None:
             self._submit((group["left"], group["right"], group["detections"]))
+        elif self._on_pair is not None and slot != "detections" and self.pair_of(stamp):
+            self._on_pair(stamp)
+
+    def pair_of(self, stamp: int) -> tuple | None:
+        """The (left, right) images of the set at ``stamp`` while it waits for its 2D array,
+        else None."""
+        group = self.frame_sync.waiting(stamp)
+        if group is None or "left" not in group or "right" not in group:
+            return None
+        return group["left"], group["right"]
 
     def _drop_incomplete(self, ev, why: str) -> None:
         """A frame whose set cannot complete: counted as dropped, its cause logged."""

@@ -25,6 +25,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import CameraInfo, PointCloud2
+from std_msgs.msg import Header
 from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
 from tf2_msgs.msg import TFMessage
@@ -44,6 +45,7 @@ from vehicle_common import topics
 
 from .conversions import build_point_cloud, detection_3d_message, disparity_message
 from .disparity import RowBandError
+from .early_start import EarlyStart
 from .intake import FrameIntake, stamp_text
 from .odometry_output import OdometryOutput
 from .parameters import read_stereo_config
@@ -200,7 +202,12 @@ class StereoDepthNode(Node):
             self.usage,
             self.worker.submit,
             lambda line: self.get_logger().warning(line, throttle_duration_sec=5.0),
+            on_pair=lambda stamp: self.early.pair_ready(stamp),
         )
+        # a frame's work that needs no boxes, begun in the helper thread when the detector
+        # announces it started the frame (.early_start); taken by the worker with its boxes
+        self.early = EarlyStart(self._helper, self._begin_early, self.intake.pair_of)
+        self.early_start = p.early_start
         # QoS (docs/ARCHITECTURE.md, "Topics"): the newest INPUT_DEPTH messages of each input:
         # a burst the executor takes late is still seen, and dropped and counted here before
         # any work; older ones are never taken. The camera's topics BEST_EFFORT (any camera)
@@ -227,6 +234,7 @@ class StereoDepthNode(Node):
             lambda m: self._on_input("detections", m),
             qos_in,
         )
+        self.create_subscription(Header, topics.DETECTIONS_2D_STARTED, self._on_started, qos_in)
         self.health = NodeHealth(self, self.frames, busy=lambda: self.worker.busy, usage=self.usage)
 
     def destroy_node(self):
@@ -266,6 +274,33 @@ class StereoDepthNode(Node):
         self.trace("right_received", stamp)
         self.intake.add_right(stamp, msg)
 
+    def _on_started(self, header) -> None:
+        """The detector started a frame: its work that needs no boxes begins once its images
+        are here (with ``early_start``; not while the whole band's map is wanted: the
+        disparity image or the point cloud has a subscriber)."""
+        if self.early_start and not self.outputs.wanted():
+            self.early.announce(stamp_ns(header))
+
+    def _begin_early(self, stamp: int, left_msg, right_msg):
+        """The helper thread's early work on a frame: its images converted, then
+        :meth:`.pipeline.StereoPipeline.begin` (None when it cannot be done ahead)."""
+        left_msg, right_msg = as_message(left_msg), as_message(right_msg)
+        left, right = image_to_rgb(left_msg), image_to_rgb(right_msg)
+        return left_msg, right_msg, left, right, self.pipeline.begin(stamp, left, right)
+
+    def _images(self, stamp: int, left_msg, right_msg):
+        """The frame's messages, RGB images and early work (:meth:`_begin_early`, or None):
+        from the work begun ahead when there is one, else converted here (a conversion that
+        failed ahead fails here again, with its error)."""
+        early = self.early.take(stamp)
+        if early is not None:
+            try:
+                return early.result()
+            except Exception:  # noqa: BLE001 - converted again below, where it is reported
+                pass
+        left_msg, right_msg = as_message(left_msg), as_message(right_msg)
+        return left_msg, right_msg, image_to_rgb(left_msg), image_to_rgb(right_msg), None
+
     def _time_went_back(self, stamp: int) -> None:
         """The worker's frame is older than its previous one (a restarted camera or bag): the
         visual odometry, its integration in odom and the road plane start afresh, with one
@@ -300,9 +335,7 @@ class StereoDepthNode(Node):
         dets = list(det_msg.detections)
         try:
             geometry, settings = self.pipeline.camera()
-            left_msg, right_msg = as_message(left_msg), as_message(right_msg)
-            left = image_to_rgb(left_msg)
-            right = image_to_rgb(right_msg)
+            left_msg, right_msg, left, right, early = self._images(stamp, left_msg, right_msg)
             # sizes and frame ids of the images and their camera_infos
             check_stereo_images(left_msg, right_msg, left, right, self.left_info, self.right_info)
             params = self.pipeline.disparity_params_for(left.shape[0], settings)
@@ -323,7 +356,7 @@ class StereoDepthNode(Node):
             return
         boxes = frame_boxes(dets)
         frame = self.pipeline.process(
-            stamp, left, right, geometry, params, boxes, self.outputs.wanted()
+            stamp, left, right, geometry, params, boxes, self.outputs.wanted(), early=early
         )
         out = VehicleDetection3DArray()
         out.header = det_msg.header

@@ -109,6 +109,11 @@ class StereoNodeParameters:
     ground_height: float = param(0.0, low=0.0)
     # stereo visual odometry between successive frames (camera_motion of the 3D arrays)
     visual_odometry: bool = True
+    # begin a frame's work that needs no boxes (the scene's map, the odometry, the road
+    # plane's map) in the helper thread when the detector announces that it started that
+    # frame (vehicles/detections_2d/started), while its CNN runs; the same outputs
+    # (early_start.py; docs/stereo_depth.md section 17)
+    early_start: bool = True
 
     def validate(self) -> None:
         if 0 < self.num_disparities < 16:

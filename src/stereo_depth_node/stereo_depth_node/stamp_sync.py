@@ -83,6 +83,11 @@ class ExactStampSync:
     def __len__(self) -> int:
         return len(self._pending)
 
+    def waiting(self, stamp: Hashable) -> dict[str, Any] | None:
+        """The values of the incomplete group at ``stamp`` so far (not to be changed), or
+        None when no group waits at that stamp."""
+        return self._pending.get(stamp)
+
     def pending_stamps(self) -> list[Hashable]:
         """Stamps waiting for more slots, oldest first."""
         return list(self._pending)

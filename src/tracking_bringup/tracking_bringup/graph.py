@@ -83,14 +83,22 @@ DETECTOR = NodeSpec(
     package="detector_node",
     executable="vehicle_detector",
     subscribes=(LEFT_IMAGE, LEFT_INFO),  # camera info: the framing derived from the camera
-    publishes=(DETECTIONS_2D, topics.VISION_DETECTIONS_2D),
+    # the started frames: the CNN's (the stereo node begins their work that needs no boxes)
+    publishes=(DETECTIONS_2D, topics.VISION_DETECTIONS_2D, topics.DETECTIONS_2D_STARTED),
     latest_frame=True,
 )
 STEREO = NodeSpec(
     name="stereo_depth",
     package="stereo_depth_node",
     executable="stereo_depth",
-    subscribes=(LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO, DETECTIONS_2D),
+    subscribes=(
+        LEFT_IMAGE,
+        RIGHT_IMAGE,
+        LEFT_INFO,
+        RIGHT_INFO,
+        DETECTIONS_2D,
+        topics.DETECTIONS_2D_STARTED,
+    ),
     publishes=(DETECTIONS_3D, DISPARITY, ODOMETRY, TF, TF_STATIC),
     latest_frame=True,
 )
@@ -110,7 +118,11 @@ RECORDER = NodeSpec(
 )
 
 #: The detector with its ablation backend "oracle", which also reads the ground truth.
-ORACLE_DETECTOR = replace(DETECTOR, subscribes=(LEFT_IMAGE, GROUND_TRUTH))
+ORACLE_DETECTOR = replace(
+    DETECTOR,
+    subscribes=(LEFT_IMAGE, GROUND_TRUTH),
+    publishes=(DETECTIONS_2D, topics.VISION_DETECTIONS_2D),  # no CNN time: announces nothing
+)
 
 #: the nodes that compute on the camera's images (parameters image_transport and
 #: camera_reliability, vehicle_common.image_transport)

@@ -15,6 +15,9 @@ RIGHT_INFO = "stereo/right/camera_info"
 GROUND_TRUTH = "kitti/ground_truth"
 CLOCK = "clock"
 DETECTIONS_2D = "vehicles/detections_2d"
+#: the detector's note that it started a frame (the image's header), before its 2D array: the
+#: stereo node begins that frame's work that needs no boxes meanwhile (its early_start module)
+DETECTIONS_2D_STARTED = "vehicles/detections_2d/started"
 DETECTIONS_3D = "vehicles/detections_3d"
 TRACKS = "vehicles/tracks"
 TRACK_MARKERS = "vehicles/track_markers"
@@ -43,6 +46,7 @@ ALL = (
     GROUND_TRUTH,
     CLOCK,
     DETECTIONS_2D,
+    DETECTIONS_2D_STARTED,
     DETECTIONS_3D,
     TRACKS,
     TRACK_MARKERS,
@@ -66,6 +70,7 @@ TYPES = {
     GROUND_TRUTH: "stereo_vehicle_msgs/msg/KittiFrameLabels",
     CLOCK: "rosgraph_msgs/msg/Clock",
     DETECTIONS_2D: "stereo_vehicle_msgs/msg/VehicleDetection2DArray",
+    DETECTIONS_2D_STARTED: "std_msgs/msg/Header",
     DETECTIONS_3D: "stereo_vehicle_msgs/msg/VehicleDetection3DArray",
     TRACKS: "stereo_vehicle_msgs/msg/TrackedVehicleArray",
     TRACK_MARKERS: "visualization_msgs/msg/MarkerArray",
