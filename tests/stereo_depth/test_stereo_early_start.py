@@ -201,14 +201,20 @@ def test_intake_tells_when_a_frame_has_both_images_and_waits_for_its_boxes():
 
 
 def _node_run(ctx, announce: bool) -> list:
-    """Frames 1-3 through the node (:class:`test_stereo_node.Harness`), frames 2 and 3
-    announced as the detector does (frame 1 settles the match band) when ``announce``: each
-    3D array's camera motion span and detections' positions."""
+    """Frames 1-3 through the node (:class:`test_stereo_node.Harness`), with ``early_start``
+    and frames 2 and 3 announced as the detector does (frame 1 settles the match band) when
+    ``announce``: each 3D array's camera motion span and detections' positions."""
     from std_msgs.msg import Header
     from test_stereo_node import Harness
 
     # no disparity image: it needs the whole band's map, and then nothing is begun ahead
-    h = Harness(ctx, sync_cache_size=3, plausibility_action="flag", publish_disparity=False)
+    h = Harness(
+        ctx,
+        sync_cache_size=3,
+        plausibility_action="flag",
+        publish_disparity=False,
+        early_start=announce,
+    )
     started = h.io.create_publisher(Header, "/vehicles/detections_2d/started", 5)
     h.spin_until(lambda: started.get_subscription_count() > 0)
     try:
@@ -250,3 +256,22 @@ def test_the_node_begins_an_announced_frame_in_its_helper_thread(rclpy_context, 
     assert announced == _node_run(rclpy_context, False)
     assert threads[3:] == ["stereo"] * 3
     assert announced[1][0] == pytest.approx(1.0) and len(announced[2][1]) == 1
+
+
+def test_the_early_start_is_off_when_the_node_may_use_one_cpu(rclpy_context, monkeypatch):
+    """On one CPU the early work would take it from the CNN (measured: one-core lockstep
+    capacity 6.2 -> 5.4 frames/s, docs/stereo_depth.md section 17): asked for, it stays off."""
+    from rclpy.parameter import Parameter
+    from stereo_depth_node.node import StereoDepthNode
+
+    from stereo_depth_node import node as node_module
+
+    for cpus, expected in (({0}, False), ({0, 1}, True)):
+        monkeypatch.setattr(node_module, "available_cpus", lambda c=cpus: frozenset(c))
+        node = StereoDepthNode(
+            context=rclpy_context, parameter_overrides=[Parameter("early_start", value=True)]
+        )
+        try:
+            assert node.early_start is expected
+        finally:
+            node.destroy_node()

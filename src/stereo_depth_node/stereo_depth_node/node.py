@@ -30,7 +30,7 @@ from stereo_msgs.msg import DisparityImage
 from stereo_vehicle_msgs.msg import VehicleDetection2DArray, VehicleDetection3DArray
 from tf2_msgs.msg import TFMessage
 from vehicle_common.camera_motion import CameraMotion
-from vehicle_common.cpu_affinity import usable_threads
+from vehicle_common.cpu_affinity import available_cpus, usable_threads
 from vehicle_common.frame_accounting import FrameCounter, LatestFrameWorker
 from vehicle_common.frame_messages import bbox_to_xyxy, stamp_ns, write_transform
 from vehicle_common.frame_trace import frame_tracer
@@ -207,7 +207,10 @@ class StereoDepthNode(Node):
         # a frame's work that needs no boxes, begun in the helper thread when the detector
         # announces it started the frame (.early_start); taken by the worker with its boxes
         self.early = EarlyStart(self._helper, self._begin_early, self.intake.pair_of)
-        self.early_start = p.early_start
+        # not on one CPU: the early work would take it from the CNN (measured, section 17)
+        self.early_start = p.early_start and len(available_cpus()) > 1
+        if p.early_start and not self.early_start:
+            self.get_logger().info("early_start: off, this process may use one CPU only")
         # QoS (docs/ARCHITECTURE.md, "Topics"): the newest INPUT_DEPTH messages of each input:
         # a burst the executor takes late is still seen, and dropped and counted here before
         # any work; older ones are never taken. The camera's topics BEST_EFFORT (any camera)

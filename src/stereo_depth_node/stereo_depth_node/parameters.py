@@ -111,9 +111,10 @@ class StereoNodeParameters:
     visual_odometry: bool = True
     # begin a frame's work that needs no boxes (the scene's map, the odometry, the road
     # plane's map) in the helper thread when the detector announces that it started that
-    # frame (vehicles/detections_2d/started), while its CNN runs; the same outputs
-    # (early_start.py; docs/stereo_depth.md section 17)
-    early_start: bool = True
+    # frame (vehicles/detections_2d/started), while its CNN runs; the same outputs. Off: on
+    # this 2-vCPU machine the CNN slowed as much as the stereo span shortened in half the runs
+    # (docs/stereo_depth.md section 17); never on one CPU
+    early_start: bool = False
 
     def validate(self) -> None:
         if 0 < self.num_disparities < 16:
