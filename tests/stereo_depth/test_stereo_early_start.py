@@ -159,11 +159,15 @@ def test_work_starts_when_both_the_announcement_and_the_images_are_here():
     assert early.take(5) is None  # taken once
 
 
-def test_images_first_then_the_announcement_and_an_older_one_late():
-    early, pool = _early({7: ("L7", "R7"), 6: ("L6", "R6")})
+def test_images_first_then_the_announcement_and_a_camera_restarted():
+    early, pool = _early({7: ("L7", "R7"), 1: ("L1", "R1")})
     early.announce(7)
-    early.announce(6)  # older than the newest announced: ignored
+    early.announce(7)  # a repeat: nothing more
     assert [a[0] for _, a in pool.jobs] == [7]
+    pool.run(0)
+    early.announce(1)  # time went back (a restarted camera or bag): its frames go on
+    assert [a[0] for _, a in pool.jobs] == [7, 1]
+    assert early.take(1) is None  # not run yet: cancelled, the worker does it all
 
 
 def test_a_newer_frame_cancels_work_not_started_and_take_keeps_newer_work():

@@ -43,8 +43,8 @@ class EarlyStart:
         """The detector started the frame at ``stamp`` (its work starts once its images are
         here)."""
         with self._lock:
-            if self._announced is not None and stamp <= self._announced:
-                return  # a repeat, or an older frame announced late
+            if stamp == self._announced:
+                return  # a repeat (an earlier stamp: a restarted camera, taken as it comes)
             self._announced = stamp
             pair = self._pair_of(stamp)
             if pair is not None:
