@@ -252,22 +252,6 @@ class FrameToFrameOdometry:
         identity to know whether an estimate made ahead was made against it."""
         return self._ref
 
-    def estimate_from(
-        self,
-        reference: tuple | None,
-        stamp_ns: int,
-        gray: np.ndarray,
-        geometry: StereoGeometry,
-        reference_boxes=(),
-        disparity_bias=0.0,
-    ) -> CameraMotion | None:
-        """The motion from ``reference`` (a :attr:`reference` taken earlier) to this frame,
-        without changing the reference: a frame's estimate made before it is known to be
-        used (the stereo node, while the detector runs on that frame)."""
-        return self._estimate_from(
-            reference, stamp_ns, gray, geometry, reference_boxes, disparity_bias
-        )
-
     def step(
         self,
         stamp_ns: int,
@@ -295,7 +279,7 @@ class FrameToFrameOdometry:
         disparity_bias=0.0,
     ) -> CameraMotion | None:
         """The motion from the reference frame to this one, without changing the reference."""
-        return self._estimate_from(
+        return self.estimate_from(
             self._ref, stamp_ns, gray, geometry, reference_boxes, disparity_bias
         )
 
@@ -308,7 +292,7 @@ class FrameToFrameOdometry:
         gives what :meth:`step` would have given."""
         ref = self._ref
         self.set_reference(stamp_ns, gray, disparity)
-        return partial(self._estimate_from, ref, stamp_ns, gray)
+        return partial(self.estimate_from, ref, stamp_ns, gray)
 
     def prepare(self, reference_boxes=()) -> Callable[[], None]:
         """Return a job that finds the current reference's corners away from
@@ -334,9 +318,12 @@ class FrameToFrameOdometry:
         self._scaled = (gray, small)
         return small
 
-    def _estimate_from(
+    def estimate_from(
         self, ref, stamp_ns: int, gray, geometry, reference_boxes=(), disparity_bias=0.0
     ) -> CameraMotion | None:
+        """The motion from ``ref`` (a :attr:`reference` taken earlier) to this frame, without
+        changing the reference: e.g. a frame's estimate made before it is known to be used
+        (the stereo node, while the detector runs on that frame)."""
         if ref is None or ref[0] >= stamp_ns or ref[1].shape != gray.shape:
             return None
         prepared = self._prepared
