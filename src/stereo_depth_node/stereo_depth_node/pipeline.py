@@ -6,8 +6,10 @@ settings, the match band's settings, the visual odometry's reference, the road p
 bias model) and runs one frame: its disparity map where the ranging reads it (``map_area``:
 the boxes, or the whole band), meanwhile its visual odometry and the road plane's map in the
 side executor, then the ranging, the plausibility check against the road plane, and the
-plausibility action (reject or score). The ROS node (:mod:`.node`) converts messages and calls
-it; the offline tool (:mod:`.offline`) and ``bench/bench_graph.py`` call the same class. The
+plausibility action (reject or score); :meth:`StereoPipeline.begin` starts a frame's work
+that needs no boxes before they arrive (:mod:`.early_start`). The ROS node (:mod:`.node`)
+converts messages and calls it; the offline tool (:mod:`.offline`) and ``bench/bench_graph.py``
+call the same class. The
 side executor is any ``concurrent.futures`` executor (the node's: one helper thread); with
 :class:`SerialExecutor` everything runs in the caller's thread, in order (the results are the
 same).
