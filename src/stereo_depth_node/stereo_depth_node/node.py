@@ -231,13 +231,15 @@ class StereoDepthNode(Node):
         left_cb, right_cb = (lambda m: self._on_input("left", m)), self._on_right
         subscribe_image(self, topics.LEFT_IMAGE, left_cb, depth_in, note, serialized=True)
         subscribe_image(self, topics.RIGHT_IMAGE, right_cb, depth_in, note, serialized=True)
+        # the detector's announcement before its array: the executor takes ready callbacks in
+        # creation order, so an announcement that arrives with its array is read first
+        self.create_subscription(Header, topics.DETECTIONS_2D_STARTED, self._on_started, qos_in)
         self.create_subscription(
             VehicleDetection2DArray,
             topics.DETECTIONS_2D,
             lambda m: self._on_input("detections", m),
             qos_in,
         )
-        self.create_subscription(Header, topics.DETECTIONS_2D_STARTED, self._on_started, qos_in)
         self.health = NodeHealth(self, self.frames, busy=lambda: self.worker.busy, usage=self.usage)
 
     def destroy_node(self):

@@ -488,6 +488,9 @@ class StereoPipeline:
         images = grays if self.ranging_params.refine != "none" else None
         kept = self._range_and_check(stamp, dets, disparity, road, geometry, images)
         motion = self._camera_motion(odometry())
+        # the next frame's odometry masks these boxes in this frame, its reference now (set
+        # here, not only in frame_done: the next frame's early work may begin before that)
+        self._vehicle_boxes = list(dets.boxes)
         return FrameResult(disparity, full_map, params, geometry, kept, motion)
 
     def frame_done(self, boxes) -> None:
