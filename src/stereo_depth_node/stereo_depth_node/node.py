@@ -194,6 +194,10 @@ class StereoDepthNode(Node):
             on_error=self._work_failed,
             max_waiting=p.frame_queue,
         )
+        # not on one CPU: the early work would take it from the CNN (measured, section 17)
+        self.early_start = p.early_start and len(available_cpus()) > 1
+        if p.early_start and not self.early_start:
+            self.get_logger().info("early_start: off, this process may use one CPU only")
         # a frame = its left image, right image and 2D detection array, one stamp (.intake)
         self.intake = FrameIntake(
             p.sync_cache_size,
@@ -202,15 +206,11 @@ class StereoDepthNode(Node):
             self.usage,
             self.worker.submit,
             lambda line: self.get_logger().warning(line, throttle_duration_sec=5.0),
-            on_pair=lambda stamp: self.early.pair_ready(stamp),
+            on_pair=(lambda stamp: self.early.pair_ready(stamp)) if self.early_start else None,
         )
         # a frame's work that needs no boxes, begun in the helper thread when the detector
         # announces it started the frame (.early_start); taken by the worker with its boxes
         self.early = EarlyStart(self._helper, self._begin_early, self.intake.pair_of)
-        # not on one CPU: the early work would take it from the CNN (measured, section 17)
-        self.early_start = p.early_start and len(available_cpus()) > 1
-        if p.early_start and not self.early_start:
-            self.get_logger().info("early_start: off, this process may use one CPU only")
         # QoS (docs/ARCHITECTURE.md, "Topics"): the newest INPUT_DEPTH messages of each input:
         # a burst the executor takes late is still seen, and dropped and counted here before
         # any work; older ones are never taken. The camera's topics BEST_EFFORT (any camera)

@@ -144,9 +144,8 @@ class FrameResult:
 class EarlyFrame:
     """A frame's work that needs no 2D boxes, begun before they arrive
     (:meth:`StereoPipeline.begin`): its gray images; in the executor, the scene's
-    block-matching map with the odometry's estimate against the reference of that time
-    (``maps``: scene, motion, the odometry's error or None) and the road plane's map
-    (``road``). :meth:`StereoPipeline.process` takes it for the frame of its stamp when it was
+    block-matching map, the odometry's estimate against the reference of that time and the
+    road plane's map. :meth:`StereoPipeline.process` takes it for the frame of its stamp when it was
     made with the frame's camera and settings; an estimate made against another reference or
     other reference boxes is made again there (the results are the same either way)."""
 
@@ -158,18 +157,9 @@ class EarlyFrame:
     gray_right: np.ndarray
     reference: tuple | None  # the odometry's reference the estimate is made against
     reference_boxes: list  # the vehicle boxes masked in that reference
-    maps: Future  # -> (scene map, motion or None, the odometry's error or None)
+    scene: Future  # -> (scene map, the road plane's map with "shared" or None)
+    motion: Future | None  # -> the odometry's estimate (None: no odometry)
     road: Future  # -> the road plane's map ("own": its half-resolution map; "shared": scene's)
-
-
-def _done(value=None, error: Exception | None = None) -> Future:
-    """A future that is already done (a result computed ahead)."""
-    future: Future = Future()
-    if error is not None:
-        future.set_exception(error)
-    else:
-        future.set_result(value)
-    return future
 
 
 class StereoPipeline:
@@ -350,40 +340,31 @@ class StereoPipeline:
         reference_boxes = list(self._vehicle_boxes)
         gray, gray_right = to_gray(left), to_gray(right)
         shared = self.road_map == "shared"
-        maps = self.executor.submit(
-            self._scene_and_motion, stamp, gray, gray_right, params, geometry, reference,
-            reference_boxes, shared,
-        )  # fmt: skip
+        scene = self.executor.submit(self._scene_map, stamp, gray, gray_right, params, shared)
+        motion = None
+        if self.odometry is not None:
+            bias = self._column_bias(gray.shape[1], geometry)
+            job = partial(self.odometry.estimate_from, reference, stamp, gray)
+            motion = self.executor.submit(
+                self._estimate_motion, stamp, job, geometry, reference_boxes, bias
+            )
         if shared:
-            road = self.executor.submit(lambda: maps.result()[3])
+            road = self.executor.submit(lambda: scene.result()[1])
         else:
             road = self.executor.submit(self._road_map, stamp, left, right, params)
         return EarlyFrame(
             stamp, self._camera_generation, geometry, params, gray, gray_right, reference,
-            reference_boxes, maps, road,
+            reference_boxes, scene, motion, road,
         )  # fmt: skip
 
-    def _scene_and_motion(
-        self, stamp, gray, gray_right, params, geometry, reference, reference_boxes, shared
-    ) -> tuple:
-        """The executor's early work on a frame: the scene's map (with ``shared``, also the
-        road plane's), then the odometry's estimate against ``reference`` (traced as
-        scene_* / odometry_*): (scene, motion, error, road map or None)."""
+    def _scene_map(self, stamp, gray, gray_right, params, shared: bool) -> tuple:
+        """The executor's scene map of a frame begun ahead (with ``shared``, also the road
+        plane's), traced as scene_start / scene_end."""
         self.trace("scene_start", stamp)
-        scene, road_scene = block_matching_maps(gray, gray_right, params, road=shared)
-        self.trace("scene_end", stamp)
-        motion = error = None
-        if self.odometry is not None:
-            self.trace("odometry_start", stamp)
-            try:
-                bias = self._column_bias(gray.shape[1], geometry)
-                motion = self.odometry.estimate_from(
-                    reference, stamp, gray, geometry, reference_boxes, bias
-                )
-            except (ValueError, cv2.error) as exc:
-                error = exc
-            self.trace("odometry_end", stamp)
-        return scene, motion, error, road_scene
+        try:
+            return block_matching_maps(gray, gray_right, params, road=shared)
+        finally:
+            self.trace("scene_end", stamp)
 
     def _usable(self, early: EarlyFrame | None, stamp: int, geometry, params) -> bool:
         """Whether ``early`` is this frame's work, made with its camera and settings."""
@@ -399,14 +380,14 @@ class StereoPipeline:
         """The frame's odometry from its early work (the frame made the reference now), or
         started now when the reference or its boxes changed since (the same motion as without
         early work)."""
-        scene, motion, error, _ = early.maps.result()
         if self.odometry is None:
             return None
+        scene = early.scene.result()[0]
         boxes = list(self._vehicle_boxes)
         if early.reference is not self.odometry.reference or early.reference_boxes != boxes:
             return self._start_odometry(stamp, early.gray, scene, geometry)
         self.odometry.set_reference(stamp, early.gray, scene)
-        return _done(motion, error)
+        return early.motion
 
     def process(
         self,
@@ -489,14 +470,14 @@ class StereoPipeline:
         kept = self._range_and_check(stamp, dets, disparity, road, geometry, images)
         motion = self._camera_motion(odometry())
         # the next frame's odometry masks these boxes in this frame, its reference now (set
-        # here, not only in frame_done: the next frame's early work may begin before that)
+        # here, before the output: the next frame's early work may begin right after it)
         self._vehicle_boxes = list(dets.boxes)
         return FrameResult(disparity, full_map, params, geometry, kept, motion)
 
     def frame_done(self, boxes) -> None:
-        """After a frame's output: its boxes mask the next odometry, whose corners on this
-        frame are found now, in idle time, in the executor."""
-        self._vehicle_boxes = boxes
+        """After a frame's output: the next odometry's corners on this frame, away from its
+        ``boxes`` (the reference boxes, set when its motion was done), are found now, in idle
+        time, in the executor."""
         if self.odometry is not None:
             self.executor.submit(self.odometry.prepare(boxes))
 
