@@ -71,6 +71,7 @@ import numpy as np  # noqa: E402
 from tracking_bringup.environment import PARAMS_FILE, apply_graph_environment  # noqa: E402
 from tracking_bringup.launcher import GraphLauncher, graph_processes  # noqa: E402
 from tracking_bringup.process_cpu import (  # noqa: E402
+    camera_budget,
     cpu_seconds,
     profile_summary,
     start_profilers,
@@ -789,7 +790,12 @@ def summarise(rows, short_runs, references, camera_hz, quality) -> dict:
             entry["capacity"] = capacity_figures(runs["realtime"], runs["lockstep 1"], camera_hz)
         if "lockstep 1" in runs:  # --overload: each camera factor against the same capacity
             entry["overload"] = {
-                m: capacity_figures(f, runs["lockstep 1"], f["camera_hz"])
+                m: {
+                    **capacity_figures(f, runs["lockstep 1"], f["camera_hz"]),
+                    "budget": camera_budget(
+                        runs["lockstep 1"], f, f["camera_hz"], graph.PLAYER.name
+                    ),
+                }
                 for m, f in runs.items()
                 if m.startswith("camera")
             }
@@ -807,8 +813,35 @@ def summarise(rows, short_runs, references, camera_hz, quality) -> dict:
     return out
 
 
-def summary_lines(summary: dict) -> list[str]:
-    """The printed form of :func:`summarise`: the three bars of issue #33 per dataset."""
+def budget_line(label: str, b: dict, camera_hz: float, one_cpu: bool) -> str:
+    """The printed form of :func:`tracking_bringup.process_cpu.camera_budget` for one camera
+    run (the one-CPU ceiling only when every node ran on one CPU)."""
+    line = (
+        f"  {label}: every published frame, tracked or not, costs the camera "
+        f"{b['camera_ms']:.1f} ms + the nodes' executors {b['receipt_ms']:.1f} ms of CPU: "
+        f"{100 * b['share']:.0f} % of one CPU at {camera_hz:.1f} Hz; a tracked frame "
+        f"{b['tracked_ms']:.0f} ms (lockstep)"
+    )
+    if one_cpu:
+        line += (
+            f"; on this one CPU that leaves at most {b['one_cpu_frames']:.2f}x the capacity's "
+            f"frames, and a frame's work {b['one_cpu_latency']:.2f}x lockstep's time (before "
+            "its wait for the graph)"
+        )
+    return line
+
+
+def on_one_cpu(args) -> bool:
+    """Whether ``--cpus`` put every node on one CPU."""
+    from vehicle_common.cpu_affinity import parse_cpu_list
+
+    return bool(args.cpus) and len(parse_cpu_list(args.cpus)) == 1
+
+
+def summary_lines(summary: dict, one_cpu: bool = False) -> list[str]:
+    """The printed form of :func:`summarise`: the three bars of issue #33 per dataset (and,
+    per camera run of ``--overload``, what its frames cost whether tracked or not; the ceiling
+    that leaves when ``one_cpu``: every node ran on one CPU)."""
     lines = []
     for label, e in summary.items():
         runs = ([("", e["capacity"])] if e.get("capacity") else []) + [
@@ -823,6 +856,8 @@ def summary_lines(summary: dict) -> list[str]:
                 f"{c['latency_ms']:.0f} ms vs lockstep {c['lockstep_latency_ms']:.0f} ms = "
                 f"{c['latency_ratio']:.2f}x (bar <= 1.25)"
             )
+            if c.get("budget"):
+                lines.append(budget_line(f"{label}{mode}", c["budget"], c["camera_hz"], one_cpu))
         per_node = e.get("cpu_ms_per_frame")
         if per_node:
             cells = ", ".join(f"{SHORT.get(n, n)} {v:.1f}" for n, v in per_node.items())
@@ -903,7 +938,7 @@ def compare_trees(args, argv: list[str]) -> int:
     print(f"\n== comparison: old = {other}, new = {REPO}, {args.repeat} pair(s), alternated ==")
     for name, res in results:
         print(f"{name}: load {' '.join(res['load_before'])} before, {' '.join(res['load'])} after")
-        for line in summary_lines(res["summary"]):
+        for line in summary_lines(res["summary"], on_one_cpu(args)):
             print(f"  {line}")
     for label in results[0][1]["summary"]:
         old = [r["summary"][label] for n, r in results if n == "old"]
@@ -1013,7 +1048,7 @@ def _print_report(args, rows, offline: dict, summary: dict, profiles) -> None:
             + ", ".join(f"{k} {v:.1f}" for k, v in times.items() if k != "frames")
         )
     print(_table(rows))
-    for line in summary_lines(summary):
+    for line in summary_lines(summary, on_one_cpu(args)):
         print(line)
     print(
         "where a frame's time goes (the nodes' trace points, VEHICLE_TRACE_DIR; median ms "

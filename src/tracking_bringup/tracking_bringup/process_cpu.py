@@ -82,3 +82,66 @@ def profile_summary(folder: Path, rate: int = 200, top: int = 6) -> str:
         for k, n in sorted(self_time.items(), key=lambda kv: -kv[1])[:top]:
             lines.append(f"    {100 * n / total:5.1f} %  {k}")
     return "\n".join(lines)
+
+
+#: a camera run must skip at least this share of its frames, and both runs be at least this
+#: many frames long, for :func:`camera_budget` to tell the work of every published frame from
+#: that of a tracked one (the CPU clocks tick every 10 ms; a short lockstep run is mostly its
+#: first, slow frames)
+BUDGET_MIN_SKIPPED = 0.1
+BUDGET_MIN_FRAMES = 50
+
+
+def camera_budget(lockstep: dict, run: dict, camera_hz: float, camera: str) -> dict | None:
+    """What a camera's frames cost the graph whether they are tracked or not, from a lockstep
+    run (every frame tracked) and a run with the camera at ``camera_hz`` (figures as
+    ``bench/bench_graph.py`` records them: ``published``, ``tracked``, ``throughput_fps``,
+    ``cpu_s`` per process and ``thread_cpu_s`` per process and thread name); ``camera``: the
+    process that plays the camera. Per published frame, tracked or not:
+
+    - ``camera_ms``: the camera process's CPU (in the camera run);
+    - ``receipt_ms``: the nodes' ``main`` threads (their executors, which take every message
+      of every subscription): per node, lockstep gives ``a + b`` per frame and the camera run
+      ``published a + tracked b``; ``a`` is summed over the nodes.
+
+    Then ``tracked_ms``: the rest of lockstep's CPU per frame (every process), the work of a
+    tracked frame; ``share``: the part of one CPU the per-published-frame work takes at
+    ``camera_hz``; and for a graph on ONE CPU, ``one_cpu_frames``: the most frames it can
+    track over lockstep's throughput, ``(1 - share) / (tracked_ms x lockstep fps)`` (a ceiling:
+    reached only when a tracked frame costs no more than in lockstep), and
+    ``one_cpu_latency``: ``1 / (1 - share)``, how much longer a frame's work takes while that
+    share of the core serves the camera (a floor on the latency over lockstep's, before the
+    frame's wait for the graph). None when the camera run skipped fewer than
+    :data:`BUDGET_MIN_SKIPPED` of its frames (nothing to tell apart), a run is shorter than
+    :data:`BUDGET_MIN_FRAMES` or a figure is missing."""
+    published, tracked, frames = run["published"], run["tracked"], lockstep["published"]
+    if min(published, frames) < BUDGET_MIN_FRAMES or published - tracked < (
+        BUDGET_MIN_SKIPPED * published
+    ):
+        return None
+    try:
+        camera_s = run["cpu_s"][camera] / published
+        receipt_s = 0.0
+        for node, threads in lockstep["thread_cpu_s"].items():
+            if node == camera:
+                continue
+            per_frame = threads["main"] / frames  # a + b
+            receipt_s += (run["thread_cpu_s"][node]["main"] - tracked * per_frame) / (
+                published - tracked
+            )
+        lockstep_s = sum(lockstep["cpu_s"].values()) / frames
+    except (KeyError, TypeError):
+        return None
+    every_s = camera_s + receipt_s
+    tracked_s = lockstep_s - every_s
+    share = camera_hz * every_s
+    fps = lockstep["throughput_fps"]
+    ok = share < 1.0 and tracked_s > 0 and fps > 0
+    return {
+        "camera_ms": 1e3 * camera_s,
+        "receipt_ms": 1e3 * receipt_s,
+        "tracked_ms": 1e3 * tracked_s,
+        "share": share,
+        "one_cpu_frames": (1.0 - share) / (tracked_s * fps) if ok else float("nan"),
+        "one_cpu_latency": 1.0 / (1.0 - share) if share < 1.0 else float("inf"),
+    }
