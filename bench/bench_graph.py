@@ -36,10 +36,13 @@ Issue #33's three bars, printed for each dataset and measured in the same run:
 Overload (issue #39): ``--overload 2,3`` measures each dataset's capacity C with lockstep 1, then
 plays it as a camera at 2 x C and 3 x C without lockstep (runs ``camera 2x``, ``camera 3x``),
 each against that C: frames tracked against what C allows, mean latency against lockstep's, the
-tracking quality on the frames tracked; ``--rate-multiplier X`` plays at 10 Hz x X, ``--cpus
-LIST`` runs every node on those CPUs (``cpu_affinity``; "0": one core). ``--compare-tree PATH``
-runs this bench alternately with another checkout's ``.venv`` (today's tree) and this tree's
-(``--repeat`` pairs) and prints the CPU ratios new / old.
+tracking quality on the frames tracked, and what every published frame costs whether tracked or
+not (the player's CPU and the nodes' executors', ``process_cpu.camera_budget``: its share of one
+CPU at the camera's rate; with every node on one CPU, the ceiling that share leaves on the
+frames tracked and the floor on a frame's time); ``--rate-multiplier X`` plays at 10 Hz x X,
+``--cpus LIST`` runs every node on those CPUs (``cpu_affinity``; "0": one core).
+``--compare-tree PATH`` runs this bench alternately with another checkout's ``.venv`` (today's
+tree) and this tree's (``--repeat`` pairs) and prints the CPU ratios new / old.
 
 Every run also traces each frame through the nodes (``vehicle_common.frame_trace``, the
 environment variable ``VEHICLE_TRACE_DIR`` set to the run's ``trace`` folder): when the player
