@@ -8,7 +8,7 @@
     python bench/bench_tracker.py sim
     python bench/bench_tracker.py real   [--source stereo,camera,pointrcnn] [--split tuning]
                                          [--set K=V] [--no-camera-motion] [--checkpoint PT]
-                                         [--keep-every K]
+                                         [--keep-every K] [--seed-offset N] [--json F]
     python bench/bench_tracker.py graph  OUTPUT/bag [--sequence 0005] [--set K=V]
 
 ``mot``: tracker_offline's core over ../shared/kitti/detections/pointrcnn_Car_val, scored with
@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import sys
 import tempfile
 import time
@@ -398,6 +399,7 @@ def cmd_real(args) -> None:
         "pointrcnn": replace(base, **overrides),
     }
     filters = args.filters.split(",")
+    figures: dict = {}
     splits = {"tuning": tune, "reporting": report}
     if args.split != "both":
         splits = {args.split: splits[args.split]}
@@ -418,9 +420,14 @@ def cmd_real(args) -> None:
         for split, seqs in splits.items():
             t0 = time.perf_counter()
             if source == "stereo":
-                datas = [rm.stereo_sequence(s, model, dm, seed=int(s)) for s in seqs]
+                datas = [
+                    rm.stereo_sequence(s, model, dm, seed=int(s) + args.seed_offset) for s in seqs
+                ]
             elif source == "camera":
-                datas = [rm.camera_sequence(s, model, cam, dm, seed=int(s)) for s in seqs]
+                datas = [
+                    rm.camera_sequence(s, model, cam, dm, seed=int(s) + args.seed_offset)
+                    for s in seqs
+                ]
             else:
                 datas = [rm.pointrcnn_sequence(s) for s in seqs]
             datas = [rm.with_camera_motion(d) for d in datas]
@@ -446,6 +453,12 @@ def cmd_real(args) -> None:
             if args.lost_cars:
                 rm.print_lost_cars(stats)
             print(f"  ({time.perf_counter() - t0:.0f} s)")
+            figures[f"{source}/{split}"] = {
+                flt: rm.summary_figures(st, ap.get(flt)) for flt, st in stats.items() if st
+            }
+    if args.json:
+        Path(args.json).write_text(json.dumps(figures, indent=1))
+        print(f"figures written to {args.json}")
 
 
 _VEHICLES = ("Car", "Van", "Truck", "Tram")
@@ -673,6 +686,16 @@ def main() -> None:
         "than the graph), given the camera's motion composed over the frames dropped; every "
         "figure on the frames kept (1 = every frame)",
     )
+    r.add_argument(
+        "--seed-offset",
+        type=int,
+        default=0,
+        metavar="N",
+        help="stereo / camera sources: draw each sequence's detections with seed (sequence "
+        "number + N) instead of the sequence number; a paired noise check of a change (0 = the "
+        "benchmark's own draws)",
+    )
+    r.add_argument("--json", default="", help="also write the tracking figures, unrounded")
     g = sub.add_parser("graph", help="a recorded whole-graph run on a real sequence")
     g.add_argument("bag", help="the demo's output folder or its bag")
     g.add_argument("--sequence", default="", help="KITTI sequence (default: the recording's)")

@@ -667,6 +667,8 @@ class MotionStats:
     mot: dict  # CLEAR-MOT totals (KITTI tracking rules, 2D IoU 0.5) and HOTA (2D IoU)
     ground_err: list = field(default_factory=list)  # [m/s] velocity over the ground, x-z error
     ground_speed: list = field(default_factory=list)  # [m/s] the car's true speed over ground
+    # (sequence, frame, labelled id, accelerating or braking) of each ground_err row
+    ground_keys: list = field(default_factory=list)
     frames: int = 0  # frames tracked
     lost: list = field(default_factory=list)  # eval_node.lost_cars.CarRecord per labelled car
     false: list = field(default_factory=list)  # eval_node.lost_cars.FalseRow per false row
@@ -721,7 +723,9 @@ def run_tracker(
                 stats.ground_err.append(float(np.linalg.norm(ew)))
                 stats.ground_speed.append(float(np.linalg.norm(vw[[0, 2]])))
                 a = _ground_acceleration(data.ground_velocity, k, g)
-                if a is not None and np.linalg.norm(a) > ACCEL_MIN:
+                accelerating = a is not None and np.linalg.norm(a) > ACCEL_MIN
+                stats.ground_keys.append((data.name, k, g, accelerating))
+                if accelerating:
                     an = float(np.linalg.norm(a))
                     stats.accel.append((float(np.linalg.norm(ew)), -float(ew @ a) / an**2))
             vg = gt_vel.get((k, g))
@@ -976,6 +980,47 @@ def print_motion(stats: dict[str, MotionStats], times: dict[str, float]) -> None
             + f" | {100 * st.mot['mota']:5.1f} / {st.mot['idsw']} | {times[flt]:.1f}"
         )
     sys.stdout.flush()
+
+
+def summary_figures(st: MotionStats, ap_row: dict | None = None) -> dict:
+    """The tracking summary's figures of one filter at full precision (what
+    :func:`print_tracking_summary` prints rounded), for ``bench_tracker.py real --json``."""
+    m, a = st.mot, st.mot["all_rows"]
+    ge, gs = np.array(st.ground_err), np.array(st.ground_speed)
+    parked = gs < 1.0
+    jit = jitter_ratio(st)
+    acc = accel_lag(st)
+    out = {
+        "mota_all_rows": 100 * a["mota"],
+        "mota_best_threshold": 100 * m["mota"],
+        "hota_2d": 100 * m.get("hota", math.nan),
+        "recall": 100 * a["tp"] / max(a["tp"] + a["fn"], 1),
+        "precision": 100 * a["tp"] / max(a["tp"] + a["fp"], 1),
+        "idsw": int(a["idsw"]),
+        "false_tracks_per_frame": a["fp"] / max(st.frames, 1),
+        "velocity_rmse_ground": float(np.sqrt(np.mean(ge**2))) if len(ge) else math.nan,
+        "velocity_rows": len(ge),
+        "velocity_rmse_parked": (
+            float(np.sqrt(np.mean(ge[parked] ** 2))) if parked.any() else math.nan
+        ),
+        "mota_3d": 100 * st.mot3.get("all_rows", {}).get("mota", math.nan),
+        "hota_3d": 100 * st.mot3.get("hota", math.nan),
+        "jitter_m": jit[0],
+        "jitter_ratio": jit[1],
+        "accel_velocity_rmse": acc[0],
+        "accel_lag_s": acc[1],
+        "accel_rows": acc[2],
+    }
+    # per row, for a like-for-like comparison of two runs on the rows both matched
+    out["velocity_rows_keyed"] = [
+        [name, int(k), int(g), int(acc), round(e, 4)]
+        for (name, k, g, acc), e in zip(st.ground_keys, st.ground_err, strict=True)
+    ]
+    if ap_row is not None:
+        for lvl in LEVELS:
+            for d in DISTANCES:
+                out[f"ap_{lvl}_{d:g}m"] = float(ap_row[(lvl, d)])
+    return out
 
 
 def print_tracking_summary(stats: dict[str, MotionStats], bars: bool = False) -> None:
