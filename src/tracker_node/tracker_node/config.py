@@ -104,8 +104,7 @@ class TrackerConfig:
     stationary_min_updates: int = param(0, low=0)
     # robust measurement update: a detection whose innovation is d > k standard deviations
     # (Mahalanobis) is taken with its covariance times d / k (Huber); 0: off, the plain Kalman
-    # update (camera benchmark, tuning: 2.5 cut IDSW 29 -> 11 and jitter 6.9 -> 6.7x but
-    # velocity over the ground 1.39 -> 1.40 m/s: not taken, docs/tracker.md)
+    # update (the LiDAR profile's; the graph takes 3 with the wider gate, docs/tracker.md)
     robust_update_k: float = param(0.0, low=0.0)
     # where the robust update applies: both = the Kalman filter and the parked estimate;
     # parked = the parked estimate only (the filter's velocity untouched)

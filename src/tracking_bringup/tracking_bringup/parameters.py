@@ -123,6 +123,17 @@ GRAPH_VALUES = {
             "issue #41: a coasting track of weak detections (the CNN's false ones score 0.33-0.40) "
             "is not reported; recall 84.7 -> 84.5 %",
         ),
+        "mahalanobis_gate": (
+            50.0,
+            "issue #41: a wider association gate with the robust update (camera benchmark, "
+            "tuning, three draws: HOTA 2D / 3D +1.1 / +1.1, ID switches -23 of 29-72; velocity "
+            "over the ground like for like +0.01 m/s; docs/tracker.md, fourth round)",
+        ),
+        "robust_update_k": (
+            3.0,
+            "issue #41: a detection more than 3 std off its track is taken with a wider "
+            "covariance (Huber), so the wider gate's far matches move the state less",
+        ),
         "box_gain": (
             0.3,
             "issue #41: a matched track's 2D box smoothed over frames (off-the-box false rows "
