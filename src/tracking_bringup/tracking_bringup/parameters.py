@@ -134,6 +134,12 @@ GRAPH_VALUES = {
             "issue #41: a detection more than 3 std off its track is taken with a wider "
             "covariance (Huber), so the wider gate's far matches move the state less",
         ),
+        "world_entry_hypotheses": (
+            True,
+            "issue #41: tracks alive when the odometry starts (a robot switched on in traffic) "
+            "take the birth hypotheses too; camera benchmark, tuning, 16-frame cold starts, three "
+            "draws: velocity over the ground like for like -0.06 m/s (docs/tracker.md)",
+        ),
         "box_gain": (
             0.3,
             "issue #41: a matched track's 2D box smoothed over frames (off-the-box false rows "
