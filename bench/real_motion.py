@@ -1013,8 +1013,8 @@ def summary_figures(st: MotionStats, ap_row: dict | None = None) -> dict:
     }
     # per row, for a like-for-like comparison of two runs on the rows both matched
     out["velocity_rows_keyed"] = [
-        [name, int(k), int(g), int(acc), round(e, 4)]
-        for (name, k, g, acc), e in zip(st.ground_keys, st.ground_err, strict=True)
+        [name, int(k), int(g), int(accelerating), round(e, 4)]
+        for (name, k, g, accelerating), e in zip(st.ground_keys, st.ground_err, strict=True)
     ]
     if ap_row is not None:
         for lvl in LEVELS:

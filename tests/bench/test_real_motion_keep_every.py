@@ -1,5 +1,6 @@
 """bench/real_motion.py ``keep_every`` (``bench_tracker.py real --keep-every K``): the camera's
-motion composed over the frames dropped, the tracker's stamps, the frames scored.
+motion composed over the frames dropped, the tracker's stamps, the frames scored; and the
+unrounded figures of ``--json`` (``summary_figures``) with their keyed velocity rows.
 
 Synthetic (no KITTI data): a camera driving and turning past three cars, perfect detections.
 """
@@ -78,7 +79,9 @@ def _sequence() -> rm.SequenceData:
         ids.append(np.arange(len(objs)))
         raw[k] = rm._to_objects(batch, k)
     data = rm.SequenceData("synthetic", gt, P2, frames, ids, raw, [])
-    return replace(data, motions=rm.camera_motions(poses, OFFSET))
+    # each car's velocity over the ground in frame k's camera axes
+    ground = {(k, i): R.T @ v for k, (R, _) in enumerate(poses) for i, v in enumerate(vel)}
+    return replace(data, motions=rm.camera_motions(poses, OFFSET), ground_velocity=ground)
 
 
 def test_composed_motion_is_the_direct_pose_difference():
@@ -156,6 +159,25 @@ def test_figures_are_scored_on_the_kept_frames_only():
         assert a["tp"] > 0
         # matched rows of the velocity statistics come from kept frames only
         assert 0 < len(st.pos_err) <= n_labels
+
+
+def test_summary_figures_key_every_velocity_row_once():
+    """``--json``'s figures: the velocity RMSE over the ground is that of the keyed rows (what a
+    like-for-like comparison of two runs recomputes on the rows both matched), one row per
+    (sequence, frame, labelled car)."""
+    data = _sequence()
+    for K in (1, 2):
+        _, stats, _ = rm.evaluate_split([replace(data, keep_every=K)], TrackerConfig(), ["kalman"])
+        fig = rm.summary_figures(stats["kalman"])
+        rows = fig["velocity_rows_keyed"]
+        assert len(rows) == fig["velocity_rows"] > 0
+        keys = {(r[0], r[1], r[2]) for r in rows}
+        assert len(keys) == len(rows)
+        assert {r[1] for r in rows} <= set(range(0, N_FRAMES, K))  # kept frames only
+        rmse = float(np.sqrt(np.mean(np.square([r[4] for r in rows]))))
+        assert rmse == pytest.approx(fig["velocity_rmse_ground"], abs=1e-4)
+        assert sum(r[3] for r in rows) == fig["accel_rows"]
+        assert 0 < fig["mota_all_rows"] <= 100 and fig["idsw"] >= 0
 
 
 def test_a_keep_every_below_1_is_one_line_and_a_non_zero_exit():
