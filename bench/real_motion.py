@@ -722,7 +722,7 @@ def run_tracker(
                 ew = (ts.velocity_over_ground[i] - vw)[[0, 2]]
                 stats.ground_err.append(float(np.linalg.norm(ew)))
                 stats.ground_speed.append(float(np.linalg.norm(vw[[0, 2]])))
-                a = _ground_acceleration(data.ground_velocity, k, g)
+                a = _ground_acceleration(data.ground_velocity, k, g, data.motions)
                 accelerating = a is not None and np.linalg.norm(a) > ACCEL_MIN
                 stats.ground_keys.append((data.name, k, g, accelerating))
                 if accelerating:
@@ -748,13 +748,24 @@ def run_tracker(
 ACCEL_MIN = 1.5
 
 
-def _ground_acceleration(ground_velocity, k: int, g: int):
+def _ground_acceleration(ground_velocity, k: int, g: int, motions: list | None = None):
     """Acceleration over the ground (x, z) [m/s^2] of car ``g`` at frame ``k``: the central
-    difference of its ground velocity over frames k-2 .. k+2 (None where either is missing)."""
+    difference of its ground velocity over frames k-2 .. k+2 (None where either is missing).
+    Each velocity is in its own frame's camera axes; with the per-frame camera ``motions`` both
+    are first turned into frame k's axes (without, a car at constant speed seen while the camera
+    turns would count as accelerating; None where a motion is unknown)."""
     a, b = ground_velocity.get((k - 2, g)), ground_velocity.get((k + 2, g))
     if a is None or b is None:
         return None
-    return (np.asarray(b) - np.asarray(a))[[0, 2]] / (4 * FRAME_PERIOD)
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if motions is not None:
+        before = compose_motions(motions[k - 1 : k + 1])  # frame k-2 -> k
+        after = compose_motions(motions[k + 1 : k + 3])  # frame k -> k+2
+        if before is None or after is None:
+            return None
+        a = np.asarray(before.rotation, float) @ a
+        b = np.asarray(after.rotation, float).T @ b
+    return (b - a)[[0, 2]] / (4 * FRAME_PERIOD)
 
 
 def _orientation_row(ts, i: int, o: KittiObject, v_ground) -> tuple[float, bool, float]:

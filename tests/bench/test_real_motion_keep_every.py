@@ -177,6 +177,8 @@ def test_summary_figures_key_every_velocity_row_once():
         rmse = float(np.sqrt(np.mean(np.square([r[4] for r in rows]))))
         assert rmse == pytest.approx(fig["velocity_rmse_ground"], abs=1e-4)
         assert sum(r[3] for r in rows) == fig["accel_rows"]
+        # constant speeds over the ground: none accelerates, though the camera turns
+        assert fig["accel_rows"] == 0
         assert 0 < fig["mota_all_rows"] <= 100 and fig["idsw"] >= 0
 
 
