@@ -993,9 +993,10 @@ def print_motion(stats: dict[str, MotionStats], times: dict[str, float]) -> None
     sys.stdout.flush()
 
 
-def summary_figures(st: MotionStats, ap_row: dict | None = None) -> dict:
+def summary_figures(st: MotionStats, ap_row: dict | None = None, keyed: bool = True) -> dict:
     """The tracking summary's figures of one filter at full precision (what
-    :func:`print_tracking_summary` prints rounded), for ``bench_tracker.py real --json``."""
+    :func:`print_tracking_summary` prints rounded; ``bench_tracker.py real --json``); with
+    ``keyed`` also every velocity row with its key."""
     m, a = st.mot, st.mot["all_rows"]
     ge, gs = np.array(st.ground_err), np.array(st.ground_speed)
     parked = gs < 1.0
@@ -1005,8 +1006,8 @@ def summary_figures(st: MotionStats, ap_row: dict | None = None) -> dict:
         "mota_all_rows": 100 * a["mota"],
         "mota_best_threshold": 100 * m["mota"],
         "hota_2d": 100 * m.get("hota", math.nan),
-        "recall": 100 * a["tp"] / max(a["tp"] + a["fn"], 1),
-        "precision": 100 * a["tp"] / max(a["tp"] + a["fp"], 1),
+        "recall": 100 * (a["tp"] / max(a["tp"] + a["fn"], 1)),
+        "precision": 100 * (a["tp"] / max(a["tp"] + a["fp"], 1)),
         "idsw": int(a["idsw"]),
         "false_tracks_per_frame": a["fp"] / max(st.frames, 1),
         "velocity_rmse_ground": float(np.sqrt(np.mean(ge**2))) if len(ge) else math.nan,
@@ -1022,11 +1023,11 @@ def summary_figures(st: MotionStats, ap_row: dict | None = None) -> dict:
         "accel_lag_s": acc[1],
         "accel_rows": acc[2],
     }
-    # per row, for a like-for-like comparison of two runs on the rows both matched
-    out["velocity_rows_keyed"] = [
-        [name, int(k), int(g), int(accelerating), round(e, 4)]
-        for (name, k, g, accelerating), e in zip(st.ground_keys, st.ground_err, strict=True)
-    ]
+    if keyed:  # per row, for a like-for-like comparison of two runs on the rows both matched
+        out["velocity_rows_keyed"] = [
+            [name, int(k), int(g), int(accelerating), round(e, 4)]
+            for (name, k, g, accelerating), e in zip(st.ground_keys, st.ground_err, strict=True)
+        ]
     if ap_row is not None:
         for lvl in LEVELS:
             for d in DISTANCES:
@@ -1050,30 +1051,22 @@ def print_tracking_summary(stats: dict[str, MotionStats], bars: bool = False) ->
     for flt, st in stats.items():
         if st is None:
             continue
-        m, a = st.mot, st.mot["all_rows"]
-        ge, gs = np.array(st.ground_err), np.array(st.ground_speed)
-        rmse = float(np.sqrt(np.mean(ge**2))) if len(ge) else math.nan
-        parked = gs < 1.0
-        prmse = float(np.sqrt(np.mean(ge[parked] ** 2))) if parked.any() else math.nan
-        fpf = a["fp"] / max(st.frames, 1)
-        hota = 100 * m.get("hota", math.nan)
-        recall = a["tp"] / max(a["tp"] + a["fn"], 1)
-        precision = a["tp"] / max(a["tp"] + a["fp"], 1)
+        f = summary_figures(st, keyed=False)
+        mota, hota, rmse = f["mota_all_rows"], f["hota_2d"], f["velocity_rmse_ground"]
         print(
-            f"  | {flt} | {100 * a['mota']:.1f} | {100 * m['mota']:.1f} | {hota:.1f} | "
-            f"{100 * recall:.1f} / {100 * precision:.1f} | {a['idsw']} | {fpf:.2f} | "
-            f"{rmse:.2f} ({len(ge)}) | {prmse:.2f} | "
-            f"{100 * st.mot3.get('all_rows', {}).get('mota', math.nan):.1f} | "
-            f"{100 * st.mot3.get('hota', math.nan):.1f} | "
-            "{:.3f} / {:.1f} | ".format(*jitter_ratio(st))
-            + "{:.2f}, {:+.2f} ({}) |".format(*accel_lag(st))
+            f"  | {flt} | {mota:.1f} | {f['mota_best_threshold']:.1f} | {hota:.1f} | "
+            f"{f['recall']:.1f} / {f['precision']:.1f} | {f['idsw']} | "
+            f"{f['false_tracks_per_frame']:.2f} | {rmse:.2f} ({f['velocity_rows']}) | "
+            f"{f['velocity_rmse_parked']:.2f} | {f['mota_3d']:.1f} | {f['hota_3d']:.1f} | "
+            f"{f['jitter_m']:.3f} / {f['jitter_ratio']:.1f} | "
+            f"{f['accel_velocity_rmse']:.2f}, {f['accel_lag_s']:+.2f} ({f['accel_rows']}) |"
         )
         if bars:  # issue 23's, then issue 34's (the CNN graph's bars; this replay stands in)
             checks = [
-                ("MOTA >= 60", 100 * a["mota"], 60.0, 1),
+                ("MOTA >= 60", mota, 60.0, 1),
                 ("HOTA >= 50", hota, 50.0, 1),
                 ("velocity RMSE over ground <= 2.5 m/s", -rmse, -2.5, -1),
-                ("issue 34: MOTA >= 80", 100 * a["mota"], 80.0, 1),
+                ("issue 34: MOTA >= 80", mota, 80.0, 1),
                 ("issue 34: HOTA >= 65", hota, 65.0, 1),
                 ("issue 34: velocity RMSE over ground <= 1.5 m/s", -rmse, -1.5, -1),
             ]
