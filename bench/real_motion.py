@@ -1015,6 +1015,9 @@ def summary_figures(st: MotionStats, ap_row: dict | None = None, keyed: bool = T
         "velocity_rmse_parked": (
             float(np.sqrt(np.mean(ge[parked] ** 2))) if parked.any() else math.nan
         ),
+        "velocity_rmse_moving": (
+            float(np.sqrt(np.mean(ge[gs > 3.0] ** 2))) if (gs > 3.0).any() else math.nan
+        ),
         "mota_3d": 100 * st.mot3.get("all_rows", {}).get("mota", math.nan),
         "hota_3d": 100 * st.mot3.get("hota", math.nan),
         "jitter_m": jit[0],

@@ -180,6 +180,12 @@ def test_summary_figures_key_every_velocity_row_once():
         # constant speeds over the ground: none accelerates, though the camera turns
         assert fig["accel_rows"] == 0
         assert 0 < fig["mota_all_rows"] <= 100 and fig["idsw"] >= 0
+        # parked (< 1 m/s) and moving (> 3 m/s) rows by the car's true speed over the ground
+        st = stats["kalman"]
+        ge, gs = np.array(st.ground_err), np.array(st.ground_speed)
+        moving = gs > 3.0
+        assert moving.any() and not moving.all()
+        assert fig["velocity_rmse_moving"] == pytest.approx(np.sqrt(np.mean(ge[moving] ** 2)))
 
 
 def test_a_keep_every_below_1_is_one_line_and_a_non_zero_exit():
