@@ -102,10 +102,6 @@ class TrackerConfig:
     # detections a parked estimate must have taken before it is blended into the reported
     # position (before, mu is mostly the prior: a young moving car is taken for parked)
     stationary_min_updates: int = param(0, low=0)
-    # a track whose parked probability mu is at least this (and whose parked estimate has
-    # taken stationary_min_updates detections) reports the two models' mixture velocity, (1 -
-    # mu) times the filter's; below it the filter's velocity; 0: off (the filter's everywhere)
-    stationary_velocity_mu: float = param(0.0, low=0.0, high=1.0)
     # robust measurement update: a detection whose innovation is d > k standard deviations
     # (Mahalanobis) is taken with its covariance times d / k (Huber); 0: off, the plain Kalman
     # update (the LiDAR profile's; the graph takes 3 with the wider gate, docs/tracker.md)

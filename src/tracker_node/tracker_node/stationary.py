@@ -181,26 +181,3 @@ class StationaryModel:
             return position
         mu = np.where(self.updates[rows] >= self.min_updates, self.mu[rows], 0.0)[:, None]
         return mu * self.x[rows] + (1.0 - mu) * position
-
-    def blend_velocity(
-        self, rows: np.ndarray, velocity: np.ndarray, cov: np.ndarray, threshold: float
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The reported velocity (M, 3) and its covariance (M, 3, 3) of tracks ``rows`` from
-        the motion filter's: where the parked probability ``mu`` is at least ``threshold``
-        (and the parked estimate has taken ``min_updates`` detections), the two models'
-        mixture -- the parked model's velocity is 0, so the mean is ``(1 - mu) v`` and the
-        covariance ``(1 - mu) P + mu (1 - mu) v v^T``; elsewhere the filter's unchanged (the
-        mixture on every row slowed young moving cars still taken for parked, :meth:`blend`).
-        ``threshold`` <= 0: unchanged everywhere."""
-        if threshold <= 0 or not (self.active and len(rows)):
-            return velocity, cov
-        mu = self.mu[rows]
-        use = (self.updates[rows] >= self.min_updates) & (mu >= threshold)
-        if not use.any():
-            return velocity, cov
-        mu = np.where(use, mu, 0.0)
-        v = (1.0 - mu)[:, None] * velocity
-        c = (1.0 - mu)[:, None, None] * cov + (mu * (1.0 - mu))[:, None, None] * (
-            velocity[:, :, None] * velocity[:, None, :]
-        )
-        return v, c

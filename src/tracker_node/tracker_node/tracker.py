@@ -536,10 +536,6 @@ class Tracker:
             idx, position, velocity = idx[shown], position[shown], velocity[shown]
             velocity_cov, bbox = velocity_cov[shown], bbox[shown]
         yaw, bins = self._reported_yaw(idx, position, velocity, velocity_cov)
-        if self.stationary is not None and self.world_frame:  # a sure parked car's: ~0
-            velocity, velocity_cov = self.stationary.blend_velocity(
-                idx, velocity, velocity_cov, self.cfg.stationary_velocity_mu
-            )
         if self.world_frame:  # the filter's velocity is over the ground
             ground, ground_cov = velocity, velocity_cov
             velocity = ground + self._camera_motion.static_point_velocity(position)
