@@ -9,6 +9,7 @@
     python bench/bench_tracker.py real   [--source stereo,camera,pointrcnn] [--split tuning]
                                          [--set K=V] [--no-camera-motion] [--checkpoint PT]
                                          [--keep-every K] [--seed-offset N] [--json F]
+                                         [--lost-cars] [--breakdown]
     python bench/bench_tracker.py graph  OUTPUT/bag [--sequence 0005] [--set K=V]
 
 ``mot``: tracker_offline's core over ../shared/kitti/detections/pointrcnn_Car_val, scored with
@@ -452,6 +453,8 @@ def cmd_real(args) -> None:
             rm.print_orientation(stats)
             if args.lost_cars:
                 rm.print_lost_cars(stats)
+            if args.breakdown:
+                rm.print_breakdown(stats)
             print(f"  ({time.perf_counter() - t0:.0f} s)")
             figures[f"{source}/{split}"] = {
                 flt: rm.summary_figures(st, ap.get(flt)) for flt, st in stats.items() if st
@@ -668,6 +671,12 @@ def main() -> None:
         "--lost-cars",
         action="store_true",
         help="print why labelled cars were missed, per cause (eval_node.lost_cars)",
+    )
+    r.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="print where the velocity error and the position jitter are: a track's first "
+        "frames or later, by depth, by the car's speed (real_motion.breakdown)",
     )
     r.add_argument(
         "--cold-start",

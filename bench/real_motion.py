@@ -669,6 +669,8 @@ class MotionStats:
     ground_speed: list = field(default_factory=list)  # [m/s] the car's true speed over ground
     # (sequence, frame, labelled id, accelerating or braking) of each ground_err row
     ground_keys: list = field(default_factory=list)
+    # (track age [frames since its birth, tentative ones too], depth z [m]) of each ground_err row
+    ground_detail: list = field(default_factory=list)
     frames: int = 0  # frames tracked
     lost: list = field(default_factory=list)  # eval_node.lost_cars.CarRecord per labelled car
     false: list = field(default_factory=list)  # eval_node.lost_cars.FalseRow per false row
@@ -679,6 +681,11 @@ class MotionStats:
     # position jitter (eval_node.motion_metrics.matched_jitter) pooled over the sequences:
     # [sum of squared second differences of the tracks, of their cars, triplets]
     jitter: list = field(default_factory=lambda: [0.0, 0.0, 0])
+    # each triplet of it: (the car's speed over the ground [m/s] or nan, the track's age [frames]
+    # and depth z [m] at the middle frame, the track's second difference [m], the car's [m])
+    jitter_rows: list = field(default_factory=list)
+    # {(sequence, frame, track id): track age [frames]} of the reported rows (jitter_rows' ages)
+    track_age: dict = field(default_factory=dict)
     # rows of a car accelerating or braking over the ground (|a| > ACCEL_MIN): (velocity over
     # the ground error [m/s], lag [s] = the error against the acceleration / |a|)
     accel: list = field(default_factory=list)
@@ -708,6 +715,8 @@ def run_tracker(
         if stats is None:
             continue
         stats.frames += 1
+        for tid, age in zip(ts.track_id, ts.age, strict=True):
+            stats.track_age[(data.name, k, int(tid))] = int(age)
         for i in np.nonzero(ts.det_index >= 0)[0]:
             if ts.state[i] == 0:
                 continue
@@ -725,6 +734,7 @@ def run_tracker(
                 a = _ground_acceleration(data.ground_velocity, k, g, data.motions)
                 accelerating = a is not None and np.linalg.norm(a) > ACCEL_MIN
                 stats.ground_keys.append((data.name, k, g, accelerating))
+                stats.ground_detail.append((int(ts.age[i]), float(ts.position[i][2])))
                 if accelerating:
                     an = float(np.linalg.norm(a))
                     stats.accel.append((float(np.linalg.norm(ew)), -float(ew @ a) / an**2))
@@ -856,7 +866,7 @@ def evaluate_split(
             if st is not None:
                 st.lost += sequence_lost_cars(data, ranked, out, cfg.birth_score)
                 st.false += false_tracks(data.name, gts[data.name], out)
-                _add_jitter(st, gts[data.name], out, data.keep_every)
+                _add_jitter(st, gts[data.name], out, data.keep_every, data)
         times[flt] = time.perf_counter() - t0
         if st is not None:
             st.mot = evaluate_tracking_sequences(
@@ -869,11 +879,14 @@ def evaluate_split(
     return _ap_table(gt, preds), stats, times
 
 
-def _add_jitter(st: MotionStats, gt, out, keep_every: int = 1) -> None:
+def _add_jitter(
+    st: MotionStats, gt, out, keep_every: int = 1, data: SequenceData | None = None
+) -> None:
     """Pool one sequence's matched-car position jitter into ``st.jitter``: second differences
     over three consecutive frames tracked (``keep_every`` > 1: kept frames, spanning 2 x
-    keep_every periods, the labels' over the same frames)."""
-    from eval_node.motion_metrics import matched_jitter
+    keep_every periods, the labels' over the same frames); with ``data`` also each triplet
+    into ``st.jitter_rows`` (the same triplets as ``matched_jitter``)."""
+    from eval_node.motion_metrics import matched_jitter, matched_jitter_triplets
 
     if keep_every > 1:
         gt = {k // keep_every: v for k, v in gt.items() if k % keep_every == 0}
@@ -883,6 +896,15 @@ def _add_jitter(st: MotionStats, gt, out, keep_every: int = 1) -> None:
         st.jitter[0] += j["pred_rms_m"] ** 2 * j["n"]
         st.jitter[1] += j["gt_rms_m"] ** 2 * j["n"]
         st.jitter[2] += j["n"]
+    if data is None:
+        return
+    vg = data.ground_velocity or {}
+    for f, tid, gid, p, d_pred, d_gt in matched_jitter_triplets(gt, out):
+        k = f * keep_every
+        v = vg.get((k, gid))
+        speed = float(np.linalg.norm(np.asarray(v)[[0, 2]])) if v is not None else math.nan
+        age = st.track_age.get((data.name, k, tid), -1)
+        st.jitter_rows.append((speed, age, float(p[1]), d_pred, d_gt))
 
 
 def jitter_ratio(st: MotionStats) -> tuple[float, float]:
@@ -1027,9 +1049,17 @@ def summary_figures(st: MotionStats, ap_row: dict | None = None, keyed: bool = T
         "accel_rows": acc[2],
     }
     if keyed:  # per row, for a like-for-like comparison of two runs on the rows both matched
+        # [sequence, frame, car, accelerating, error, the car's speed, track age, depth]
         out["velocity_rows_keyed"] = [
-            [name, int(k), int(g), int(accelerating), round(e, 4)]
-            for (name, k, g, accelerating), e in zip(st.ground_keys, st.ground_err, strict=True)
+            [name, int(k), int(g), int(accelerating), round(e, 4), round(v, 3), age, round(z, 2)]
+            for (name, k, g, accelerating), e, v, (age, z) in zip(
+                st.ground_keys, st.ground_err, st.ground_speed, st.ground_detail, strict=True
+            )
+        ]
+        # [the car's speed, track age, depth, the track's second difference, the car's]
+        out["jitter_rows"] = [
+            [round(v, 3), age, round(z, 2), round(dp, 4), round(dg, 4)]
+            for v, age, z, dp, dg in st.jitter_rows
         ]
     if ap_row is not None:
         for lvl in LEVELS:
@@ -1091,6 +1121,72 @@ def print_lost_cars(stats: dict[str, MotionStats]) -> None:
             print(f"\n  [{flt}] what the false-positive track rows were:")
             print("  " + false_track_table(st.false).replace("\n", "\n  "))
     sys.stdout.flush()
+
+
+#: a track's first frames (track age, frames since its birth) and the depth bins of the
+#: breakdown (docs/tracker.md, "Where the velocity error is", "Where the position jitter is")
+YOUNG_FRAMES = 8
+DEPTH_BINS = ((0.0, 30.0), (30.0, 45.0), (45.0, math.inf))
+SPEED_CLASSES = (
+    ("parked < 1 m/s", 0.0, 1.0),
+    ("1-3 m/s", 1.0, 3.0),
+    ("moving > 3 m/s", 3.0, math.inf),
+)
+
+
+def breakdown(st: MotionStats) -> dict:
+    """Where the velocity error and the position jitter are: per group of rows (a track's first
+    ``YOUNG_FRAMES`` frames or later, by depth; by the car's speed over the ground), the share of
+    the rows, the RMSE (velocity) or the ratio to the labels (jitter) and the share of the
+    squared error. Returns ``{"velocity": [(group, share, rmse, share_sq)], "jitter": [(group,
+    share, ratio, share_sq)]}``."""
+    out = {"velocity": [], "jitter": []}
+    e = np.array(st.ground_err, float)
+    if len(e):
+        v = np.array(st.ground_speed, float)
+        age, z = np.array(st.ground_detail, float).reshape(-1, 2).T
+        for name, m in _groups(v, age, z):
+            if m.any():
+                rmse = float(np.sqrt(np.mean(e[m] ** 2)))
+                out["velocity"].append(
+                    (name, m.mean(), rmse, float(np.sum(e[m] ** 2) / np.sum(e**2)))
+                )
+    if st.jitter_rows:
+        v, age, z, dp, dg = np.array(st.jitter_rows, float).T
+        for name, m in _groups(v, age, z):
+            if m.any():
+                ratio = float(np.sqrt(np.sum(dp[m] ** 2) / max(np.sum(dg[m] ** 2), 1e-12)))
+                out["jitter"].append(
+                    (name, m.mean(), ratio, float(np.sum(dp[m] ** 2) / np.sum(dp**2)))
+                )
+    return out
+
+
+def _groups(speed, age, z):
+    yield "every row", np.ones(len(z), bool)
+    for young, label in ((True, f"a track's first {YOUNG_FRAMES} frames"), (False, "older tracks")):
+        a = age < YOUNG_FRAMES if young else age >= YOUNG_FRAMES
+        for lo, hi in DEPTH_BINS:
+            rng = f">= {lo:g} m" if hi == math.inf else f"{lo:g}-{hi:g} m"
+            yield f"{label}, {rng}", a & (z >= lo) & (z < hi)
+    for name, lo, hi in SPEED_CLASSES:
+        yield f"cars {name}", (speed >= lo) & (speed < hi)
+
+
+def print_breakdown(stats: dict[str, MotionStats]) -> None:
+    """``bench_tracker.py real --breakdown``: :func:`breakdown` per filter."""
+    for flt, st in stats.items():
+        if st is None:
+            continue
+        b = breakdown(st)
+        for key, what, fig in (
+            ("velocity", "velocity error", "RMSE over the ground [m/s]"),
+            ("jitter", "position jitter (matched cars)", "ratio to the labels"),
+        ):
+            print(f"  {flt}: where the {what} is (track age: frames since birth)")
+            print(f"  | rows | share of rows | {fig} | share of the squared error |")
+            for name, share, val, sq in b[key]:
+                print(f"  | {name} | {100 * share:5.1f} % | {val:5.2f} | {100 * sq:5.1f} % |")
 
 
 def print_covariance_check(datas: list[SequenceData]) -> None:

@@ -199,3 +199,28 @@ def test_a_keep_every_below_1_is_one_line_and_a_non_zero_exit():
     )
     assert run.returncode != 0
     assert run.stderr.strip() == "error: --keep-every: 0 is not a positive integer"
+
+
+def test_breakdown_partitions_the_velocity_rows_and_the_jitter_triplets():
+    """``bench_tracker.py real --breakdown``: the age x depth groups and the speed classes
+    each cover every velocity row and every jitter triplet once; "every row" gives the
+    summary's velocity RMSE and jitter ratio."""
+    data = _sequence()
+    _, stats, _ = rm.evaluate_split([data], TrackerConfig(), ["kalman"])
+    st = stats["kalman"]
+    fig = rm.summary_figures(st)
+    b = rm.breakdown(st)
+    for key, whole in (("velocity", fig["velocity_rmse_ground"]), ("jitter", fig["jitter_ratio"])):
+        rows = {name: (share, val, sq) for name, share, val, sq in b[key]}
+        assert rows["every row"][0] == pytest.approx(1.0)
+        assert rows["every row"][1] == pytest.approx(whole)
+        by_age = [r for n, r in rows.items() if "first" in n or "older" in n]
+        by_speed = [r for n, r in rows.items() if n.startswith("cars ")]
+        for part in (by_age, by_speed):
+            assert sum(r[0] for r in part) == pytest.approx(1.0)
+            assert sum(r[2] for r in part) == pytest.approx(1.0)
+    # the triplets are matched_jitter's, with the track's age known for each
+    assert len(st.jitter_rows) == st.jitter[2] > 0
+    assert all(r[1] >= 0 for r in st.jitter_rows)
+    keyed = fig["velocity_rows_keyed"]
+    assert all(len(r) == 8 and r[6] >= 0 for r in keyed)

@@ -154,22 +154,36 @@ def jitter(frames: Frames, *, cls: str | None = "Car", axes: str = "xz") -> dict
     return {"n": len(arr), "rms_m": float(np.sqrt((arr**2).mean())) if len(arr) else math.nan}
 
 
-def matched_jitter(gt: Frames, pred: Frames, *, cls: str = "Car", axes: str = "xz") -> dict:
-    """Jitter of the tracked cars against their own ground truth: the second difference over
-    every three consecutive frames in which one track is matched to one labelled car (tracking
-    matcher, 2D IoU 0.5), for the track and for the car. Returns ``{"n", "pred_rms_m",
-    "gt_rms_m", "ratio"}`` (false tracks and unmatched frames left out, unlike :func:`jitter`)."""
+def matched_jitter_triplets(
+    gt: Frames, pred: Frames, *, cls: str = "Car", axes: str = "xz"
+) -> list[tuple]:
+    """Every three consecutive frames in which one track is matched to one labelled car
+    (tracking matcher, 2D IoU 0.5): ``(frame, track id, car id, the track's position at the
+    middle frame (``axes``), the track's second difference [m], the car's [m])``."""
     idx = _AXES[axes]
     rows = {}
     for f, pairs in match_tracks(gt, pred, cls=cls).items():
         for g, p in pairs:
             rows[(int(f), p.track_id)] = (g.track_id, p.centre_of_mass[idx], g.centre_of_mass[idx])
-    dp, dg = [], []
+    out = []
     for (f, tid), (gid, p, g) in rows.items():
         a, b = rows.get((f - 1, tid)), rows.get((f + 1, tid))
         if a is not None and b is not None and a[0] == gid == b[0]:
-            dp.append(float(np.linalg.norm(b[1] - 2.0 * p + a[1])))
-            dg.append(float(np.linalg.norm(b[2] - 2.0 * g + a[2])))
+            d_pred = float(np.linalg.norm(b[1] - 2.0 * p + a[1]))
+            d_gt = float(np.linalg.norm(b[2] - 2.0 * g + a[2]))
+            out.append((f, tid, gid, p, d_pred, d_gt))
+    return out
+
+
+def matched_jitter(gt: Frames, pred: Frames, *, cls: str = "Car", axes: str = "xz") -> dict:
+    """Jitter of the tracked cars against their own ground truth: the second difference over
+    every three consecutive frames in which one track is matched to one labelled car (tracking
+    matcher, 2D IoU 0.5), for the track and for the car (:func:`matched_jitter_triplets`).
+    Returns ``{"n", "pred_rms_m", "gt_rms_m", "ratio"}`` (false tracks and unmatched frames left
+    out, unlike :func:`jitter`)."""
+    triplets = matched_jitter_triplets(gt, pred, cls=cls, axes=axes)
+    dp = [t[4] for t in triplets]
+    dg = [t[5] for t in triplets]
     if not dp:
         return {"n": 0, "pred_rms_m": math.nan, "gt_rms_m": math.nan, "ratio": math.nan}
     rp, rg = float(np.sqrt(np.mean(np.square(dp)))), float(np.sqrt(np.mean(np.square(dg))))
