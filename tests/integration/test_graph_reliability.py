@@ -257,7 +257,10 @@ def test_two_graphs_on_one_domain_without_namespaces_are_caught(kitti_tracking_r
     """Two graphs on one ROS domain, neither in its own namespace: each graph's nodes take the
     other's frames too. The launchers warn, a lockstep player gets two answers for its frames
     and fails the run naming the cause, and `evaluate bag` refuses every bag, which holds both
-    runs (before: both ran to the end and `evaluate bag` gave MOTA 9.8 without a word)."""
+    runs (before: both ran to the end and `evaluate bag` gave MOTA 9.8 without a word). Both
+    start at once; which graph's answers reach which player first is a race, so a player may
+    stop during its launcher's start-up and its bag hold no frame (seen in a fresh-clone CI run
+    on a fast machine): that bag is refused for having no frames."""
     procs = {}
     for name in ("a", "b"):
         (tmp_path / name).mkdir()
@@ -266,11 +269,19 @@ def test_two_graphs_on_one_domain_without_namespaces_are_caught(kitti_tracking_r
     failed = [n for n, p in procs.items() if p.returncode == 1]
     assert failed, outs
     for name in failed:
-        assert (
-            "error: node 'kitti_player' died (exit code 1): kitti_player: /vehicles/tracks: "
-            in (outs[name])
-        )
+        # the other graph's answers can reach this player while its launcher still waits for
+        # its own nodes (a fast machine): the death is then named as during start-up
+        assert any(
+            f"error: node 'kitti_player' died{when} (exit code 1): kitti_player: /vehicles/tracks: "
+            in outs[name]
+            for when in ("", " during start-up")
+        ), outs[name]
         assert "another graph publishes on this ROS domain" in outs[name]
+    # every bag is refused: it mixes both runs, or (a player stopped before its own graph's
+    # first frame was recorded, as the other graph's answers came in first) it holds no frame
+    # or was never opened; at least one holds both runs and is named for it
+    unrecorded = ("no frames", "bag not found", "not a rosbag2 directory")
+    mixed = 0
     for name in procs:
         bag = tmp_path / f"bag_{name}"
         result = subprocess.run(
@@ -280,4 +291,10 @@ def test_two_graphs_on_one_domain_without_namespaces_are_caught(kitti_tracking_r
             timeout=120,
         )
         assert result.returncode == 2, (name, result.stdout, result.stderr, outs)
-        assert f"error: {bag}: mixes more than one run" in result.stderr
+        this = f"error: {bag}: mixes more than one run" in result.stderr
+        assert this or any(f"error: {bag}: {u}" in result.stderr for u in unrecorded), (
+            name,
+            result.stderr,
+        )
+        mixed += this
+    assert mixed, outs
