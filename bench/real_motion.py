@@ -1040,6 +1040,10 @@ def summary_figures(st: MotionStats, ap_row: dict | None = None, keyed: bool = T
         "velocity_rmse_moving": (
             float(np.sqrt(np.mean(ge[gs > 3.0] ** 2))) if (gs > 3.0).any() else math.nan
         ),
+        # moving cars (relative speed > 3 m/s): the track's mean error along the car's motion
+        # (negative: behind it) [m] and its mean lag behind its detection [s]
+        "along_moving_m": float(np.mean(st.along)) if st.along else math.nan,
+        "lag_behind_detection_s": float(np.mean(st.lag_s)) if st.lag_s else math.nan,
         "mota_3d": 100 * st.mot3.get("all_rows", {}).get("mota", math.nan),
         "hota_3d": 100 * st.mot3.get("hota", math.nan),
         "jitter_m": jit[0],
