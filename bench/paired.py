@@ -54,8 +54,8 @@ def paired(base: list[dict], cand: list[dict]) -> dict:
             for flt in sorted(set(b[section]) & set(c[section])):
                 fb, fc = b[section][flt], c[section][flt]
                 slot = out.setdefault(section, {}).setdefault(flt, {})
-                for key in fb:
-                    if key in SKIP or key not in fc:
+                for key in fb:  # the scalar figures (row lists are compared below or not)
+                    if key in SKIP or key not in fc or isinstance(fb[key], (list, dict)):
                         continue
                     slot.setdefault(key, []).append(float(fc[key]) - float(fb[key]))
                 if "velocity_rows_keyed" in fb and "velocity_rows_keyed" in fc:

@@ -16,7 +16,13 @@ import paired  # noqa: E402
 
 
 def _run(mota, rows):
-    return {"camera/tuning": {"kalman": {"mota_all_rows": mota, "velocity_rows_keyed": rows}}}
+    # as `bench_tracker.py real --json` writes it, row lists beside the figures
+    fig = {
+        "mota_all_rows": mota,
+        "velocity_rows_keyed": rows,
+        "jitter_rows": [[0.0, 3, 20.0, 0.1, 0.02]],
+    }
+    return {"camera/tuning": {"kalman": fig}}
 
 
 BASE = [["0001", 1, 7, 0, 1.0], ["0001", 2, 7, 1, 3.0], ["0002", 1, 4, 0, 2.0]]
@@ -49,6 +55,7 @@ def test_paired_differences_per_draw(tmp_path, capsys):
     )
     slot = res["camera/tuning"]["kalman"]
     assert slot["mota_all_rows"] == pytest.approx([1.0, -0.5])
+    assert "jitter_rows" not in slot
     assert slot["lfl_all_rows"] == [2, 2]
     assert slot["lfl_all_diff"][0] == pytest.approx(math.sqrt(9.25 / 2) - math.sqrt(5.0))
     assert paired.main(["--base", *files[:2], "--cand", *files[2:]]) == 0
