@@ -24,8 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-SKIP = {"velocity_rows_keyed"}
-
 
 def _rms(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e**2))) if len(e) else math.nan
@@ -55,7 +53,7 @@ def paired(base: list[dict], cand: list[dict]) -> dict:
                 fb, fc = b[section][flt], c[section][flt]
                 slot = out.setdefault(section, {}).setdefault(flt, {})
                 for key in fb:  # the scalar figures (row lists are compared below or not)
-                    if key in SKIP or key not in fc or isinstance(fb[key], (list, dict)):
+                    if key not in fc or isinstance(fb[key], (list, dict)):
                         continue
                     slot.setdefault(key, []).append(float(fc[key]) - float(fb[key]))
                 if "velocity_rows_keyed" in fb and "velocity_rows_keyed" in fc:

@@ -1021,7 +1021,7 @@ def summary_figures(st: MotionStats, ap_row: dict | None = None, keyed: bool = T
     ``keyed`` also every velocity row with its key."""
     m, a = st.mot, st.mot["all_rows"]
     ge, gs = np.array(st.ground_err), np.array(st.ground_speed)
-    parked = gs < 1.0
+    parked, moving = gs < 1.0, gs > 3.0
     jit = jitter_ratio(st)
     acc = accel_lag(st)
     out = {
@@ -1038,7 +1038,7 @@ def summary_figures(st: MotionStats, ap_row: dict | None = None, keyed: bool = T
             float(np.sqrt(np.mean(ge[parked] ** 2))) if parked.any() else math.nan
         ),
         "velocity_rmse_moving": (
-            float(np.sqrt(np.mean(ge[gs > 3.0] ** 2))) if (gs > 3.0).any() else math.nan
+            float(np.sqrt(np.mean(ge[moving] ** 2))) if moving.any() else math.nan
         ),
         # moving cars (relative speed > 3 m/s): the track's mean error along the car's motion
         # (negative: behind it) [m] and its mean lag behind its detection [s]
@@ -1145,25 +1145,27 @@ def breakdown(st: MotionStats) -> dict:
     squared error. Returns ``{"velocity": [(group, share, rmse, share_sq)], "jitter": [(group,
     share, ratio, share_sq)]}``."""
     out = {"velocity": [], "jitter": []}
-    e = np.array(st.ground_err, float)
-    if len(e):
-        v = np.array(st.ground_speed, float)
+    if st.ground_err:
+        e = np.array(st.ground_err, float)
         age, z = np.array(st.ground_detail, float).reshape(-1, 2).T
-        for name, m in _groups(v, age, z):
-            if m.any():
-                rmse = float(np.sqrt(np.mean(e[m] ** 2)))
-                out["velocity"].append(
-                    (name, m.mean(), rmse, float(np.sum(e[m] ** 2) / np.sum(e**2)))
-                )
+        groups = _groups(np.array(st.ground_speed, float), age, z)
+        out["velocity"] = _shares(groups, e**2, lambda m: float(np.sqrt(np.mean(e[m] ** 2))))
     if st.jitter_rows:
         v, age, z, dp, dg = np.array(st.jitter_rows, float).T
-        for name, m in _groups(v, age, z):
-            if m.any():
-                ratio = float(np.sqrt(np.sum(dp[m] ** 2) / max(np.sum(dg[m] ** 2), 1e-12)))
-                out["jitter"].append(
-                    (name, m.mean(), ratio, float(np.sum(dp[m] ** 2) / np.sum(dp**2)))
-                )
+        out["jitter"] = _shares(
+            _groups(v, age, z),
+            dp**2,
+            lambda m: float(np.sqrt(np.sum(dp[m] ** 2) / max(np.sum(dg[m] ** 2), 1e-12))),
+        )
     return out
+
+
+def _shares(groups, sq: np.ndarray, value) -> list[tuple]:
+    """(group, share of the rows, ``value(mask)``, share of ``sq``) of each non-empty group."""
+    total = float(np.sum(sq))
+    return [
+        (name, m.mean(), value(m), float(np.sum(sq[m]) / total)) for name, m in groups if m.any()
+    ]
 
 
 def _groups(speed, age, z):
