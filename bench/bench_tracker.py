@@ -10,6 +10,7 @@
                                          [--set K=V] [--no-camera-motion] [--checkpoint PT]
                                          [--keep-every K] [--seed-offset N] [--json F]
                                          [--lost-cars] [--breakdown]
+                                         [--ranging-error-scale S [--ranging-error-min-depth Z]]
     python bench/bench_tracker.py graph  OUTPUT/bag [--sequence 0005] [--set K=V]
 
 ``mot``: tracker_offline's core over ../shared/kitti/detections/pointrcnn_Car_val, scored with
@@ -409,7 +410,10 @@ def cmd_real(args) -> None:
         print(f"\n[{source}] tracker configuration: {cfg}")
         if source in ("stereo", "camera"):
             model = rm.measure_stereo_model()
-            dm = rm.DetectionModel()
+            dm = rm.DetectionModel(
+                ranging_error_scale=args.ranging_error_scale,
+                ranging_error_min_depth=args.ranging_error_min_depth,
+            )
             print(f"detection model: {dm}")
         if source == "camera":
             import camera_stats
@@ -704,6 +708,22 @@ def main() -> None:
         "number + N) instead of the sequence number; a paired noise check of a change (0 = the "
         "benchmark's own draws)",
     )
+    r.add_argument(
+        "--ranging-error-scale",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="stereo / camera sources, a what-if: each 3D position's error times S and its "
+        "reported covariance times S^2 (0 = the labelled centre itself; 1 = the measured stereo "
+        "model); how the tracking figures depend on the ranging's precision",
+    )
+    r.add_argument(
+        "--ranging-error-min-depth",
+        type=float,
+        default=0.0,
+        metavar="Z",
+        help="with --ranging-error-scale: only points at least Z m deep",
+    )
     r.add_argument("--json", default="", help="also write the tracking figures, unrounded")
     g = sub.add_parser("graph", help="a recorded whole-graph run on a real sequence")
     g.add_argument("bag", help="the demo's output folder or its bag")
@@ -717,6 +737,8 @@ def main() -> None:
     args = p.parse_args()
     if args.cmd in ("mot", "tune", "compare") and not DETS.is_dir():
         sys.exit(f"error: {DETS}: shared KITTI detections not found")
+    if args.cmd == "real" and not args.ranging_error_scale >= 0:
+        sys.exit(f"error: --ranging-error-scale: {args.ranging_error_scale} is not >= 0")
     if args.cmd == "real" and args.keep_every < 1:
         sys.exit(f"error: --keep-every: {args.keep_every} is not a positive integer")
     if args.cmd == "real" and not LABELS.is_dir():
