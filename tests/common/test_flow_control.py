@@ -236,3 +236,67 @@ def test_admission_takes_the_next_image_when_it_is_due_soon():
     for _ in range(4):
         off.arrived()
     assert off.admit(msg) is None
+
+
+def test_lead_starts_one_more_frame_timed_to_end_as_the_stage_after_frees():
+    """``downstream_lead``: with the window full, one more frame may start ``lead_s`` before
+    the newest frame in flight is expected to end (its start + the median time in flight), so
+    the next frame's CNN runs beside the stereo node's work on this one; never a third."""
+    clock = FakeClock()
+    w = InFlightWindow(1, 1.0, clock)
+    assert w.admit(1, lead_s=0.04) is None
+    assert w.admit(2, lead_s=0.04) == pytest.approx(5.0)  # no time in flight known: no lead
+    clock.t += 0.1
+    assert w.finish(1) == 1  # 0.1 s in flight: learnt
+    assert w.admit(2, lead_s=0.04) is None  # frame 2 starts at t = 0.1
+    clock.t += 0.02
+    assert w.room_in(0.0) == pytest.approx(1.0 - 0.02)  # no lead: the window is full
+    assert w.room_in(0.04) == pytest.approx(0.04)  # expected end 0.2: start at 0.16
+    assert w.admit(3, lead_s=0.04) == pytest.approx(0.04) and w.in_flight == 1
+    clock.t += 0.04
+    assert w.room_in(0.04) == 0.0
+    assert w.admit(3, lead_s=0.04) is None and w.in_flight == 2
+    clock.t += 0.05
+    assert w.admit(4, lead_s=0.04) == pytest.approx(1.0 - 0.11)  # two in flight: no third
+    assert w.finish(2) == 1 and w.in_flight == 1  # frame 3 is now the newest in flight
+    # the median of 0.1 and 0.11 s: frame 3 (started at 0.16) is expected to end at 0.265
+    assert w.room_in(0.04) == pytest.approx(0.265 - 0.04 - 0.21)
+    clock.t += 0.5
+    assert w.admit(4, lead_s=0.04) is None  # long after its expected end: the lead frame starts
+
+
+def test_lead_zero_is_the_window_as_before():
+    clock = FakeClock()
+    a, b = InFlightWindow(1, 1.0, clock), InFlightWindow(1, 1.0, clock)
+    for s in range(1, 6):
+        assert (a.admit(s) is None) == (b.admit(s, lead_s=0.0) is None)
+        clock.t += 0.03
+        if s % 2:
+            a.finish(s)
+            b.finish(s)
+    assert a.in_flight == b.in_flight
+
+
+def test_admission_passes_the_cnn_time_as_the_lead():
+    """The detector's admission asks the CNN's time per frame each time and passes it to the
+    window: unknown (None) is no lead."""
+    from types import SimpleNamespace
+
+    from detector_node.admission import DownstreamAdmission
+
+    cnn = {"s": None}
+    adm = DownstreamAdmission(1, 1.0, lambda: 1, lambda line: None, lead=lambda: cnn["s"])
+    clock = FakeClock()
+    adm.flow._clock = clock
+
+    def msg(sec):
+        return SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=sec, nanosec=0)))
+
+    assert adm.admit(msg(1)) is None
+    clock.t += 0.1
+    adm.finish(msg(1), lambda: None)  # 0.1 s in flight
+    assert adm.admit(msg(2)) is None
+    clock.t += 0.07
+    assert adm.admit(msg(3)) is not None  # CNN time unknown: the window of 1 holds
+    cnn["s"] = 0.05
+    assert adm.admit(msg(3)) is None and adm.flow.in_flight == 2  # expected end 0.2 - 0.05

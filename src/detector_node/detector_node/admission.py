@@ -29,7 +29,9 @@ class DownstreamAdmission:
     3D arrays; ``warn``: a warning line (a frame's place freed by its timeout). When there is
     room and the camera's next image is due within ``next_frame_wait`` of its period, the
     worker waits for that image (:class:`vehicle_common.flow_control.CameraCadence`; the images'
-    arrivals are given with :meth:`arrived`)."""
+    arrivals are given with :meth:`arrived`). ``lead()``: the CNN's time per frame [s] (None
+    while unknown): one more frame may start that long before the newest frame in flight is
+    expected to end downstream (``downstream_lead``; :meth:`InFlightWindow.room_in`)."""
 
     def __init__(
         self,
@@ -38,8 +40,10 @@ class DownstreamAdmission:
         publishers: Callable[[], int],
         warn: Callable[[str], object],
         next_frame_wait: float = 0.0,
+        lead: Callable[[], float | None] | None = None,
     ) -> None:
         self.flow = InFlightWindow(window, timeout)
+        self._lead = lead  # [s] the CNN's time per frame (None: not known yet); None: no lead
         self.cadence = CameraCadence()
         self.next_frame_wait = float(next_frame_wait)
         self.waited_for_next = 0  # times a fresher image was waited for
@@ -61,12 +65,13 @@ class DownstreamAdmission:
             self._downstream = (seen, now)
         if not seen:
             return None
-        if self.next_frame_wait > 0 and self.flow.has_room:
+        lead = (self._lead() or 0.0) if self._lead is not None else 0.0
+        if self.next_frame_wait > 0 and self.flow.room_in(lead) == 0:
             fresher = self.cadence.wait_for_next(self.next_frame_wait)
             if fresher is not None:
                 self.waited_for_next += 1
                 return fresher
-        wait = self.flow.admit(stamp_ns(msg.header))
+        wait = self.flow.admit(stamp_ns(msg.header), lead)
         if self.flow.expired > self._expired_seen:
             self._expired_seen = self.flow.expired
             self._warn(

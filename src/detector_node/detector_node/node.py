@@ -96,6 +96,7 @@ class VehicleDetectorNode(Node):
                     lambda: self.count_publishers(DOWNSTREAM_TOPIC),
                     lambda line: self.get_logger().warning(line, throttle_duration_sec=5.0),
                     p.next_frame_wait,
+                    self._cnn_seconds if p.downstream_lead else None,
                 )
             self.worker = LatestFrameWorker(
                 self._work,
@@ -214,6 +215,12 @@ class VehicleDetectorNode(Node):
             self.get_logger().info(line)
         else:
             self.get_logger().warning(line)
+
+    def _cnn_seconds(self) -> float | None:
+        """[s] the CNN worker's median wall time per frame (None before the first): the lead
+        of ``downstream_lead``."""
+        t = self.frames.processing_ms()
+        return None if t is None else t[0] / 1e3
 
     def _failed(self, exc: Exception, msg: Image) -> None:
         self.get_logger().warning(f"{topics.LEFT_IMAGE}: detection failed: {exc}; no detections")

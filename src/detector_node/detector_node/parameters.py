@@ -51,6 +51,13 @@ class DetectorParameters:
     # within this share of its period, wait for it (a fresher frame; vehicle_common.
     # flow_control.CameraCadence; chosen on real 0005, docs/RESULTS.md section 19). 0: off
     next_frame_wait: float = param(0.5, low=0.0, high=1.0)
+    # with back-pressure: one more image may start its CNN while the window is full, timed to
+    # finish when the newest frame in flight is expected to leave the stereo node (its start +
+    # the median time in flight - the CNN's median time): the next frame's CNN runs beside the
+    # stereo node's work on this one. Off: on 2 cores it cost latency (1.20 -> 1.52x
+    # lockstep's at 2 x the capacity, docs/RESULTS.md section 29), for a machine with cores
+    # to spare
+    downstream_lead: bool = False
     vehicle_types: list = param(["Car", "Van"])  # oracle: label types republished
     oracle_box_noise_px: float = param(0.0, low=0.0)  # oracle: [px] std of noise on each box edge
     oracle_score: float = param(1.0, low=0.0, high=1.0)  # oracle: score of every box

@@ -35,6 +35,7 @@ P the camera period and T the graph's cycle: 6 % at 2x, 4 % at 3x).
 
 from __future__ import annotations
 
+import statistics
 import threading
 import time
 from collections import OrderedDict, deque
@@ -97,15 +98,43 @@ class InFlightWindow:
             while len(self._expired_starts) > self.TIMED_FRAMES:
                 self._expired_starts.popitem(last=False)
 
-    def admit(self, stamp: int) -> float | None:
-        """Start the frame at ``stamp`` if the window has room (then None), else the seconds
-        after which the oldest frame in flight expires (ask again then, or when a frame ends)."""
+    def _room_in(self, now: float, lead_s: float) -> float:
+        """[s] until a frame may start (0: now); call with the lock held, expired frames gone.
+
+        Full window: when the oldest frame in flight expires. With ``lead_s`` > 0 and the
+        window full by exactly ``window`` frames whose time in flight is known, one more frame
+        may start ``lead_s`` before the newest one in flight is expected to end (its start plus
+        the median of the last frames' times in flight): a stage that takes ``lead_s`` to do
+        its part hands its frame over just as the stage after it can take it."""
+        if not self.window or len(self._started) < self.window:
+            return 0.0
+        oldest = next(iter(self._started.values()))
+        expires = max(oldest + self.timeout - now, 1e-3)
+        if lead_s > 0 and len(self._started) == self.window and self._times:
+            newest = next(reversed(self._started.values()))
+            start_at = newest + statistics.median(self._times) - lead_s
+            if now >= start_at:
+                return 0.0
+            return max(min(start_at - now, expires), 1e-3)
+        return expires
+
+    def room_in(self, lead_s: float = 0.0) -> float:
+        """[s] until :meth:`admit` would start a frame (0: now), nothing started."""
         with self._lock:
             now = self._clock()
             self._expire(now)
-            if self.window and len(self._started) >= self.window:
-                oldest = next(iter(self._started.values()))
-                return max(oldest + self.timeout - now, 1e-3)
+            return self._room_in(now, lead_s)
+
+    def admit(self, stamp: int, lead_s: float = 0.0) -> float | None:
+        """Start the frame at ``stamp`` if the window has room (then None), else the seconds
+        after which to ask again (the oldest frame in flight expires; with ``lead_s``: one more
+        frame may start, :meth:`_room_in`), or when a frame ends."""
+        with self._lock:
+            now = self._clock()
+            self._expire(now)
+            wait = self._room_in(now, lead_s)
+            if wait > 0:
+                return wait
             self._started[int(stamp)] = now
             self._started.move_to_end(int(stamp))
             return None
@@ -127,11 +156,6 @@ class InFlightWindow:
         """Forget the frames in flight (the downstream stage went away)."""
         with self._lock:
             self._started.clear()
-
-    @property
-    def has_room(self) -> bool:
-        """A frame would be admitted now."""
-        return not self.window or self.in_flight < self.window
 
 
 class CameraCadence:
