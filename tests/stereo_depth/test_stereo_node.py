@@ -753,3 +753,6 @@ def test_settings_are_derived_from_the_camera_info_and_follow_a_change(rclpy_con
     err = capfd.readouterr().err
     assert err.count("num_disparities 96") == 1 and "match_rows all" in err
     assert "camera_info changed" in err and "num_disparities 32" in err
+    # each camera line states the ranging's depth std on that camera: worse on the shorter one
+    lines = [ln for ln in err.splitlines() if "ranging depth std" in ln]
+    assert len(lines) == 2 and "f x baseline 70 px m" in lines[1]

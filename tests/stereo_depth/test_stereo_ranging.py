@@ -125,3 +125,31 @@ def test_prepared_setup_gives_the_same_results_and_validates_once():
         RangingSetup.from_params(RangingParams(core_fraction=0.0))
     off = RangingSetup.from_params(RangingParams(centre_correction=False)).centre_offsets
     assert np.all(off == 0.0)
+
+
+def test_depth_std_on_a_camera_follows_the_error_model_and_its_f_times_baseline():
+    """The stereo node's camera line states the depth std a car is ranged with at 20 / 40 /
+    60 m: on KITTI's camera 0.5 / 0.9 / 1.7 m (far boxes refined: sigma_d_far); on a camera
+    with a quarter of the f x B, larger, as z^2 / (f B) says beyond the offset's floor."""
+    from stereo_depth_node.ranging import depth_std_at, precision_line
+
+    p = RangingParams()
+    assert [round(depth_std_at(z, GEO, p), 1) for z in (20, 40, 60)] == [0.5, 0.9, 1.7]
+    z = 40.0
+    expect = np.hypot(z * z * p.sigma_d_far / FB, p.depth_offset_std)
+    assert depth_std_at(z, GEO, p) == pytest.approx(expect)
+    short = StereoGeometry(GEO.fx, GEO.fy, GEO.cx, GEO.cy, GEO.baseline / 4)
+    assert depth_std_at(z, short, p) == pytest.approx(
+        np.hypot(4 * z * z * p.sigma_d_far / FB, p.depth_offset_std)
+    )
+    unrefined = replace(p, refine="none")  # every box at the map's sigma_d
+    assert depth_std_at(z, GEO, unrefined) == pytest.approx(
+        np.hypot(z * z * p.sigma_d / FB, p.depth_offset_std)
+    )
+    near = 5.0  # disparity above refine_max_disparity: the map's sigma_d
+    assert depth_std_at(near, GEO, p) == pytest.approx(
+        np.hypot(near * near * p.sigma_d / FB, p.depth_offset_std)
+    )
+    line = precision_line(short, p)
+    assert line.startswith("ranging depth std ") and "at 20 / 40 / 60 m" in line
+    assert f"f x baseline {FB / 4:.0f} px m" in line

@@ -55,6 +55,7 @@ from .ranging import (
     RangingSetup,
     disparity_bias_at,
     observation_angles_of,
+    precision_line,
     range_boxes,
 )
 from .region_matching import to_gray
@@ -267,10 +268,11 @@ class StereoPipeline:
             self.geometry_error = f"{source}: {exc}"
             return False, "warning", f"{self.geometry_error}; frames skipped until it changes"
         self.geometry, self.settings = geometry, settings
+        line = self._camera_line()
         if first or previous is None:
-            return True, "info", settings.text
+            return True, "info", line
         self._camera_generation += 1
-        return True, "warning", f"camera_info changed: {settings.text}"
+        return True, "warning", f"camera_info changed: {line}"
 
     def camera_from_projections(self, left: np.ndarray, p_left, p_right) -> str:
         """The camera of a rectified calibration (offline tools: a KITTI calibration's P2 and
@@ -280,7 +282,11 @@ class StereoPipeline:
         camera = CameraModel.from_projections(width, height, p_left, p_right)
         self.geometry = StereoGeometry.from_projections(p_left, p_right)
         self.settings = stereo_settings(camera, *self.given)
-        return self.settings.text
+        return self._camera_line()
+
+    def _camera_line(self) -> str:
+        """The camera's log line: the derived settings and the depth std of the ranging."""
+        return f"{self.settings.text}; {precision_line(self.geometry, self.ranging_params)}"
 
     def camera(self) -> tuple[StereoGeometry, StereoSettings]:
         """The camera a frame is processed with (raises :class:`NoGeometry`); after a camera

@@ -354,6 +354,34 @@ def disparity_std(d: float, refined: bool, params: RangingParams) -> float:
     return params.sigma_d_far if refined and d < params.far_disparity else params.sigma_d
 
 
+#: [m] depths at which the stereo node's camera line states the ranging's depth std
+PRECISION_DEPTHS = (20.0, 40.0, 60.0)
+
+
+def depth_std_at(z: float, geometry: StereoGeometry, params: RangingParams) -> float:
+    """[m] the depth std the ranging reports for a car at depth ``z`` on this camera (the error
+    model: ``z^2 sigma_d / (f B)`` with the refined ``sigma_d_far`` where a box would be
+    refined, plus ``depth_offset_std``; :func:`position_covariance`)."""
+    fB = geometry.fx * geometry.baseline
+    d = fB / z
+    refined = params.refine != "none" and d <= params.refine_max_disparity
+    sd = disparity_std(d, refined, params)
+    return math.hypot(z * z * sd / fB, params.depth_offset_std)
+
+
+def precision_line(geometry: StereoGeometry, params: RangingParams) -> str:
+    """One clause for the camera's log line: the depth std a car is ranged with at
+    :data:`PRECISION_DEPTHS` on this camera, from its f x B and the error model measured on
+    KITTI (385 px m there); a shorter f x B ranges far cars worse (README)."""
+    stds = " / ".join(f"{depth_std_at(z, geometry, params):.1f}" for z in PRECISION_DEPTHS)
+    at = " / ".join(f"{z:.0f}" for z in PRECISION_DEPTHS)
+    fB = geometry.fx * geometry.baseline
+    return (
+        f"ranging depth std {stds} m at {at} m (f x baseline {fB:.0f} px m, KITTI's about 385; "
+        "the error model measured on KITTI)"
+    )
+
+
 def position_covariance(
     u: float,
     v: float,
