@@ -23,6 +23,10 @@ machine at load 25-36: 5-12 s per frame).
 ``window`` 1: one frame in the pipeline after the camera, like lockstep with window 1 for the
 player: no frame is started that the next stage could not take at once, and on one core no
 stage's work competes with another's. ``window`` 0: no back-pressure.
+With a lead (``admit(stamp, lead_s)``, the detector's ``downstream_lead``, off by default) one
+more frame may start ``lead_s`` (the upstream stage's own time) before the newest frame in
+flight is expected to end: it reaches the next stage as that stage frees, and the two stages
+work side by side. On 2 cores that cost latency (docs/ARCHITECTURE.md, "Frame flow").
 
 :class:`CameraCadence` is the other half of a fresh frame: when the window frees, the newest
 image has waited on average half a camera period (a quarter of the graph's cycle at a camera
