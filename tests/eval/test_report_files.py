@@ -35,6 +35,11 @@ def test_report_files_and_filter_comparison(tmp_path):
     assert '<img src="bev_trajectories.png"' in files["html"].read_text()
     text = results_table(res)
     assert "kalman" in text and "particle" in text
+    # the matched cars' jitter in metres beside its ratio (tracks / labels)
+    m = res["velocity"]["stability"]["matched"]
+    row = next(ln for ln in text.splitlines() if "position jitter, matched cars" in ln)
+    pred, gt = (f"{m[k]:.3f}" if m["n"] else "n/a" for k in ("pred_rms_m", "gt_rms_m"))
+    assert row.split()[-3:] == [pred, "/", gt]
 
 
 def test_report_without_images_has_no_gif(tmp_path):

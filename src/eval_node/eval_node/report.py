@@ -118,6 +118,11 @@ def _html_table(header, rows) -> str:
     return f"<table><tr>{h}</tr>{body}</table>"
 
 
+def _pair(a, b, fmt: str = "{:.3f}") -> str:
+    """``a / b`` with :func:`_num`'s missing-value text for either."""
+    return f"{_num(a, fmt)} / {_num(b, fmt)}"
+
+
 def _summary_rows(res: dict) -> list[list[str]]:
     t, v, o, th = res["tracking"], res["velocity"], res["orientation"], res["throughput"]
     rows = [
@@ -139,6 +144,13 @@ def _summary_rows(res: dict) -> list[list[str]]:
         [
             "position jitter ratio (matched cars)",
             _num(v.get("stability", {}).get("matched", {}).get("ratio")),
+        ],
+        [  # the metres behind the ratio: labels' own jitter differs by drive
+            "position jitter, matched cars: tracks / GT [m]",
+            _pair(
+                v.get("stability", {}).get("matched", {}).get("pred_rms_m"),
+                v.get("stability", {}).get("matched", {}).get("gt_rms_m"),
+            ),
         ],
         ["frames", str(th["frames"])],
         ["throughput [frames/s]", _num(th.get("fps"), "{:.2f}")],
