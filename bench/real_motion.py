@@ -434,7 +434,8 @@ class _Ranger:
         p = self.geo.backproject(u, v, zm)
         s = self.dm.ranging_error_scale
         if s != 1.0 and z >= self.dm.ranging_error_min_depth:
-            p = np.asarray(c, float) + s * (p - np.asarray(c, float))
+            c = np.asarray(c, float)
+            p = c + s * (p - c)
             R = max(s, 0.05) ** 2 * R
         self.errors.append((z, float(p[2] - z), float(np.sqrt(R[2, 2]))))
         return p, R
@@ -897,12 +898,13 @@ def _add_jitter(
     over three consecutive frames tracked (``keep_every`` > 1: kept frames, spanning 2 x
     keep_every periods, the labels' over the same frames); with ``data`` also each triplet
     into ``st.jitter_rows`` (the same triplets as ``matched_jitter``)."""
-    from eval_node.motion_metrics import matched_jitter, matched_jitter_triplets
+    from eval_node.motion_metrics import jitter_of_triplets, matched_jitter_triplets
 
     if keep_every > 1:
         gt = {k // keep_every: v for k, v in gt.items() if k % keep_every == 0}
         out = {k // keep_every: v for k, v in out.items() if k % keep_every == 0}
-    j = matched_jitter(gt, out)
+    triplets = matched_jitter_triplets(gt, out)  # the tracks matched once, for both uses
+    j = jitter_of_triplets(triplets)
     if j["n"]:
         st.jitter[0] += j["pred_rms_m"] ** 2 * j["n"]
         st.jitter[1] += j["gt_rms_m"] ** 2 * j["n"]
@@ -910,7 +912,7 @@ def _add_jitter(
     if data is None:
         return
     vg = data.ground_velocity or {}
-    for f, tid, gid, p, d_pred, d_gt in matched_jitter_triplets(gt, out):
+    for f, tid, gid, p, d_pred, d_gt in triplets:
         k = f * keep_every
         v = vg.get((k, gid))
         speed = float(np.linalg.norm(np.asarray(v)[[0, 2]])) if v is not None else math.nan

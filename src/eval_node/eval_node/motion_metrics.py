@@ -181,7 +181,12 @@ def matched_jitter(gt: Frames, pred: Frames, *, cls: str = "Car", axes: str = "x
     matcher, 2D IoU 0.5), for the track and for the car (:func:`matched_jitter_triplets`).
     Returns ``{"n", "pred_rms_m", "gt_rms_m", "ratio"}`` (false tracks and unmatched frames left
     out, unlike :func:`jitter`)."""
-    triplets = matched_jitter_triplets(gt, pred, cls=cls, axes=axes)
+    return jitter_of_triplets(matched_jitter_triplets(gt, pred, cls=cls, axes=axes))
+
+
+def jitter_of_triplets(triplets: list[tuple]) -> dict:
+    """:func:`matched_jitter`'s figures of triplets from :func:`matched_jitter_triplets` (a
+    caller that needs the triplets too matches the tracks once)."""
     dp = [t[4] for t in triplets]
     dg = [t[5] for t in triplets]
     if not dp:

@@ -125,6 +125,7 @@ def _pair(a, b, fmt: str = "{:.3f}") -> str:
 
 def _summary_rows(res: dict) -> list[list[str]]:
     t, v, o, th = res["tracking"], res["velocity"], res["orientation"], res["throughput"]
+    matched = v.get("stability", {}).get("matched", {})
     rows = [
         ["MOTA (2D IoU 0.5)", _pct(t.get("mota"))],
         ["MOTP (2D IoU)", _pct(t.get("motp"))],
@@ -143,14 +144,11 @@ def _summary_rows(res: dict) -> list[list[str]]:
         ],
         [
             "position jitter ratio (matched cars)",
-            _num(v.get("stability", {}).get("matched", {}).get("ratio")),
+            _num(matched.get("ratio")),
         ],
         [  # the metres behind the ratio: labels' own jitter differs by drive
             "position jitter, matched cars: tracks / GT [m]",
-            _pair(
-                v.get("stability", {}).get("matched", {}).get("pred_rms_m"),
-                v.get("stability", {}).get("matched", {}).get("gt_rms_m"),
-            ),
+            _pair(matched.get("pred_rms_m"), matched.get("gt_rms_m")),
         ],
         ["frames", str(th["frames"])],
         ["throughput [frames/s]", _num(th.get("fps"), "{:.2f}")],

@@ -359,14 +359,14 @@ PRECISION_DEPTHS = (20.0, 40.0, 60.0)
 
 
 def depth_std_at(z: float, geometry: StereoGeometry, params: RangingParams) -> float:
-    """[m] the depth std the ranging reports for a car at depth ``z`` on this camera (the error
-    model: ``z^2 sigma_d / (f B)`` with the refined ``sigma_d_far`` where a box would be
-    refined, plus ``depth_offset_std``; :func:`position_covariance`)."""
-    fB = geometry.fx * geometry.baseline
-    d = fB / z
+    """[m] the depth std the ranging reports for a car at depth ``z`` on this camera: the z
+    part of :func:`position_covariance` (``z^2 sigma_d / (f B)`` with the refined
+    ``sigma_d_far`` where a box would be refined, plus ``depth_offset_std``)."""
+    d = geometry.fx * geometry.baseline / z
     refined = params.refine != "none" and d <= params.refine_max_disparity
     sd = disparity_std(d, refined, params)
-    return math.hypot(z * z * sd / fB, params.depth_offset_std)
+    cov = position_covariance(geometry.cx, geometry.cy, z, geometry, params, sd)
+    return math.sqrt(cov[2, 2])
 
 
 def precision_line(geometry: StereoGeometry, params: RangingParams) -> str:
