@@ -9,7 +9,7 @@ Car detections in ../shared/kitti/detections/pointrcnn_Car_val, writes KITTI tra
 and scores them and ``tracker_offline --params tracker_pointrcnn.yaml`` (online) with the same
 code as ``evaluate tracking --similarity S`` (every metric, HOTA included, with similarity S):
 best-threshold MOTA / IDSW / FP / FN / FRAG / MOTP / sAMOTA, the same at the fixed score threshold
-3.0 and with no threshold, and HOTA on all rows (bench_tracker.score_results).
+3.0 and with no threshold, and HOTA on all rows (tracking_bringup.tracker_scoring.score_results).
 
 AB3DMOT is the package ``pure-ab-3d-mot`` 2.2.0 (PyPI; Xinshuo Weng's AB3DMOT refactored by Peter
 Koval, stated to give the original's results without the ego-motion ("centre of motion")
@@ -56,6 +56,11 @@ from pathlib import Path
 
 import numpy as np
 
+REPO = Path(__file__).resolve().parent.parent
+KITTI = REPO.parent / "shared" / "kitti"
+DETS = KITTI / "detections" / "pointrcnn_Car_val"
+LABELS = KITTI / "tracking" / "training" / "label_02"
+CALIB = KITTI / "tracking" / "training" / "calib"
 PACKAGE_VERSION = "2.2.0"
 INSTALL = (
     f".venv/bin/pip install --no-deps pure-ab-3d-mot=={PACKAGE_VERSION} "
@@ -242,43 +247,44 @@ def main(argv: list[str] | None = None) -> int:
     if not sims or not set(sims) <= {"iou3d", "iou2d"}:
         print(f"error: --similarity: {args.similarity!r}: use iou3d and/or iou2d", file=sys.stderr)
         return 2
-    import bench_tracker as bt
     import pure_ab_3d_mot
     from tracker_node.config import TrackerConfig
 
-    if not bt.DETS.is_dir() or not bt.CALIB.is_dir() or not bt.LABELS.is_dir():
-        print(f"error: {bt.KITTI}: shared KITTI detections/labels not found", file=sys.stderr)
+    from tracking_bringup import tracker_scoring as ts
+
+    if not DETS.is_dir() or not CALIB.is_dir() or not LABELS.is_dir():
+        print(f"error: {KITTI}: shared KITTI detections/labels not found", file=sys.stderr)
         return 2
-    profile = bt.REPO / "src" / "tracking_bringup" / "config" / "tracker_pointrcnn.yaml"
+    profile = REPO / "src" / "tracking_bringup" / "config" / "tracker_pointrcnn.yaml"
     ours = TrackerConfig.from_yaml(profile)
     print(f"pure-ab-3d-mot {pure_ab_3d_mot.__version__}, numpy {np.__version__}")
     if pure_ab_3d_mot.__version__ != PACKAGE_VERSION:
         print(f"note: the figures in docs/tracker.md are from pure-ab-3d-mot {PACKAGE_VERSION}")
     for name, s in settings.items():
         print(f"AB3DMOT settings {name}: {s.describe()}; 2D boxes: {args.box2d}")
-    print(f"ours: tracker_offline --params {profile.relative_to(bt.REPO)} (online)")
-    for split, seqs in (("DEV", bt.DEV), ("TUNE", bt.TUNE)):
+    print(f"ours: tracker_offline --params {profile.relative_to(REPO)} (online)")
+    for split, seqs in (("DEV", ts.DEV), ("TUNE", ts.TUNE)):
         if args.only and args.only != split:
             continue
         entries = []
         for name, s in settings.items():
             with tempfile.TemporaryDirectory() as tmp:
                 out = Path(args.keep) / f"{split}_{name}" if args.keep else Path(tmp)
-                run = run_ab3dmot(bt.DETS, bt.CALIB, out, seqs, s, args.box2d)
-                scores = {sim: bt.score_results(out, seqs, sim) for sim in sims}
+                run = run_ab3dmot(DETS, CALIB, out, seqs, s, args.box2d)
+                scores = {sim: ts.score_results(out, LABELS, seqs, sim) for sim in sims}
             if run["dropped"]:
                 print(f"  AB3DMOT {name}: {run['dropped']} rows outside the image dropped")
             entries.append((f"AB3DMOT {name} settings, online", run, scores))
-        r = bt.compare_modes(ours, seqs, 0, sims)
+        r = ts.compare_modes(ours, DETS, LABELS, seqs, 0, sims)
         entries.append(("ours, online: tracker_pointrcnn.yaml", r, r))
         load = os.getloadavg()[0]
         for sim in sims:
             print(
-                f"\n{split}: sequences {','.join(seqs)}; every figure {bt.SIMILARITY_LABELS[sim]}"
+                f"\n{split}: sequences {','.join(seqs)}; every figure {ts.SIMILARITY_LABELS[sim]}"
             )
-            print(bt.compare_header(sim))
+            print(ts.compare_header(sim))
             for label, _, scores in entries:
-                print(bt.compare_row(label, scores[sim]))
+                print(ts.compare_row(label, scores[sim]))
         ours_fps = r["frames"] / r["seconds"]
         print(f"\nspeed (file I/O included; load average {load:.1f}):")
         for label, run, _ in entries:

@@ -263,8 +263,8 @@ def tune(dets: dict) -> None:
     import contextlib
     import io
 
-    from bench_detector import evaluate
     from detector_node.real_split import train_sources
+    from tracking_bringup.detector_scoring import evaluate
 
     specs = train_sources(SHARED / "kitti")
     rows = {}

@@ -30,6 +30,9 @@ from stereo_depth_node.disparity import (
     d1_error,
     interpolate_background,
 )
+from stereo_depth_node.ground_truth import KITTI_GEOMETRY as KITTI_GEO
+from stereo_depth_node.ground_truth import stereo_pairs as _stereo_pairs
+from stereo_depth_node.ground_truth import surface_regions
 from stereo_depth_node.ranging import (
     RangingParams,
     disparity_bias_at,
@@ -45,6 +48,13 @@ from vehicle_common.orientation_bins import alpha_to_bin
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "kitti"
 STEREO = SHARED / "stereo_2015" / "training"
+
+
+def stereo_pairs():
+    """The 5 KITTI 2015 pairs of ../shared (``stereo_depth_node.ground_truth``)."""
+    return _stereo_pairs(SHARED)
+
+
 TRACKING = SHARED / "tracking" / "training"
 
 DEFAULT = DisparityParams()
@@ -93,15 +103,6 @@ PREVIOUS_DEFAULTS = replace(
     truncated_surface_model="visible",
     lateral_fit=False,
 )
-
-
-def stereo_pairs():
-    for i in range(5):
-        name = f"{i:06d}_10.png"
-        left = read_png(STEREO / "image_2" / name)
-        right = read_png(STEREO / "image_3" / name)
-        gt = cv2.imread(str(STEREO / "disp_occ_0" / name), cv2.IMREAD_UNCHANGED)
-        yield left, right, gt.astype(np.float32) / 256.0
 
 
 def bench_disparity(variants: dict[str, DisparityParams]) -> None:
@@ -435,29 +436,6 @@ FIT_PAIRS, REPORT_PAIRS = (0, 2, 4), (1, 3)  # KITTI 2015 pairs: bias fitted / r
 D_BINS = ((0.0, 20.0), (20.0, 40.0), (40.0, 1e9))
 
 
-def surface_regions(gt: np.ndarray, margin: int = 100):
-    """Car-sized windows of a KITTI 2015 ground-truth map that lie on one surface: for a car
-    (3.2 x 1.4 m) at disparities 6..70 px, windows (half-overlapping, not in the leftmost
-    ``margin`` columns that the right image does not see) whose ground truth covers >= 30 % of
-    the pixels, has its median within 12 % of that disparity and >= 75 % of its pixels within
-    10 % of the median. Yields (box, truth = mean ground truth of that surface, i.e. of the
-    pixels within 10 % of the median)."""
-    h, w = gt.shape
-    for d in (6, 8, 10, 13, 16, 20, 25, 30, 36, 45, 55, 70):
-        bw, bh = int(3.2 * d / 0.54), int(1.4 * d / 0.54)
-        for y in range(0, h - bh, max(bh // 2, 4)):
-            for x in range(margin, w - bw, max(bw // 2, 4)):
-                g = gt[y : y + bh, x : x + bw]
-                v = g[g > 0]
-                if v.size < 0.3 * g.size:
-                    continue
-                m = float(np.median(v))
-                on_surface = np.abs(v / m - 1) < 0.10
-                if abs(m - d) > 0.12 * d or np.mean(on_surface) < 0.75:
-                    continue
-                yield (x, y, x + bw, y + bh), float(np.mean(v[on_surface]))
-
-
 REGION_ESTIMATORS = (
     "a: robust on the default map",
     "b: full-res SGBM on the region",
@@ -465,7 +443,6 @@ REGION_ESTIMATORS = (
 )
 #: full-resolution left SGBM (no WLS): the matcher of estimators b and c, for the pixel-level fit
 FULL_LEFT = replace(DEFAULT, downscale=1, use_wls=False, block_size=5, num_disparities=128)
-KITTI_GEO = StereoGeometry(721.5, 721.5, 609.6, 172.9, 0.5327)  # colour pair of tracking 0005
 
 
 def column_x2(u) -> np.ndarray:

@@ -45,9 +45,17 @@ from pathlib import Path
 
 import numpy as np
 from tracker_node.config import TrackerConfig
-from tracker_node.detection_files import read_detection_file
 from tracker_node.offline import find_calib_dir, run
 from tracker_node.tracker import DetectionBatch, Tracker
+from tracking_bringup.tracker_scoring import (
+    DEV,
+    SIMILARITY_LABELS,
+    TUNE,
+    VAL,
+    compare_header,
+    compare_modes,
+    compare_row,
+)
 
 REPO = Path(__file__).resolve().parent.parent
 KITTI = REPO.parent / "shared" / "kitti"
@@ -55,14 +63,6 @@ DETS = KITTI / "detections" / "pointrcnn_Car_val"
 LABELS = KITTI / "tracking" / "training" / "label_02"
 CALIB = KITTI / "tracking" / "training" / "calib"
 GRAPH_PARAMS = REPO / "src" / "tracking_bringup" / "config" / "pipeline.params.yaml"
-VAL = ["0001", "0006", "0008", "0010", "0012", "0013"]
-# Split fixed before any tuning: DEV = the KITTI validation sequences present here (report only);
-# TUNE = the other shared sequences with labels and detections (training split; tune only).
-DEV = VAL
-TUNE = ["0000", "0002", "0004", "0005", "0007", "0009", "0011", "0017", "0020"]
-#: Fixed score threshold stated before tuning: rows count when their track's mean score >= this
-#: (PointRCNN score scale; the evaluator's track-mean rule).
-FIXED_THRESHOLD = 3.0
 #: AB3DMOT's speed on these 2-core machines (shared/notes/kitti-tracking-eval.md; quoted, not run)
 AB3DMOT_FPS = 50
 KEYS = ("mota", "motp", "idsw", "frag", "fp", "fn", "samota")
@@ -81,69 +81,6 @@ def evaluate(
         }
 
 
-def score_results(res_dir: Path, seqs: list[str], similarity: str = "iou3d") -> dict:
-    """The issue #14 figures of one result folder, as ``evaluate tracking --similarity
-    SIMILARITY`` computes them (every metric, HOTA included, with that similarity; Car, 3D IoU
-    0.25 or 2D IoU 0.5): ``best`` = best-threshold CLEAR-MOT, sAMOTA and HOTA (HOTA on all
-    rows), ``none`` = CLEAR-MOT with no threshold, ``fixed`` = CLEAR-MOT at FIXED_THRESHOLD
-    (tracks whose mean score is below it removed)."""
-    from eval_node.tracking_metrics import evaluate_tracking_dirs, track_mean_scores
-    from vehicle_common.kitti import read_tracking_labels, write_tracking_labels
-
-    sim = {"similarity": similarity, "hota_similarity": similarity}
-    full = evaluate_tracking_dirs(res_dir, LABELS, seqs=seqs, **sim)["total"]
-    with tempfile.TemporaryDirectory() as fixed_dir:
-        for s in seqs:
-            pred = track_mean_scores(read_tracking_labels(Path(res_dir) / f"{s}.txt"))
-            kept = [o for objs in pred.values() for o in objs if o.score >= FIXED_THRESHOLD]
-            write_tracking_labels(Path(fixed_dir) / f"{s}.txt", kept)
-        fixed = evaluate_tracking_dirs(fixed_dir, LABELS, seqs=seqs, hota=False, **sim)
-    return {"best": full, "none": full["all_rows"], "fixed": fixed["total"]["all_rows"]}
-
-
-def sequence_frames(seqs: list[str]) -> int:
-    """Frames tracked in ``seqs`` (0 .. the last frame with a detection)."""
-    return sum(int(read_detection_file(DETS / f"{s}.txt").frame.max()) + 1 for s in seqs)
-
-
-def compare_modes(
-    cfg: TrackerConfig, seqs: list[str], lookahead: int = 0, similarities=("iou3d",)
-) -> dict:
-    """:func:`score_results` of one mode of ``tracker_offline`` per similarity (keys
-    ``similarities``), with the tracking time (``seconds``, file I/O included) and ``frames``."""
-    with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
-        run(DETS, Path(tmp), seqs, cfg, find_calib_dir(DETS), lookahead)
-        elapsed = time.perf_counter() - t0
-        out = {sim: score_results(Path(tmp), seqs, sim) for sim in similarities}
-    return {**out, "seconds": elapsed, "frames": sequence_frames(seqs)}
-
-
-def compare_row(name: str, r: dict) -> str:
-    """One Markdown table row of :func:`score_results`' figures."""
-    b, n, f = r["best"], r["none"], r["fixed"]
-
-    def clear(m):
-        return f"{100 * m['mota']:.2f} | {m['idsw']} | {m['fp']} | {m['fn']}"
-
-    return (
-        f"| {name} | {clear(b)} | {b['frag']} | {100 * b['motp']:.2f} | {100 * b['samota']:.2f} "
-        f"| {clear(f)} | {clear(n)} | {100 * b['hota']:.2f} |"
-    )
-
-
-SIMILARITY_LABELS = {"iou3d": "3D IoU", "iou2d": "2D IoU"}
-
-
-def compare_header(similarity: str) -> str:
-    """Header of :func:`compare_row`'s table; every figure uses ``similarity``."""
-    return (
-        "| mode | best-thr MOTA | IDSW | FP | FN | FRAG | MOTP | sAMOTA "
-        f"| MOTA @{FIXED_THRESHOLD:g} | IDSW | FP | FN | MOTA no thr | IDSW | FP | FN "
-        f"| HOTA ({SIMILARITY_LABELS[similarity]}) |\n" + "|---|" + "---|" * 16
-    )
-
-
 def cmd_compare(args) -> None:
     modes = [("online (default)", TrackerConfig(), 0)]
     for spec in args.modes:
@@ -158,7 +95,7 @@ def cmd_compare(args) -> None:
         rows = {sim: [] for sim in sims}
         for name, cfg, la in modes:
             label = f"{name}, LOOK-AHEAD {la}" if la else name
-            r = compare_modes(cfg, seqs, la, sims)
+            r = compare_modes(cfg, DETS, LABELS, seqs, la, sims)
             fps = r["frames"] / r["seconds"]
             for sim in sims:
                 rows[sim].append(

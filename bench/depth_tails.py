@@ -14,8 +14,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
+
+SHARED_KITTI = Path(__file__).resolve().parent.parent.parent / "shared" / "kitti"
 
 
 def tail_line(name: str, u) -> str:
@@ -35,17 +38,17 @@ def tail_line(name: str, u) -> str:
 
 def keyframe_rows() -> np.ndarray:
     """(true depth, error, reported std, occluded, truncated) of every labelled Car."""
+    from stereo_depth_node.ground_truth import EXACT_RANGING, keyframes
     from stereo_depth_node.ranging import range_boxes
-    from stereo_real import keyframes
     from vehicle_common.orientation_bins import alpha_to_bin
 
     rows = []
-    for fr in keyframes():
+    for fr in keyframes(SHARED_KITTI):
         cars = [o for o in fr.objects if o.type == "Car" and o.dimensions[0] > 0]
         if not cars:
             continue
         bins = [alpha_to_bin(o.alpha) for o in cars]
-        res = range_boxes(fr.disparity, [o.bbox for o in cars], fr.geometry, fr.ranging, bins)
+        res = range_boxes(fr.disparity, [o.bbox for o in cars], fr.geometry, EXACT_RANGING, bins)
         for o, r in zip(cars, res, strict=True):
             if r is None:
                 continue
@@ -57,9 +60,9 @@ def keyframe_rows() -> np.ndarray:
 
 def run_rows(bag: str) -> np.ndarray:
     """(true depth, error, reported std) of the run's 3D detections matched to labelled cars."""
-    from stereo_real import iou
     from tracker_node.conversions import detections_from_msg
     from vehicle_common.bags.recorded_run import read_run
+    from vehicle_common.box2d import iou_2d
 
     rows = []
     for f in read_run(bag).frames:
@@ -70,8 +73,9 @@ def run_rows(bag: str) -> np.ndarray:
         for i in range(len(b)):
             best, bj = 0.5, None
             for j, o in enumerate(cars):
-                if j not in used and iou(b.bbox[i], o.bbox) > best:
-                    best, bj = iou(b.bbox[i], o.bbox), j
+                v = float(iou_2d(b.bbox[i], o.bbox)[0, 0])
+                if j not in used and v > best:
+                    best, bj = v, j
             if bj is None:
                 continue
             used.add(bj)

@@ -43,7 +43,6 @@ from detector_node import real_split
 
 REPO = Path(__file__).resolve().parent.parent
 K = REPO.parent / "shared" / "kitti"
-sys.path.insert(0, str(REPO / "bench"))
 
 #: the former recipe (issue 22 / 2026-11-27): orientation head only, on a feature bank
 STAGE1 = (
@@ -98,8 +97,8 @@ def run_fold(cmds: list[list[str]], log_path: Path) -> subprocess.Popen:
 
 
 def score(checkpoint: Path, specs: list[str], label: str) -> dict:
-    from bench_detector import evaluate
     from detector_node.loading import load_detector
+    from tracking_bringup.detector_scoring import evaluate
 
     det = load_detector(str(checkpoint), "cpu", score_threshold=0.05)
     r = evaluate(det, specs, label)

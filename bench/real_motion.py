@@ -29,7 +29,6 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 from eval_node.detection_metrics import precision_recall
 from eval_node.lost_cars import false_tracks
@@ -45,13 +44,11 @@ from vehicle_common.kitti import (
     KittiObject,
     alpha_from_rotation_y,
     read_calib,
-    read_png,
     read_tracking_labels,
 )
 
 KITTI = Path(__file__).resolve().parent.parent.parent / "shared" / "kitti"
 TRACKING = KITTI / "tracking" / "training"
-STEREO_2015 = KITTI / "stereo_2015" / "training"
 POINTRCNN = KITTI / "detections" / "pointrcnn_Car_val"
 #: The usual KITTI tracking validation split; the labelled sequences outside it tune, those in
 #: it (and 0005, the graph's real sequence) report.
@@ -101,13 +98,11 @@ def _map_windows(window: int = 16):
     surface (ground-truth disparity 10-90th percentile within 10 % of its median, at least a
     fifth of the window with ground truth: the LiDAR truth is sparse)."""
     from stereo_depth_node.disparity import compute_disparity
+    from stereo_depth_node.ground_truth import stereo_pairs
 
     rows = []
-    for i in range(5):
-        name = f"{i:06d}_10.png"
-        left = read_png(STEREO_2015 / "image_2" / name)
-        right = read_png(STEREO_2015 / "image_3" / name)
-        gt = cv2.imread(str(STEREO_2015 / "disp_occ_0" / name), cv2.IMREAD_UNCHANGED) / 256.0
+    for left, right, gt32 in stereo_pairs(KITTI):
+        gt = gt32.astype(np.float64)  # (exact: 1/256 px steps)
         est = compute_disparity(left, right)
         h, w = gt.shape
         for y in range(0, h - window + 1, window):
@@ -128,14 +123,15 @@ def _map_windows(window: int = 16):
 def _ranging_regions():
     """(error, truth, column) of the shipped ranging's disparity on the KITTI 2015 pairs, as
     ``range_boxes`` computes it with the default RangingParams: on car-sized surface regions
-    (``bench_stereo.surface_regions``) the robust estimate on the default map, the
+    (``stereo_depth_node.ground_truth.surface_regions``) the robust estimate on the default map, the
     full-resolution region refinement (``refine``, coarse disparity <= refine_max_disparity)
     and the KITTI bias model subtracted; the regions are few beyond 30 px (near surfaces), so
     there (truth > refine_max_disparity, where the ranging does not refine) also the map's 16 px
     windows with the bias model subtracted. The robust estimator runs without ground rejection
     and height prior (the regions are not cars)."""
-    from bench_stereo import KITTI_GEO, stereo_pairs, surface_regions
     from stereo_depth_node.disparity import compute_disparity
+    from stereo_depth_node.ground_truth import KITTI_GEOMETRY as KITTI_GEO
+    from stereo_depth_node.ground_truth import stereo_pairs, surface_regions
     from stereo_depth_node.ranging import (
         RangingParams,
         disparity_bias_at,
@@ -147,7 +143,7 @@ def _ranging_regions():
     params = RangingParams()
     coarse = replace(params, reject_ground=False, prior_log_sigma=0.0)
     rows = []
-    for left, right, gt in stereo_pairs():
+    for left, right, gt in stereo_pairs(KITTI):
         disp = compute_disparity(left, right)
         images = (to_gray(left), to_gray(right))
         for box, truth in surface_regions(gt):

@@ -13,7 +13,6 @@ images; its detections are matched to the labels (IoU >= 0.5).
 
 from __future__ import annotations
 
-import csv
 import itertools
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -21,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from stereo_depth_node.disparity import DisparityParams, compute_disparity
+from stereo_depth_node.ground_truth import EXACT_RANGING
 from stereo_depth_node.ranging import RangingParams, disparity_bias_at
 from stereo_depth_node.region_matching import to_gray
 from stereo_depth_node.reprojection import StereoGeometry
@@ -28,10 +28,10 @@ from vehicle_common.kitti import (
     Calibration,
     KittiObject,
     TrackingSequence,
-    read_calib,
     read_png,
-    read_tracking_labels,
 )
+
+from stereo_depth_node import ground_truth
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "kitti"
 TRACKING = SHARED / "tracking" / "training"
@@ -40,11 +40,6 @@ TUNING_SEQUENCES = ("0000", "0002", "0004", "0007", "0009", "0011", "0017", "002
 REPORTING_SEQUENCES = ("0001", "0005", "0006", "0008", "0010", "0012", "0013")
 VEHICLES = ("Car", "Van")  # what the CNN is trained to find
 OTHER_VEHICLES = ("Truck", "Tram")  # a detection on them is neither a hit nor a false one
-#: ranging on a ground-truth disparity map: no full-resolution refinement (no right image) and
-#: no camera disparity bias (the truth has none)
-EXACT_RANGING = replace(
-    RangingParams(), refine="none", disparity_bias=0.0, disparity_bias_column=0.0
-)
 
 
 @dataclass
@@ -75,33 +70,23 @@ def split_of(sequence: str) -> str:
 
 
 def keyframes() -> list[RealFrame]:
-    """The 71 tracking keyframes with their ground-truth disparity."""
-    rows = list(csv.DictReader((KEYFRAMES / "frames.csv").open()))
-    labels: dict[str, dict] = {}
-    out = []
-    for row in rows:
-        seq, frame = row["tracking_sequence"], int(row["tracking_frame"])
-        if seq not in labels:
-            labels[seq] = read_tracking_labels(TRACKING / "label_02" / f"{seq}.txt")
-        calib = read_calib(TRACKING / "calib" / f"{seq}.txt")
-        geo = StereoGeometry.from_projections(calib.P2, calib.P3)
-        gt = cv2.imread(str(KEYFRAMES / "disp_occ_0" / f"{row['name']}.png"), -1)
-        disp = np.where(gt > 0, gt.astype(np.float32) / 256.0, -1.0).astype(np.float32)
-        out.append(
-            RealFrame(
-                row["name"],
-                seq,
-                split_of(seq),
-                "LiDAR keyframe",
-                read_png(KEYFRAMES / "image_2" / f"{row['name']}.png"),
-                disp,
-                geo,
-                calib,
-                list(labels[seq].get(frame, [])),
-                EXACT_RANGING,
-            )
+    """The 71 tracking keyframes with their ground-truth disparity
+    (``stereo_depth_node.ground_truth.keyframes``)."""
+    return [
+        RealFrame(
+            k.name,
+            k.sequence,
+            split_of(k.sequence),
+            "LiDAR keyframe",
+            k.rgb,
+            k.disparity,
+            k.geometry,
+            k.calib,
+            k.objects,
+            EXACT_RANGING,
         )
-    return out
+        for k in ground_truth.keyframes(SHARED)
+    ]
 
 
 #: the road plane's map of the 0005 frames (``--road-map``): the band's map (as the node's

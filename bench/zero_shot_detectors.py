@@ -18,21 +18,20 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
+from detector_node.boxes import nms
+from detector_node.inference import Detection
+from detector_node.model import preset
+from detector_node.pretrained import centernet_json
+from detector_node.real_split import report_sources
+from detector_node.tfjs_graph import TfjsGraph, read_tfjs_model
+from tracking_bringup.detector_scoring import evaluate
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_detector import SHARED_KITTI, evaluate  # noqa: E402
-from detector_node.boxes import nms  # noqa: E402
-from detector_node.inference import Detection  # noqa: E402
-from detector_node.model import preset  # noqa: E402
-from detector_node.pretrained import centernet_json  # noqa: E402
-from detector_node.real_split import report_sources  # noqa: E402
-from detector_node.tfjs_graph import TfjsGraph, read_tfjs_model  # noqa: E402
+SHARED_KITTI = Path(__file__).resolve().parent.parent.parent / "shared" / "kitti"
 
 COCO_CAR = 2
 

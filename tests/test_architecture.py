@@ -4,7 +4,9 @@
    module); vehicle_common imports no node package.
 2. Core modules (everything but the node modules, the recorder node and the bringup package)
    do not import rclpy at import time; vehicle_common imports neither rclpy nor torch.
-3. bench/ and tracking_bringup import package APIs, never a node module.
+3. bench/ and tracking_bringup import package APIs, never a node module. In bench/, a helper
+   module (no ``__main__``) serves one bench, and no bench imports another: code that several
+   benches share lives in a package.
 4. No import circle in src/ (module-level or function-level imports).
 """
 
@@ -161,6 +163,48 @@ def test_bench_and_bringup_use_package_apis_not_node_modules():
         if any(name == m or name.startswith(m + ".") for m in NODE_MODULES)
     ]
     assert not bad, "imports of node modules:\n" + "\n".join(bad)
+
+
+def bench_importers(files) -> dict[str, set[str]]:
+    """bench module name -> the bench files (stems) that import it, over ``files``."""
+    stems = {p.stem for p in files}
+    out: dict[str, set[str]] = {}
+    for path in files:
+        for name, _, _ in _imports(path, "bench"):
+            if name in stems and name != path.stem:
+                out.setdefault(name, set()).add(path.stem)
+    return out
+
+
+def bench_sharing(files) -> list[str]:
+    """The breaches of rule 3's bench/ part among ``files``: a bench script (it has a
+    ``__main__``) imported by another file, or a helper imported by several."""
+    scripts = {p.stem for p in files if '__name__ == "__main__"' in p.read_text()}
+    out = []
+    for module, users in sorted(bench_importers(files).items()):
+        if module in scripts:
+            out.append(f"bench {module} imported by {sorted(users)}")
+        elif len(users) > 1:
+            out.append(f"helper {module} imported by several benches: {sorted(users)}")
+    return out
+
+
+def test_code_several_benches_share_lives_in_a_package():
+    bad = bench_sharing(sorted(BENCH.glob("*.py")))
+    assert not bad, "move the shared code to a package:\n" + "\n".join(bad)
+
+
+def test_the_bench_rule_sees_shared_code(tmp_path):
+    (tmp_path / "helper.py").write_text("X = 1\n")
+    (tmp_path / "bench_a.py").write_text("import helper\n")
+    (tmp_path / "bench_b.py").write_text(
+        'from helper import X\nif __name__ == "__main__":\n    pass\n'
+    )
+    (tmp_path / "bench_c.py").write_text("import bench_b\n")
+    assert bench_sharing(sorted(tmp_path.glob("*.py"))) == [
+        "bench bench_b imported by ['bench_c']",
+        "helper helper imported by several benches: ['bench_a', 'bench_b']",
+    ]
 
 
 def _module_graph(packages) -> dict[str, set[str]]:

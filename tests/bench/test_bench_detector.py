@@ -1,15 +1,13 @@
-"""bench/bench_detector.py: AP by KITTI occlusion level and precision at the node's threshold."""
+"""tracking_bringup.detector_scoring (bench/bench_detector.py's scores): AP by KITTI occlusion level
+and precision at the node's threshold."""
 
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / "bench"))
-import bench_detector as bd  # noqa: E402
-from vehicle_common.kitti import KittiObject  # noqa: E402
+from vehicle_common.kitti import KittiObject
+
+from tracking_bringup import detector_scoring as bd
 
 
 def _car(x: float, occluded: int = 0, kind: str = "Car") -> KittiObject:
