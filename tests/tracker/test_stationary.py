@@ -219,3 +219,84 @@ def test_robust_update_resists_one_depth_outlier():
     for models in ("parked", "both"):
         quiet = _outlier_kick(2.0, jump=0.0, noise=0.0, models=models)
         assert quiet == _outlier_kick(0.0, jump=0.0, noise=0.0)
+
+
+def _oncoming(report_rate: float, seed: int, n: int = 20):
+    """A far oncoming car (first seen at 70 m, 13 m/s toward a camera driving at 10 m/s, depth
+    std 2.5 m as the ranging's beyond 60 m) beside a near parked car, tracked with the graph's
+    tracker values (confirmation off): (second differences [m] of its reported position in the
+    world frame, its position errors [m]), x and z."""
+    import dataclasses
+
+    from tracking_bringup.parameters import graph_values
+
+    names = {f.name for f in dataclasses.fields(TrackerConfig)}
+    values = {k: v for k, v in graph_values("vehicle_tracker").items() if k in names}
+    values.update(min_hits=1, min_hits_span=0.0, birth_score=0.0, coast_min_score=0.0)
+    values["stationary_report_rate"] = report_rate
+    trk = Tracker(TrackerConfig(**values))
+    rng = np.random.default_rng(seed)
+    far, near = np.diag([0.05**2, 0.05**2, 2.5**2]), np.diag([0.05**2, 0.05**2, 0.3**2])
+    ego = 10.0
+    motion = CameraMotion(np.eye(3), np.array([0.0, 0.0, -ego * DT]), DT)
+    reported, truths = [], []
+    for k in range(n):
+        cam = np.array([0.0, 0.0, ego * DT * k])
+        z, R = [np.array([-5.0, 1.0, 20.0]) - cam], [near]
+        if k >= 3:
+            truth = np.array([3.0, 1.0, 70.0 - 13.0 * DT * (k - 3)]) - cam
+            z.append(truth + rng.normal(0.0, np.sqrt(np.diag(far))))
+            R.append(far)
+        ts = trk.step(
+            DetectionBatch.create(np.array(z), covariance=np.stack(R)),
+            stamp=k * DT,
+            camera_motion=motion if k else None,
+        )
+        if k >= 3:
+            i = int(np.argmin(np.abs(ts.position[:, 0] - 3.0)))
+            reported.append(ts.position[i] + cam)
+            truths.append(truth + cam)
+    p, t = np.array(reported)[:, [0, 2]], np.array(truths)[:, [0, 2]]
+    d2 = p[2:] - 2 * p[1:-1] + p[:-2]
+    return np.linalg.norm(d2, axis=1), np.linalg.norm(p - t, axis=1)
+
+
+def test_report_rate_spreads_the_catch_up_of_a_car_first_taken_for_parked():
+    """A far oncoming car is first taken for parked (the prior, and a depth noise that hides
+    its motion for a few frames); when ``mu`` collapses, its reported position caught up by
+    metres in one frame. ``stationary_report_rate`` r lets the parked weight change by at most
+    r per frame: the catch-up is spread over frames (smaller second differences, a little more
+    position error meanwhile); r = 1 reports what the model reports without the limit."""
+    from tracker_node.stationary import StationaryModel
+
+    base = dict(min_hits=1, world_process_noise=0.5, stationary_prior=0.8)
+    ref = _lead_car(TrackerConfig(**base), n=12)
+    same = _lead_car(TrackerConfig(**base, stationary_report_rate=1.0), n=12)
+    np.testing.assert_array_equal(ref, same)
+
+    runs = {r: [_oncoming(r, seed) for seed in range(8)] for r in (1.0, 0.3)}
+    rms = {r: np.sqrt(np.mean(np.concatenate([d for d, _ in v]) ** 2)) for r, v in runs.items()}
+    worst = {r: np.mean([d.max() for d, _ in v]) for r, v in runs.items()}
+    err = {r: np.mean(np.concatenate([e for _, e in v])) for r, v in runs.items()}
+    assert rms[0.3] < 0.8 * rms[1.0] and worst[0.3] < 0.8 * worst[1.0]
+    assert err[0.3] < 1.15 * err[1.0]
+
+    # the weight itself: follows mu, at most r per frame, 0 until min_updates
+    m = StationaryModel(0.8, 0.003, 0.01, min_updates=1, report_rate=0.25)
+    m.start(np.zeros((1, 3)), np.eye(3)[None])
+    assert m.weight.tolist() == [0.0]  # no detection taken yet
+    m.updates[:] = 1
+    m.mu[:] = 0.9
+    m.settle()
+    assert m.weight.tolist() == [0.25]
+    for _ in range(3):
+        m.settle()
+    assert m.weight.tolist() == [0.9]
+    m.mu[:] = 0.0  # collapsed: it comes down a quarter per frame
+    m.settle()
+    assert np.isclose(m.weight[0], 0.65)
+    blended = m.blend(np.array([0]), np.array([[4.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(blended, [[0.35 * 4.0, 0.0, 0.0]])
+    m.add(np.ones((1, 3)), np.eye(3)[None])  # a new track: not blended before min_updates
+    m.keep(np.array([False, True]))
+    assert m.weight.tolist() == [0.0]

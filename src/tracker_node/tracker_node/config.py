@@ -102,6 +102,10 @@ class TrackerConfig:
     # detections a parked estimate must have taken before it is blended into the reported
     # position (before, mu is mostly the prior: a young moving car is taken for parked)
     stationary_min_updates: int = param(0, low=0)
+    # the most the parked estimate's weight in the reported position changes per frame (it
+    # follows mu; 1: it is mu): a car first taken for parked is then not reported metres
+    # further on in one frame when mu collapses
+    stationary_report_rate: float = param(1.0, low=0.0, high=1.0, low_open=True)
     # robust measurement update: a detection whose innovation is d > k standard deviations
     # (Mahalanobis) is taken with its covariance times d / k (Huber); 0: off, the plain Kalman
     # update (the LiDAR profile's; the graph takes 3 with the wider gate, docs/tracker.md)

@@ -44,8 +44,10 @@ class StationaryModel:
 
     ``prior``: probability that a new track is parked; ``switch``: probability per frame that a
     car changes between parked and moving (the Markov chain's off-diagonal); ``process_noise``
-    [m^2/s]: the parked position's random walk. Inactive (``active`` False) until the tracker
-    has the camera's motion: without it a parked car moves in the camera frame."""
+    [m^2/s]: the parked position's random walk; ``report_rate``: the most the weight of the
+    parked estimate in the reported position changes per frame (:meth:`settle`; 1: it is
+    ``mu``). Inactive (``active`` False) until the tracker has the camera's motion: without it a
+    parked car moves in the camera frame."""
 
     def __init__(
         self,
@@ -54,17 +56,20 @@ class StationaryModel:
         process_noise: float,
         min_updates: int = 0,
         robust_k: float = 0.0,
+        report_rate: float = 1.0,
     ):
         self.prior = float(prior)
         self.robust_k = float(robust_k)  # kalman.robust_noise's k (0: off)
         self.switch = float(switch)
         self.q = float(process_noise)
         self.min_updates = int(min_updates)
+        self.report_rate = float(report_rate)
         self.active = False
         self.x = np.zeros((0, 3))
         self.P = np.zeros((0, 3, 3))
         self.mu = np.zeros(0)
         self.updates = np.zeros(0, dtype=int)  # detections each parked estimate has taken
+        self.weight = np.zeros(0)  # the parked estimate's weight in the reported position
 
     def __len__(self) -> int:
         return len(self.x)
@@ -77,6 +82,7 @@ class StationaryModel:
         self.P = np.array(cov, float).reshape(-1, 3, 3)
         self.mu = np.full(len(self.x), self.prior)
         self.updates = np.zeros(len(self.x), dtype=int)
+        self.weight = self._blend_weight(np.arange(len(self.x)))
 
     def add(self, z: np.ndarray, R: np.ndarray) -> None:
         m = len(z)
@@ -84,10 +90,12 @@ class StationaryModel:
         self.P = np.concatenate([self.P, np.asarray(R, float).reshape(m, 3, 3)])
         self.mu = np.concatenate([self.mu, np.full(m, self.prior if self.active else 0.0)])
         self.updates = np.concatenate([self.updates, np.zeros(m, dtype=int)])
+        new = np.arange(len(self.x) - m, len(self.x))
+        self.weight = np.concatenate([self.weight, self._blend_weight(new)])
 
     def keep(self, mask: np.ndarray) -> None:
         self.x, self.P, self.mu = self.x[mask], self.P[mask], self.mu[mask]
-        self.updates = self.updates[mask]
+        self.updates, self.weight = self.updates[mask], self.weight[mask]
 
     def mix(self, x: np.ndarray, P: np.ndarray, rows: np.ndarray) -> None:
         """The IMM's interaction step for motion-filter rows ``rows`` (constant-velocity
@@ -166,6 +174,24 @@ class StationaryModel:
         self.mu[rows] = 1.0 / (1.0 + np.exp(-np.clip(log_odds, -50.0, 50.0)))
         self.updates[rows] += 1
 
+    def _blend_weight(self, rows: np.ndarray) -> np.ndarray:
+        """``mu`` of ``rows``, 0 where the parked estimate has taken fewer than
+        ``min_updates`` detections."""
+        return np.where(self.updates[rows] >= self.min_updates, self.mu[rows], 0.0)
+
+    def settle(self) -> None:
+        """End of a frame: the parked estimate's weight in the reported position moves toward
+        :meth:`_blend_weight` by at most ``report_rate``. A far car first taken for parked
+        loses ``mu`` within a frame or two once it is seen to move, and its reported position
+        would catch up by metres in one step (the largest second differences on the camera
+        benchmark, docs/tracker.md); at most ``report_rate`` per frame spreads the step over
+        frames. 1: the weight is ``mu`` (the reported position as without this step)."""
+        if not (self.active and len(self.x)):
+            return
+        target = self._blend_weight(np.arange(len(self.x)))
+        r = self.report_rate
+        self.weight = target if r >= 1.0 else np.clip(target, self.weight - r, self.weight + r)
+
     def blend(self, rows: np.ndarray, position: np.ndarray) -> np.ndarray:
         """The reported position of tracks ``rows`` from the motion filter's ``position``
         (M, 3): the mixture with the parked estimate. The velocity stays the motion filter's
@@ -179,5 +205,8 @@ class StationaryModel:
         filter alone was within 1.3-1.5 m; ``mu`` fell to 0.02 one frame later)."""
         if not (self.active and len(rows)):
             return position
-        mu = np.where(self.updates[rows] >= self.min_updates, self.mu[rows], 0.0)[:, None]
+        if self.report_rate >= 1.0:
+            mu = self._blend_weight(rows)[:, None]
+        else:
+            mu = self.weight[rows][:, None]
         return mu * self.x[rows] + (1.0 - mu) * position

@@ -195,6 +195,7 @@ class Tracker:
                 self.cfg.stationary_process_noise,
                 self.cfg.stationary_min_updates,
                 self.cfg.robust_update_k,
+                self.cfg.stationary_report_rate,
             )
             if self.cfg.stationary_prior > 0
             else None
@@ -248,6 +249,8 @@ class Tracker:
         self._update(dets, rows, cols, R, det_yaw)
         self._prune(rows)
         self._spawn(dets, cols, R, det_yaw)
+        if self.stationary is not None:
+            self.stationary.settle()
         return self._report()
 
     def _dt(self, stamp: float | None) -> float:
