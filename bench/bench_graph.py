@@ -35,12 +35,16 @@ Issue #33's three bars, printed for each dataset and measured in the same run:
 
 Overload (issue #39): ``--overload 2,3`` measures each dataset's capacity C with lockstep 1, then
 plays it as a camera at 2 x C and 3 x C without lockstep (runs ``camera 2x``, ``camera 3x``),
-each against that C: frames tracked against what C allows, mean latency against lockstep's, the
-tracking quality on the frames tracked, and what every published frame costs whether tracked or
-not (the player's CPU and the nodes' executors', ``process_cpu.camera_budget``: its share of one
-CPU at the camera's rate; with every node on one CPU, the ceiling that share leaves on the
-frames tracked and the floor on a frame's time); ``--rate-multiplier X`` plays at 10 Hz x X,
-``--cpus LIST`` runs every node on those CPUs (``cpu_affinity``; "0": one core).
+then runs lockstep 1 again (``lockstep 1 after``): the capacity and lockstep's latency are the
+mean of the two lockstep runs, which bracket the camera runs in time (a shared machine's speed
+drifts between runs; each ratio is also printed against either lockstep run alone). Each
+camera run against that C: frames tracked against what C allows, mean latency against
+lockstep's, the tracking quality on the frames tracked, and what every published frame costs
+whether tracked or not (the player's CPU and the nodes' executors',
+``process_cpu.camera_budget``: its share of one CPU at the camera's rate; with every node on one
+CPU, the ceiling that share leaves on the frames tracked and the floor on a frame's time);
+``--rate-multiplier X`` plays at 10 Hz x X, ``--cpus LIST`` runs every node on those CPUs
+(``cpu_affinity``; "0": one core).
 ``--compare-tree PATH`` runs this bench alternately with another checkout's ``.venv`` (today's
 tree) and this tree's (``--repeat`` pairs) and prints the CPU ratios new / old.
 
@@ -626,6 +630,8 @@ def _table(rows: list[tuple[str, str, dict]]) -> str:
 
 REFERENCE = REPO.parent / "shared" / "tools" / "cpu_reference.py"
 SHORT_RUN = 4  # frames of the short lockstep run whose CPU is subtracted (start-up cancels)
+#: --overload: the lockstep run after the camera runs (the capacity brackets them in time)
+LOCKSTEP_AFTER = "lockstep 1 after"
 
 
 def reference_ms() -> float | None:
@@ -779,6 +785,17 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def bracketed(before: dict, after: dict | None) -> dict:
+    """The lockstep figures :func:`capacity_figures` reads (frames/s, mean latency) as the mean
+    of the lockstep runs before and after the camera runs (``after`` None: ``before``)."""
+    if after is None:
+        return before
+    return {
+        "throughput_fps": 0.5 * (before["throughput_fps"] + after["throughput_fps"]),
+        "latency_ms": {"mean": 0.5 * (before["latency_ms"]["mean"] + after["latency_ms"]["mean"])},
+    }
+
+
 def summarise(rows, short_runs, references, camera_hz, quality) -> dict:
     """Per dataset: the camera-rate run against its lockstep run (window 1), the CPU per frame
     of each node process (long lockstep run minus the short one) against the reference
@@ -792,11 +809,23 @@ def summarise(rows, short_runs, references, camera_hz, quality) -> dict:
         if "realtime" in runs and "lockstep 1" in runs:
             entry["capacity"] = capacity_figures(runs["realtime"], runs["lockstep 1"], camera_hz)
         if "lockstep 1" in runs:  # --overload: each camera factor against the same capacity
+            after = runs.get(LOCKSTEP_AFTER)
+            lockstep = bracketed(runs["lockstep 1"], after)
             entry["overload"] = {
                 m: {
-                    **capacity_figures(f, runs["lockstep 1"], f["camera_hz"]),
+                    **capacity_figures(f, lockstep, f["camera_hz"]),
                     "budget": camera_budget(
                         runs["lockstep 1"], f, f["camera_hz"], graph.PLAYER.name
+                    ),
+                    **(
+                        {
+                            "against": {
+                                k: capacity_figures(f, ls, f["camera_hz"])
+                                for k, ls in (("before", runs["lockstep 1"]), ("after", after))
+                            }
+                        }
+                        if after is not None
+                        else {}
                     ),
                 }
                 for m, f in runs.items()
@@ -858,6 +887,17 @@ def summary_lines(summary: dict, one_cpu: bool = False) -> list[str]:
                 f"{c['frames_ratio']:.2f}x capacity (bar >= 0.9); mean latency "
                 f"{c['latency_ms']:.0f} ms vs lockstep {c['lockstep_latency_ms']:.0f} ms = "
                 f"{c['latency_ratio']:.2f}x (bar <= 1.25)"
+                + (
+                    " (against the lockstep run before / after alone: "
+                    f"{c['against']['before']['frames_ratio']:.2f}x / "
+                    f"{c['against']['after']['frames_ratio']:.2f}x, "
+                    f"{c['against']['before']['latency_ratio']:.2f}x / "
+                    f"{c['against']['after']['latency_ratio']:.2f}x; lockstep "
+                    f"{c['against']['before']['lockstep_fps']:.1f} / "
+                    f"{c['against']['after']['lockstep_fps']:.1f} frames/s)"
+                    if c.get("against")
+                    else ""
+                )
             )
             if c.get("budget"):
                 lines.append(budget_line(f"{label}{mode}", c["budget"], c["camera_hz"], one_cpu))
@@ -1097,8 +1137,10 @@ def main(argv=None) -> int:
     modes = ([] if args.no_realtime or factors else [("realtime", False, 1)]) + [
         (f"lockstep {w}", True, w) for w in windows
     ]
-    # overload: a camera at each factor x the capacity measured by lockstep 1 in this run
+    # overload: a camera at each factor x the capacity measured by lockstep 1 in this run, then
+    # lockstep 1 again (the capacity: both lockstep runs, bracketing the camera runs in time)
     modes += [(f"camera {f:g}x", False, f) for f in factors]
+    modes += [(LOCKSTEP_AFTER, True, 1)] if factors else []
     offline: dict[str, dict[str, float]] = {}  # per dataset label
     if not args.no_offline:
         for label, root, seq in datasets:

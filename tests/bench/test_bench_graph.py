@@ -67,3 +67,33 @@ def test_camera_budget_tells_every_frames_cost_from_a_tracked_frames():
     assert camera_budget(*short, 10.0, "player") is None
     # nor one without the camera's figures
     assert camera_budget(lockstep, {**camera, "cpu_s": {}}, 10.0, "player") is None
+
+
+def test_overload_capacity_is_the_mean_of_the_lockstep_runs_before_and_after():
+    """The machine's speed drifts between runs: the capacity of ``--overload`` brackets the
+    camera runs with a lockstep run before and one after, and each ratio is also given against
+    either alone."""
+    sys.path.insert(0, str(REPO / "bench"))
+    import bench_graph as bg
+
+    every = {"player": {"main": 10.0}, "det": {"main": 3.0}}
+    tracked = {"det": {"main": 1.0, "worker": 80.0}}
+
+    def with_latency(run, ms):
+        return {**run, "latency_ms": {"mean": ms}}
+
+    before = with_latency(_run(100, 100, 12.0, every, tracked), 80.0)
+    after = with_latency(_run(100, 100, 8.0, every, tracked), 120.0)
+    camera = {**with_latency(_run(100, 45, None, every, tracked), 110.0), "camera_hz": 20.0}
+    rows = [("x", "lockstep 1", before), ("x", "camera 2x", camera)]
+    one = bg.summarise(rows, {}, [], 10.0, {})["x"]["overload"]["camera 2x"]
+    assert one["capacity"] == 60.0 and one["latency_ratio"] == 110.0 / 80.0
+    assert "against" not in one
+    rows.append(("x", bg.LOCKSTEP_AFTER, after))
+    both = bg.summarise(rows, {}, [], 10.0, {})["x"]["overload"]["camera 2x"]
+    assert both["lockstep_fps"] == 10.0 and both["capacity"] == 50.0  # 100 x 10 / 20
+    assert both["frames_ratio"] == 45 / 50.0 and both["latency_ratio"] == 110.0 / 100.0
+    assert both["against"]["before"]["frames_ratio"] == 45 / 60.0
+    assert both["against"]["after"]["frames_ratio"] == 45 / 40.0
+    line = bg.summary_lines({"x": {"overload": {"camera 2x": both}}})[1]
+    assert "0.90x capacity" in line and "before / after alone: 0.75x / 1.12x" in line
