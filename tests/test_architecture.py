@@ -281,3 +281,10 @@ def test_subpackages_are_checked_with_their_relative_imports():
 def test_the_circle_checker_sees_a_circle():
     graph = {"p.a": {"p.b"}, "p.b": {"p.c"}, "p.c": {"p.a"}, "p.d": {"p.a"}}
     assert import_cycles(graph) == [["p.a", "p.b", "p.c"]]
+
+
+def test_the_readme_stays_a_newcomers_page():
+    """Issue #40's bar: the README at most 300 lines (dates, loads and history go to
+    docs/RESULTS.md and CHANGELOG.md)."""
+    lines = (SRC.parent / "README.md").read_text().splitlines()
+    assert len(lines) <= 300, f"README.md has {len(lines)} lines (at most 300)"
