@@ -70,6 +70,23 @@ def test_a_frame_worker_short_of_cpu_is_seen_runnable_a_deadlocked_one_is_not():
     assert worker_threads_sample(spinning.pid) is None  # gone
 
 
+def _sleeper() -> subprocess.Popen:
+    """A child process that sleeps, returned once it does: a child sampled right after its
+    start may still be reading its interpreter's modules from disk (state D: a fresh-clone
+    suite once failed here), which is neither what these tests look at nor a stop."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import time; print('ready', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout.readline().strip() == "ready"
+    proc.stdout.close()
+    deadline = time.monotonic() + 10
+    while (main_thread_sample(proc.pid) or ("?",))[0] != "S" and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return proc
+
+
 def _report(name, received=0, published=0, busy=False):
     return NodeReport(name, FrameCounts(received, published, 0), busy)
 
@@ -77,7 +94,7 @@ def _report(name, received=0, published=0, busy=False):
 def test_a_stopped_process_is_named_with_its_state_a_running_one_is_not():
     """ProcessWatchdog: a node whose process is stopped (state T) for ``timeout_s`` is stalled
     even while its reports look fresh; once it runs again its count starts afresh."""
-    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    sleeper = _sleeper()
     try:
         watch = ProcessWatchdog(ProgressWatch(timeout_s=1.0))
         pids = {"sleeper": sleeper.pid}
@@ -114,7 +131,7 @@ def test_a_stopped_process_is_named_with_its_state_a_running_one_is_not():
 def test_a_silent_node_whose_process_sleeps_is_stalled():
     """Silent on /diagnostics while another node reports and its process sleeps (a deadlock):
     no excuse of a CPU shortage, the watchdog names it."""
-    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    sleeper = _sleeper()
     try:
         watch = ProcessWatchdog(ProgressWatch(timeout_s=1.0))
         pids = {"sleeper": sleeper.pid}
