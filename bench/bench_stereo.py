@@ -47,14 +47,6 @@ from vehicle_common.kitti import TrackingSequence, list_object_frames, read_png
 from vehicle_common.orientation_bins import alpha_to_bin
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "kitti"
-STEREO = SHARED / "stereo_2015" / "training"
-
-
-def stereo_pairs():
-    """The 5 KITTI 2015 pairs of ../shared (``stereo_depth_node.ground_truth``)."""
-    return _stereo_pairs(SHARED)
-
-
 TRACKING = SHARED / "tracking" / "training"
 
 DEFAULT = DisparityParams()
@@ -103,6 +95,11 @@ PREVIOUS_DEFAULTS = replace(
     truncated_surface_model="visible",
     lateral_fit=False,
 )
+
+
+def stereo_pairs():
+    """The 5 KITTI 2015 pairs of ../shared (``stereo_depth_node.ground_truth``)."""
+    return _stereo_pairs(SHARED)
 
 
 def bench_disparity(variants: dict[str, DisparityParams]) -> None:

@@ -70,12 +70,12 @@ def run_rows(bag: str) -> np.ndarray:
             continue
         b = detections_from_msg(f.det3d_msg)[0]
         cars, used = [o for o in f.gt if o.type == "Car"], set()
+        ious = iou_2d(b.bbox, [o.bbox for o in cars])  # (detections, cars)
         for i in range(len(b)):
             best, bj = 0.5, None
-            for j, o in enumerate(cars):
-                v = float(iou_2d(b.bbox[i], o.bbox)[0, 0])
-                if j not in used and v > best:
-                    best, bj = v, j
+            for j in range(len(cars)):
+                if j not in used and ious[i, j] > best:
+                    best, bj = float(ious[i, j]), j
             if bj is None:
                 continue
             used.add(bj)

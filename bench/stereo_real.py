@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 from stereo_depth_node.disparity import DisparityParams, compute_disparity
 from stereo_depth_node.ground_truth import EXACT_RANGING
+from stereo_depth_node.ground_truth import keyframes as lidar_keyframes
 from stereo_depth_node.ranging import RangingParams, disparity_bias_at
 from stereo_depth_node.region_matching import to_gray
 from stereo_depth_node.reprojection import StereoGeometry
@@ -31,11 +32,8 @@ from vehicle_common.kitti import (
     read_png,
 )
 
-from stereo_depth_node import ground_truth
-
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "kitti"
 TRACKING = SHARED / "tracking" / "training"
-KEYFRAMES = SHARED / "tracking_keyframes"
 TUNING_SEQUENCES = ("0000", "0002", "0004", "0007", "0009", "0011", "0017", "0020")
 REPORTING_SEQUENCES = ("0001", "0005", "0006", "0008", "0010", "0012", "0013")
 VEHICLES = ("Car", "Van")  # what the CNN is trained to find
@@ -85,7 +83,7 @@ def keyframes() -> list[RealFrame]:
             k.objects,
             EXACT_RANGING,
         )
-        for k in ground_truth.keyframes(SHARED)
+        for k in lidar_keyframes(SHARED)
     ]
 
 

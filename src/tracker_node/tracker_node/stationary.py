@@ -185,12 +185,12 @@ class StationaryModel:
         loses ``mu`` within a frame or two once it is seen to move, and its reported position
         would catch up by metres in one step (the largest second differences on the camera
         benchmark, docs/tracker.md); at most ``report_rate`` per frame spreads the step over
-        frames. 1: the weight is ``mu`` (the reported position as without this step)."""
-        if not (self.active and len(self.x)):
-            return
-        target = self._blend_weight(np.arange(len(self.x)))
+        frames. 1: nothing to do (:meth:`blend` reads ``mu`` itself)."""
         r = self.report_rate
-        self.weight = target if r >= 1.0 else np.clip(target, self.weight - r, self.weight + r)
+        if r >= 1.0 or not (self.active and len(self.x)):
+            return  # at 1, :meth:`blend` reads mu itself
+        target = self._blend_weight(np.arange(len(self.x)))
+        self.weight = np.clip(target, self.weight - r, self.weight + r)
 
     def blend(self, rows: np.ndarray, position: np.ndarray) -> np.ndarray:
         """The reported position of tracks ``rows`` from the motion filter's ``position``
