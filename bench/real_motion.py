@@ -694,6 +694,10 @@ class MotionStats:
     jitter_rows: list = field(default_factory=list)
     # {(sequence, frame, track id): track age [frames]} of the reported rows (jitter_rows' ages)
     track_age: dict = field(default_factory=dict)
+    # the same triplets over the ground (:func:`ground_second_differences`; the camera motions
+    # the tracker was given): (the car's speed over the ground [m/s] or nan, the track's second
+    # difference [m], the car's labels' [m])
+    jitter_ground: list = field(default_factory=list)
     # rows of a car accelerating or braking over the ground (|a| > ACCEL_MIN): (velocity over
     # the ground error [m/s], lag [s] = the error against the acceleration / |a|)
     accel: list = field(default_factory=list)
@@ -874,7 +878,8 @@ def evaluate_split(
             if st is not None:
                 st.lost += sequence_lost_cars(data, ranked, out, cfg.birth_score)
                 st.false += false_tracks(data.name, gts[data.name], out)
-                _add_jitter(st, gts[data.name], out, data.keep_every, data)
+                motions = data.motions if use_camera_motion else None
+                _add_jitter(st, gts[data.name], out, data.keep_every, data, motions)
         times[flt] = time.perf_counter() - t0
         if st is not None:
             st.mot = evaluate_tracking_sequences(
@@ -888,17 +893,29 @@ def evaluate_split(
 
 
 def _add_jitter(
-    st: MotionStats, gt, out, keep_every: int = 1, data: SequenceData | None = None
+    st: MotionStats,
+    gt,
+    out,
+    keep_every: int = 1,
+    data: SequenceData | None = None,
+    motions: list | None = None,
 ) -> None:
     """Pool one sequence's matched-car position jitter into ``st.jitter``: second differences
     over three consecutive frames tracked (``keep_every`` > 1: kept frames, spanning 2 x
     keep_every periods, the labels' over the same frames); with ``data`` also each triplet
-    into ``st.jitter_rows`` (the same triplets as ``matched_jitter``)."""
+    into ``st.jitter_rows`` (the same triplets as ``matched_jitter``), and with the camera
+    ``motions`` the tracker was given (per frame, ``motions[k]``: frame k-1 to k) each
+    triplet over the ground into ``st.jitter_ground``."""
     from eval_node.motion_metrics import jitter_of_triplets, matched_jitter_triplets
 
     if keep_every > 1:
         gt = {k // keep_every: v for k, v in gt.items() if k % keep_every == 0}
         out = {k // keep_every: v for k, v in out.items() if k % keep_every == 0}
+        if motions is not None:  # the motion between kept frames j-1 and j
+            motions = [None] + [
+                compose_motions(motions[(j - 1) * keep_every + 1 : j * keep_every + 1])
+                for j in range(1, (len(motions) - 1) // keep_every + 1)
+            ]
     triplets = matched_jitter_triplets(gt, out)  # the tracks matched once, for both uses
     j = jitter_of_triplets(triplets)
     if j["n"]:
@@ -908,12 +925,50 @@ def _add_jitter(
     if data is None:
         return
     vg = data.ground_velocity or {}
+    speeds = []
     for f, tid, gid, p, d_pred, d_gt in triplets:
         k = f * keep_every
         v = vg.get((k, gid))
         speed = float(np.linalg.norm(np.asarray(v)[[0, 2]])) if v is not None else math.nan
+        speeds.append(speed)
         age = st.track_age.get((data.name, k, tid), -1)
         st.jitter_rows.append((speed, age, float(p[1]), d_pred, d_gt))
+    if motions is not None:
+        ground = ground_second_differences(gt, out, triplets, motions)
+        st.jitter_ground += [(s, a, b) for s, (a, b) in zip(speeds, ground, strict=True)]
+
+
+def ground_second_differences(gt, out, triplets, motions) -> list[tuple[float, float]]:
+    """Per triplet of ``eval_node.motion_metrics.matched_jitter_triplets(gt, out)`` (frames
+    f-1, f, f+1): the track's and the labelled car's second difference over the ground (x, z
+    of frame f's camera) [m], with the positions at f-1 and f+1 carried into frame f's camera by
+    the camera ``motions`` (``motions[k]``: ``X_k = R X_{k-1} + t``). A parked car's labels then
+    move only by the odometry's error and the labels' own noise; what the track moves beyond
+    that is its estimate's. NaN where a motion is unknown."""
+
+    def centres(frames):
+        return {
+            (k, o.track_id): np.asarray(o.centre_of_mass, float)
+            for k, v in frames.items()
+            for o in v
+        }
+
+    tracks, cars = centres(out), centres(gt)
+    res = []
+    for f, tid, gid, _, _, _ in triplets:
+        ma = motions[f] if f < len(motions) else None
+        mb = motions[f + 1] if f + 1 < len(motions) else None
+        if ma is None or mb is None:
+            res.append((math.nan, math.nan))
+            continue
+        row = []
+        for pos, i in ((tracks, tid), (cars, gid)):
+            a, b, c = pos[(f - 1, i)], pos[(f, i)], pos[(f + 1, i)]
+            ahead = np.asarray(mb.rotation, float).T @ (c - np.asarray(mb.translation, float))
+            behind = np.asarray(ma.rotation, float) @ a + np.asarray(ma.translation, float)
+            row.append(float(np.linalg.norm((ahead - 2.0 * b + behind)[[0, 2]])))
+        res.append(tuple(row))
+    return res
 
 
 def jitter_ratio(st: MotionStats) -> tuple[float, float]:
@@ -1140,6 +1195,8 @@ def print_lost_cars(stats: dict[str, MotionStats]) -> None:
 #: breakdown (docs/tracker.md, "Where the velocity error is", "Where the position jitter is")
 YOUNG_FRAMES = 8
 DEPTH_BINS = ((0.0, 30.0), (30.0, 45.0), (45.0, math.inf))
+#: shares of the triplets with the largest second differences (``breakdown``'s tail)
+JITTER_TAIL = (0.01, 0.05, 0.25)
 SPEED_CLASSES = (
     ("parked < 1 m/s", 0.0, 1.0),
     ("1-3 m/s", 1.0, 3.0),
@@ -1152,8 +1209,10 @@ def breakdown(st: MotionStats) -> dict:
     ``YOUNG_FRAMES`` frames or later, by depth; by the car's speed over the ground), the share of
     the rows, the RMSE (velocity) or the ratio to the labels (jitter) and the share of the
     squared error. Returns ``{"velocity": [(group, share, rmse, share_sq)], "jitter": [(group,
-    share, ratio, share_sq)]}``."""
-    out = {"velocity": [], "jitter": []}
+    share, ratio, share_sq)], "jitter_tail": [(share of the triplets, share of the squared
+    jitter)] of the largest second differences, "jitter_ground": [(cars, triplets, tracks' RMS,
+    labels' RMS over the ground, labels' RMS in the camera frame)] [m]}``."""
+    out = {"velocity": [], "jitter": [], "jitter_tail": [], "jitter_ground": []}
     if st.ground_err:
         e = np.array(st.ground_err, float)
         age, z = np.array(st.ground_detail, float).reshape(-1, 2).T
@@ -1166,6 +1225,19 @@ def breakdown(st: MotionStats) -> dict:
             dp**2,
             lambda m: float(np.sqrt(np.sum(dp[m] ** 2) / max(np.sum(dg[m] ** 2), 1e-12))),
         )
+        sq = np.sort(dp**2)[::-1]
+        for q in JITTER_TAIL:
+            n = max(int(round(q * len(sq))), 1)
+            out["jitter_tail"].append((q, float(sq[:n].sum() / max(sq.sum(), 1e-12))))
+    if st.jitter_ground:
+        v, tr, lab = np.array(st.jitter_ground, float).T
+        cam = np.array(st.jitter_rows, float)[:, 4]
+        ok = np.isfinite(tr) & np.isfinite(lab)
+        for name, lo, hi in SPEED_CLASSES:
+            m = ok & (v >= lo) & (v < hi)
+            if m.any():
+                rms = [float(np.sqrt(np.mean(x[m] ** 2))) for x in (tr, lab, cam)]
+                out["jitter_ground"].append((name, int(m.sum()), *rms))
     return out
 
 
@@ -1202,6 +1274,21 @@ def print_breakdown(stats: dict[str, MotionStats]) -> None:
             print(f"  | rows | share of rows | {fig} | share of the squared error |")
             for name, share, val, sq in b[key]:
                 print(f"  | {name} | {100 * share:5.1f} % | {val:5.2f} | {100 * sq:5.1f} % |")
+        tail = ", ".join(f"{100 * q:g} %: {100 * sh:.0f} %" for q, sh in b["jitter_tail"])
+        if tail:
+            print(f"  {flt}: share of the squared jitter in the largest second differences: {tail}")
+        if b["jitter_ground"]:
+            print(
+                f"  {flt}: the same triplets over the ground (frames f-1, f+1 carried into f by "
+                "the camera motion the tracker was given; a parked car's labels then move by the "
+                "odometry's error and their own noise only)"
+            )
+            print(
+                "  | cars | triplets | tracks [m] | labels over the ground [m] | labels, camera "
+                "frame [m] |"
+            )
+            for name, n, tr, lab, cam in b["jitter_ground"]:
+                print(f"  | {name} | {n} | {tr:.3f} | {lab:.3f} | {cam:.3f} |")
 
 
 def print_covariance_check(datas: list[SequenceData]) -> None:
