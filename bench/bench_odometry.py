@@ -13,7 +13,9 @@ the synthetic sequence (100 frames, tiny detector), or reads the given recorded 
   % of the distance travelled, against ORB-SLAM3 as it is and rescaled to the labels; on the
   synthetic sequence against the renderer's exact ego motion;
 - the position std the odometry reports (nav_msgs/Odometry covariance) against its actual error;
-- each parked labelled car's spread in odom (its track's positions) against its length;
+- each parked labelled car's spread in odom (its track's positions) against its length, and the
+  track's second difference over the ground beside its labels' taken to odom by the odometry
+  (what of a parked car's jitter the odometry's error can explain);
 - offline, the same recorded camera motions integrated with every 3rd (and every 2nd) motion
   withheld, as when the odometry fails on a frame: the path error and the reported std.
 
@@ -120,17 +122,19 @@ def report(name: str, frames: list[oc.OdometryFrame], reference: list[Pose], lab
     if spreads:
         print(
             "| parked car (label id) | frames matched | track ids | spread in odom m | "
-            "spread x-y m | length m |"
+            "spread x-y m | length m | track's second difference x-y m | its labels' in odom "
+            "(the odometry's error + the labels' noise) m |"
         )
-        print("|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|")
         for c in spreads:
             if c["frames"]:
                 print(
                     f"| {c['label']} | {c['frames']} | {c['tracks']} | {c['spread_m']:.2f} | "
-                    f"{c['spread_xy_m']:.2f} | {c['length_m']:.2f} |"
+                    f"{c['spread_xy_m']:.2f} | {c['length_m']:.2f} | {c['jitter_xy_m']:.3f} | "
+                    f"{c['label_jitter_xy_m']:.3f} |"
                 )
             else:
-                print(f"| {c['label']} | 0 | - | - | - | {c['length_m']:.2f} |")
+                print(f"| {c['label']} | 0 | - | - | - | {c['length_m']:.2f} | - | - |")
     print("odometry failing on frames (offline, the recorded motions integrated again):")
     print(
         "| motions withheld | max error % (reference rescaled) | end error m | "

@@ -111,6 +111,22 @@ def test_odometry_check_on_a_known_drive():
     spreads = {c["label"]: c for c in parked_car_spreads(frames)}
     assert set(spreads) == {1, 2}
     assert spreads[1]["tracks"] == [7] and spreads[1]["spread_m"] == pytest.approx(0.5)
+    # the wobble's second difference is 1 m every frame; the labels, taken to odom by an exact
+    # odometry, stand still
+    assert spreads[1]["jitter_xy_m"] == pytest.approx(1.0)
+    assert spreads[1]["label_jitter_xy_m"] == pytest.approx(0.0, abs=1e-9)
+    # an odometry whose yaw swings back and forth by 0.2 deg moves car 1's labels (30 m away)
+    # back and forth by about 0.1 m (second difference about 0.2 m); its track stays as it was
+    shaken = []
+    for f in frames:
+        yaw = np.radians(0.2) * (f.frame % 2)
+        shake = Pose(rotation_from_vector([0.0, 0.0, yaw]), [0.0, 0.0, 0.0])
+        g = OdometryFrame(f.frame, f.stamp_ns, camera_pose=shake.compose(f.camera_pose))
+        g.labels, g.tracks_frame, g.tracks = f.labels, "odom", f.tracks
+        shaken.append(g)
+    moved = {c["label"]: c for c in parked_car_spreads(shaken)}[1]
+    assert 0.15 < moved["label_jitter_xy_m"] < 0.3
+    assert moved["jitter_xy_m"] == pytest.approx(1.0)
     assert spreads[2]["frames"] == 0
     frames[3].tracks_frame = "left_camera_optical_frame"
     with pytest.raises(ValueError, match="not 'odom'"):

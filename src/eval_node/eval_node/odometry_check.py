@@ -209,22 +209,28 @@ def parked_car_spreads(
     odom_frame: str = "odom",
 ) -> list[dict]:
     """Per parked labelled car (module docstring): its frames, the ids of the tracks matched to
-    it, their positions' spread in odom [m] and the car's labelled length [m]. The tracks must
-    have been published in odom (``tracks_frame``); frames without a camera pose are left out."""
-    seen: dict[int, list[np.ndarray]] = {}
+    it, their positions' spread in odom [m] and the car's labelled length [m], and how much the
+    track's position jumps from frame to frame over the ground: ``jitter_xy_m``, the RMS second
+    difference (x-y of odom, over three consecutive matched frames) of the track, beside
+    ``label_jitter_xy_m``, the same of the car's labels taken to odom by the odometry (a parked
+    car's labels move there by the odometry's error and their own noise only: what of the
+    track's jitter the odometry can explain); NaN with fewer than three consecutive frames. The
+    tracks must have been published in odom (``tracks_frame``); frames without a camera pose are
+    left out."""
+    seen: dict[int, dict[int, np.ndarray]] = {}
     length: dict[int, float] = {}
     for f in frames:
         if f.camera_pose is None:
             continue
         for i, _, centre, car_length in f.labels:
-            seen.setdefault(i, []).append(f.camera_pose.apply(centre))
+            seen.setdefault(i, {})[f.frame] = f.camera_pose.apply(centre)
             length[i] = car_length
     parked = {
-        i: np.mean(p, axis=0)
+        i: np.mean(list(p.values()), axis=0)
         for i, p in seen.items()
-        if len(p) >= 2 and np.ptp(np.array(p), axis=0).max() < parked_span
+        if len(p) >= 2 and np.ptp(np.array(list(p.values())), axis=0).max() < parked_span
     }
-    matched: dict[int, list[tuple[int, np.ndarray]]] = {i: [] for i in parked}
+    matched: dict[int, dict[int, tuple[int, np.ndarray]]] = {i: {} for i in parked}
     for f in frames:
         if f.camera_pose is None or not f.tracks:
             continue
@@ -238,22 +244,37 @@ def parked_car_spreads(
                 if state in OUTPUT_STATES and d <= match_distance and (best is None or d < best[0]):
                     best = (d, tid, p)
             if best is not None:
-                matched[i].append((best[1], best[2]))
+                matched[i][f.frame] = (best[1], best[2])
     out = []
     for i, hits in sorted(matched.items()):
         if not hits:
             out.append({"label": i, "frames": 0, "tracks": [], "length_m": length[i]})
             continue
-        pts = np.array([p for _, p in hits])
+        pts = np.array([p for _, p in hits.values()])
         spread = max(float(np.linalg.norm(a - b)) for a in pts for b in pts)
         out.append(
             {
                 "label": i,
                 "frames": len(hits),
-                "tracks": sorted({t for t, _ in hits}),
+                "tracks": sorted({t for t, _ in hits.values()}),
                 "spread_m": spread,
                 "spread_xy_m": max(float(np.linalg.norm((a - b)[:2])) for a in pts for b in pts),
                 "length_m": length[i],
+                "jitter_xy_m": _rms_second_difference({k: p for k, (_, p) in hits.items()}),
+                "label_jitter_xy_m": _rms_second_difference(
+                    {k: p for k, p in seen[i].items() if k in hits}
+                ),
             }
         )
     return out
+
+
+def _rms_second_difference(points: dict[int, np.ndarray]) -> float:
+    """RMS over frames k with k-1 and k+1 present of ``|p[k+1] - 2 p[k] + p[k-1]|`` in x-y
+    (the ground plane of odom, REP-103) [m]; NaN without such a frame."""
+    d2 = [
+        float(np.linalg.norm((points[k + 1] - 2.0 * p + points[k - 1])[:2]))
+        for k, p in points.items()
+        if k - 1 in points and k + 1 in points
+    ]
+    return float(np.sqrt(np.mean(np.square(d2)))) if d2 else float("nan")
