@@ -277,6 +277,12 @@ def camera_motions(poses, offset: np.ndarray) -> list:
     return out
 
 
+def kept_motion(motions: list, k: int, step: int):
+    """The camera's motion from kept frame ``k - step`` to frame ``k`` (every ``step``-th frame
+    kept; the per-frame ``motions`` composed over the frames dropped); None before the first."""
+    return compose_motions(motions[max(k - step + 1, 0) : k + 1])
+
+
 def compose_motions(motions: list):
     """The camera's motion over consecutive per-frame ``motions`` (earliest first; each
     ``X_k = M_k X_{k-1} + m_k`` over ``dt_k``): ``X_last = M X_first + m`` with ``M = M_n ..
@@ -717,7 +723,7 @@ def run_tracker(
         if k % step:  # dropped: the camera was faster than the graph
             continue
         # the camera's motion since the previous kept frame (unknown before the first)
-        motion = None if motions is None else compose_motions(motions[max(k - step + 1, 0) : k + 1])
+        motion = None if motions is None else kept_motion(motions, k, step)
         ts = trk.step(batch, k * FRAME_PERIOD, motion)
         # tracks keep the tracker's own score (PointRCNN's are logits) for the AP ranking, which
         # takes tentative tracks too (at their lowered score, as `evaluate` does); CLEAR-MOT
@@ -878,7 +884,9 @@ def evaluate_split(
             if st is not None:
                 st.lost += sequence_lost_cars(data, ranked, out, cfg.birth_score)
                 st.false += false_tracks(data.name, gts[data.name], out)
-                motions = data.motions if use_camera_motion else None
+                # a sequence without poses: its triplets over the ground are NaN, so that
+                # st.jitter_ground stays row for row with st.jitter_rows
+                motions = (data.motions or []) if use_camera_motion else None
                 _add_jitter(st, gts[data.name], out, data.keep_every, data, motions)
         times[flt] = time.perf_counter() - t0
         if st is not None:
@@ -912,10 +920,8 @@ def _add_jitter(
         gt = {k // keep_every: v for k, v in gt.items() if k % keep_every == 0}
         out = {k // keep_every: v for k, v in out.items() if k % keep_every == 0}
         if motions is not None:  # the motion between kept frames j-1 and j
-            motions = [None] + [
-                compose_motions(motions[(j - 1) * keep_every + 1 : j * keep_every + 1])
-                for j in range(1, (len(motions) - 1) // keep_every + 1)
-            ]
+            kept = range(0, len(motions), keep_every)
+            motions = [kept_motion(motions, k, keep_every) for k in kept]
     triplets = matched_jitter_triplets(gt, out)  # the tracks matched once, for both uses
     j = jitter_of_triplets(triplets)
     if j["n"]:
@@ -961,12 +967,13 @@ def ground_second_differences(gt, out, triplets, motions) -> list[tuple[float, f
         if ma is None or mb is None:
             res.append((math.nan, math.nan))
             continue
+        Ra, ta = np.asarray(ma.rotation, float), np.asarray(ma.translation, float)
+        Rb, tb = np.asarray(mb.rotation, float), np.asarray(mb.translation, float)
         row = []
         for pos, i in ((tracks, tid), (cars, gid)):
             a, b, c = pos[(f - 1, i)], pos[(f, i)], pos[(f + 1, i)]
-            ahead = np.asarray(mb.rotation, float).T @ (c - np.asarray(mb.translation, float))
-            behind = np.asarray(ma.rotation, float) @ a + np.asarray(ma.translation, float)
-            row.append(float(np.linalg.norm((ahead - 2.0 * b + behind)[[0, 2]])))
+            d2 = Rb.T @ (c - tb) - 2.0 * b + (Ra @ a + ta)  # f-1 and f+1 in frame f's axes
+            row.append(float(np.linalg.norm(d2[[0, 2]])))
         res.append(tuple(row))
     return res
 
