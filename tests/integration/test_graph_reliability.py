@@ -279,7 +279,11 @@ def test_two_graphs_on_one_domain_without_namespaces_are_caught(kitti_tracking_r
         assert "another graph publishes on this ROS domain" in outs[name]
     # every bag is refused: it mixes both runs, or (a player stopped before its own graph's
     # first frame was recorded, as the other graph's answers came in first) it holds no frame
-    # or was never opened; at least one holds both runs and is named for it
+    # or was never opened; at least one holds both runs and is named for it. One outcome is
+    # not caught (once in four fresh-clone CI runs on 2026-11-30): a player that died before it
+    # published anything leaves a bag of the other graph's frames only, in which no stamp came
+    # twice; `evaluate bag` then scores those frames (docs/RELIABILITY.md, its row "two graphs
+    # on one ROS domain"). That run's launcher failed, naming the cause (above).
     unrecorded = ("no frames", "bag not found", "not a rosbag2 directory")
     mixed = 0
     for name in procs:
@@ -290,6 +294,11 @@ def test_two_graphs_on_one_domain_without_namespaces_are_caught(kitti_tracking_r
             text=True,
             timeout=120,
         )
+        logs = list((tmp_path / name / "output" / "logs").glob("*/kitti_player.log"))
+        published_none = any("frames in 0, out 0" in log.read_text() for log in logs)
+        if result.returncode == 0 and published_none:
+            assert name in failed, outs[name]
+            continue
         assert result.returncode == 2, (name, result.stdout, result.stderr, outs)
         this = f"error: {bag}: mixes more than one run" in result.stderr
         assert this or any(f"error: {bag}: {u}" in result.stderr for u in unrecorded), (
