@@ -13,7 +13,6 @@ the node's namespace and recorded under their resolved names (``/rig2/vehicles/t
 from __future__ import annotations
 
 import importlib
-import signal
 import sys
 import time
 from datetime import datetime
@@ -36,7 +35,12 @@ from vehicle_common.node_parameters import (
     declare_config,
     parameter_error_line,
 )
-from vehicle_common.node_runtime import apply_process_settings, init_rclpy, make_executor
+from vehicle_common.node_runtime import (
+    StopRequest,
+    apply_process_settings,
+    init_rclpy,
+    make_executor,
+)
 
 from eval_node.parameters import RecorderParameters
 from vehicle_common import topics as graph_topics
@@ -229,6 +233,12 @@ def main(args: list[str] | None = None) -> int:
     """Run the recorder until SIGINT/SIGTERM; exit code 2 for a bad parameter or output."""
     if not init_rclpy(args, NODE_NAME):
         return EXIT_BAD_PARAMETER
+    # armed from the start: a signal while the recorder subscribes (its first discovery imports
+    # every topic's type support, seconds on a cold disk) lets it finish, then what its
+    # subscriptions already hold is drained into the bag (before: KeyboardInterrupt, a
+    # traceback and those messages lost)
+    stop = StopRequest.install()
+    stop.arm()
     try:
         node = BagRecorderNode()
     except ParameterError as exc:
@@ -240,19 +250,12 @@ def main(args: list[str] | None = None) -> int:
         rclpy.try_shutdown()
         return 2
 
-    stop = []
-
-    def on_signal(signum, _frame) -> None:
-        stop.append(signum)
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
     # the node's ``executor`` parameter (EventsExecutor by default: its per-message cost is in
     # C++, ARCHITECTURE.md "CPU per frame")
     executor = make_executor(node.executor_kind, node.context)
     executor.add_node(node)
     try:
-        while not stop and node.write_error() is None:
+        while stop.requested is None and node.write_error() is None:
             executor.spin_once(timeout_sec=0.1)
         # Drain: take what is still queued in the subscriptions before closing.
         idle_since = time.monotonic()
