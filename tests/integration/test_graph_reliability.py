@@ -299,6 +299,11 @@ def test_two_graphs_on_one_domain_without_namespaces_are_caught(kitti_tracking_r
         if result.returncode == 0 and published_none:
             assert name in failed, outs[name]
             continue
+        if result.returncode == 0 and procs[name].returncode == 0:
+            # the other graph died on its first answer before a stamp reached this recorder
+            # twice, and this graph then ran alone to the end (a fresh-clone CI run): a clean
+            # run, which evaluate scores; the other's bag must then be the mixed one (below)
+            continue
         assert result.returncode == 2, (name, result.stdout, result.stderr, outs)
         this = f"error: {bag}: mixes more than one run" in result.stderr
         assert this or any(f"error: {bag}: {u}" in result.stderr for u in unrecorded), (
